@@ -1,0 +1,296 @@
+"""The light-field microscope's optics as one typed, validated object.
+
+:class:`Optics` is the single description of the optical train shared by the simulator
+(:mod:`lfsim`) and the reconstruction (:mod:`recon`): it is written into and read back from
+the Mitsuba scene files in ``scenes/`` (:mod:`lfsim.scene`), so both use exactly the same
+numbers.
+
+Model (paper §2.2, Table 1; DESIGN.md §3). An infinity-corrected objective of focal length
+``f_objective_um`` and a tube lens ``f_tube_um`` form a 4f system of lateral magnification
+``M = f_tube / f_objective``; the aperture stop sits in the shared focal plane, so the system is
+telecentric on both sides and the stop radius ``f_objective · tan(asin NA)`` fixes the
+object-side numerical aperture. A square microlens array of pitch ``mla_pitch_um`` and focal
+length ``mla_focal_um`` sits in the native image plane; the sensor lies one lenslet focal length
+behind it (a relay lens between array and camera is folded into ``pixel_um``, the pixel size
+referred to that plane). The image through the 4f system is inverted; the sensor's pixel grid
+is read out so that object +x runs along increasing columns and +y along increasing rows.
+
+All lengths are micrometres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+
+from .errors import ConfigError
+
+MLA_KINDS = ("ideal", "glass")
+
+
+def _positive(name: str, value: float) -> None:
+    if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+        raise ConfigError(f"{name} must be a positive finite number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Optical parameters of a light-field microscope (all lengths in µm).
+
+    Parameters
+    ----------
+    na : float
+        Object-side numerical aperture of the objective (0 < NA < 1).
+    f_objective_um, f_tube_um : float
+        Focal lengths of the objective and the tube lens; ``M = f_tube_um / f_objective_um``.
+    mla_pitch_um, mla_focal_um : float
+        Lenslet pitch and focal length of the square microlens array.
+    pixel_um : float
+        Sensor pixel size referred to the lenslets' back focal plane.
+    sensor_px : tuple of int
+        Sensor size ``(width, height)`` in pixels.
+    wavelength_um : float
+        Emission wavelength (used by the diffraction blur).
+    mla_kind : {"ideal", "glass"}
+        Paraxial lenslet plane (paper Eq. 7) or a glass mesh of spherical-cap lenslets.
+    mla_ior : float
+        Refractive index of the glass array (``mla_kind="glass"``).
+    mla_thickness_um : float
+        Glass array thickness from the lenslet vertices to the flat back.
+    medium_ior : float
+        Refractive index of the specimen medium. Only 1.0 (the paper's paraxial model, which
+        ignores the focal shift of a water/gel immersion) is supported today.
+    axis_px : tuple of float, optional
+        Sensor position ``(column, row)`` of the optical axis in continuous pixel coordinates
+        (pixel ``i`` spans ``[i, i + 1)``). Default: the centre of the lenslet nearest to the
+        sensor centre, so that lenslet borders fall on pixel borders when the pitch is an
+        integer number of pixels.
+    """
+
+    na: float = 0.2
+    f_objective_um: float = 50_000.0
+    f_tube_um: float = 200_000.0
+    mla_pitch_um: float = 100.0
+    mla_focal_um: float = 1000.0
+    pixel_um: float = 100.0 / 15.0
+    sensor_px: tuple[int, int] = (1280, 800)
+    wavelength_um: float = 0.605
+    mla_kind: str = "ideal"
+    mla_ior: float = 1.5
+    mla_thickness_um: float = 300.0
+    medium_ior: float = 1.0
+    axis_px: tuple[float, float] | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.na, int | float) or not (0 < self.na < 1):
+            raise ConfigError(f"na must lie in (0, 1), got {self.na!r}")
+        for name in (
+            "f_objective_um",
+            "f_tube_um",
+            "mla_pitch_um",
+            "mla_focal_um",
+            "pixel_um",
+            "wavelength_um",
+            "mla_thickness_um",
+        ):
+            _positive(name, getattr(self, name))
+        if self.mla_kind not in MLA_KINDS:
+            raise ConfigError(f"mla_kind must be one of {MLA_KINDS}, got {self.mla_kind!r}")
+        if not (1.0 < self.mla_ior < 4.0):
+            raise ConfigError(f"mla_ior must lie in (1, 4), got {self.mla_ior!r}")
+        if self.medium_ior != 1.0:
+            raise ConfigError("medium_ior other than 1.0 is not supported yet")
+        sp = tuple(self.sensor_px)
+        if len(sp) != 2 or any(int(v) != v or v < 1 for v in sp):
+            raise ConfigError(f"sensor_px must be two positive integers, got {self.sensor_px!r}")
+        object.__setattr__(self, "sensor_px", (int(sp[0]), int(sp[1])))
+        if self.px_per_lenslet < 3:
+            raise ConfigError(
+                f"mla_pitch_um / pixel_um = {self.px_per_lenslet:.3g}: fewer than 3 pixels per "
+                "lenslet cannot record a light field"
+            )
+        if self.mla_kind == "glass":
+            r = self.lenslet_radius_of_curvature_um
+            half_diag = self.mla_pitch_um / math.sqrt(2.0)
+            if half_diag >= r:
+                raise ConfigError(
+                    f"glass lenslets of pitch {self.mla_pitch_um} µm and focal length "
+                    f"{self.mla_focal_um} µm (radius {r:.4g} µm) cannot be spherical caps"
+                )
+            if self.mla_thickness_um <= self.lenslet_sag_um:
+                raise ConfigError(
+                    f"mla_thickness_um={self.mla_thickness_um} must exceed the lenslet sag "
+                    f"{self.lenslet_sag_um:.3g} µm"
+                )
+        if self.axis_px is None:
+            w, h = self.sensor_px
+            p = self.px_per_lenslet
+            axis = (
+                math.floor(w / p / 2) * p + p / 2,
+                math.floor(h / p / 2) * p + p / 2,
+            )
+            object.__setattr__(self, "axis_px", axis)
+        else:
+            ax = tuple(float(v) for v in self.axis_px)
+            if len(ax) != 2 or not all(math.isfinite(v) for v in ax):
+                raise ConfigError(f"axis_px must be two finite numbers, got {self.axis_px!r}")
+            object.__setattr__(self, "axis_px", ax)
+
+    # -- derived quantities -------------------------------------------------------------
+    @property
+    def magnification(self) -> float:
+        """Lateral magnification ``M`` of objective + tube lens."""
+        return self.f_tube_um / self.f_objective_um
+
+    @property
+    def theta_max(self) -> float:
+        """Half-angle (rad) of the acceptance cone in object space, ``asin(NA)``."""
+        return math.asin(self.na)
+
+    @property
+    def stop_radius_um(self) -> float:
+        """Aperture-stop radius in the objective's back focal plane, ``f_obj · tan θmax``."""
+        return self.f_objective_um * math.tan(self.theta_max)
+
+    @property
+    def cone_fraction(self) -> float:
+        """Fraction of isotropic emission inside the acceptance cone, ``(1 − cos θmax)/2``."""
+        return 0.5 * (1.0 - math.cos(self.theta_max))
+
+    @property
+    def image_na(self) -> float:
+        """Image-side numerical aperture at the microlens array, ``sin(atan(r_stop/f_tube))``."""
+        return math.sin(math.atan(self.stop_radius_um / self.f_tube_um))
+
+    @property
+    def lenslet_na(self) -> float:
+        """Numerical aperture of one lenslet, ``sin(atan(p / 2 f_l))``."""
+        return math.sin(math.atan(self.mla_pitch_um / (2.0 * self.mla_focal_um)))
+
+    @property
+    def px_per_lenslet(self) -> float:
+        """Lenslet pitch in sensor pixels (15 for the paper's optics)."""
+        return self.mla_pitch_um / self.pixel_um
+
+    @property
+    def object_pixel_um(self) -> float:
+        """Sensor pixel size referred to object space, ``pixel_um / M`` (≈ 1.67 µm)."""
+        return self.pixel_um / self.magnification
+
+    @property
+    def lenslet_object_um(self) -> float:
+        """Lenslet pitch referred to object space, ``p / M`` (25 µm)."""
+        return self.mla_pitch_um / self.magnification
+
+    @property
+    def sensor_um(self) -> tuple[float, float]:
+        """Sensor extent ``(width, height)`` in the sensor plane."""
+        return (self.sensor_px[0] * self.pixel_um, self.sensor_px[1] * self.pixel_um)
+
+    @property
+    def field_of_view_um(self) -> tuple[float, float, float, float]:
+        """Object-space field of view ``(x_min, x_max, y_min, y_max)`` seen by the sensor."""
+        w, h = self.sensor_px
+        cx, cy = self.axis_px
+        s = self.object_pixel_um
+        return ((0 - cx) * s, (w - cx) * s, (0 - cy) * s, (h - cy) * s)
+
+    @property
+    def lenslet_radius_of_curvature_um(self) -> float:
+        """Radius of a plano-convex glass lenslet, ``f_l (n − 1)``."""
+        return self.mla_focal_um * (self.mla_ior - 1.0)
+
+    @property
+    def lenslet_sag_um(self) -> float:
+        """Sag of a glass lenslet at the corner of its square aperture."""
+        r = self.lenslet_radius_of_curvature_um
+        c = self.mla_pitch_um / math.sqrt(2.0)
+        return r - math.sqrt(max(r * r - c * c, 0.0))
+
+    @property
+    def sensor_distance_um(self) -> float:
+        """Distance from the lenslet vertex plane to the sensor.
+
+        ``f_l`` for ideal lenslets. For a plano-convex glass array with its curved side facing
+        the objective, the front principal plane lies at the vertices and the rear one
+        ``t/n`` in front of the flat back, so the sensor sits at ``t (1 − 1/n) + f_l``.
+        """
+        if self.mla_kind == "ideal":
+            return self.mla_focal_um
+        t, n = self.mla_thickness_um, self.mla_ior
+        return t * (1.0 - 1.0 / n) + self.mla_focal_um
+
+    @property
+    def sigma_mla_um(self) -> float:
+        """Diffraction blur (Gaussian σ) of ray positions at the microlens array.
+
+        Gaussian approximation of the objective's Airy spot in the native image plane,
+        ``σ = 0.21 λ / NA_image`` (Zhang, Zerubia & Olivo-Marin, Appl. Opt. 46, 2007,
+        paraxial wide-field case), with ``NA_image = NA / M``.
+        """
+        return 0.21 * self.wavelength_um / self.image_na
+
+    @property
+    def sigma_sensor_um(self) -> float:
+        """Diffraction blur (Gaussian σ) of ray positions at the sensor.
+
+        The same approximation applied to one lenslet's aperture, ``σ = 0.21 λ / NA_lenslet``.
+        """
+        return 0.21 * self.wavelength_um / self.lenslet_na
+
+    @property
+    def n_lenslets(self) -> tuple[int, int]:
+        """Number of whole or partial lenslets across the sensor ``(nx, ny)``."""
+        w, h = self.sensor_px
+        p = self.px_per_lenslet
+        cx, cy = self.axis_px
+        nx = math.floor((w - cx) / p + 0.5) + math.floor(cx / p + 0.5) + 1
+        ny = math.floor((h - cy) / p + 0.5) + math.floor(cy / p + 0.5) + 1
+        return nx, ny
+
+    # -- coordinate maps ------------------------------------------------------------------
+    def spot_spacing_px(self, z_um: float) -> float:
+        """Predicted spacing of the spot grid made by a point at depth ``z_um``.
+
+        A point at depth z images ``M² |z|`` from the array; each lenslet projects it onto the
+        sensor, so spots repeat every ``p (1 ± f_l / (M² |z|))`` — the sign depends on the side
+        of focus (``+`` for z > 0 with this project's axes, where the image forms in front of
+        the array).
+        """
+        if z_um == 0:
+            raise ConfigError("the spot spacing is undefined on the native object plane")
+        d = self.magnification**2 * z_um
+        return self.px_per_lenslet * (1.0 + self.mla_focal_um / d)
+
+    def to_dict(self) -> dict:
+        """Plain-JSON representation (all fields, lengths in µm)."""
+        d = asdict(self)
+        d["sensor_px"] = list(self.sensor_px)
+        d["axis_px"] = list(self.axis_px)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Optics:
+        """Inverse of :meth:`to_dict`; unknown keys are an error naming them."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown optics keys {unknown}; expected some of {sorted(known)}")
+        kw = dict(data)
+        for key in ("sensor_px", "axis_px"):
+            if key in kw and kw[key] is not None:
+                kw[key] = tuple(kw[key])
+        return cls(**kw)
+
+
+def paper_optics(**overrides) -> Optics:
+    """The paper's optics (Table 1): 4×/0.2 NA, 100 µm / f 1000 µm lenslets, 1280 × 800 px,
+    15 px per lenslet, 605 nm emission."""
+    return Optics(**overrides)
+
+
+def small_optics(**overrides) -> Optics:
+    """Paper optics on a 20 × 20-lenslet sensor (300 × 300 px) for fast tests."""
+    kw = {"sensor_px": (300, 300)}
+    kw.update(overrides)
+    return Optics(**kw)
