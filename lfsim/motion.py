@@ -1,0 +1,624 @@
+"""Prescribed particle motions: reference positions X → current positions x at frame k.
+
+Every motion maps reference positions ``X`` (shape (N, 3), µm, object-space frame of
+DESIGN.md §2) and a frame index ``k`` to current positions ``x`` (N, 3). The homogeneous
+motions follow
+
+    x = c + F(k) (X − c) + t(k),        u = x − X,
+
+with deformation gradient ``F`` (reference configuration, ``F = I + ∇u``), centre ``c``
+(``center_um``) and translation ``t``. Frame 0 is normally the reference configuration.
+
+Schedules. Each homogeneous motion has one scalar (a 3-vector for :class:`Translation`)
+*amplitude* per frame, ``amplitude(k) = k · step`` by default. Passing ``values=[a0, a1, ...]``
+instead gives an explicit per-frame amplitude ``amplitude(k) = values[k]`` (for example the
+lagging, overshooting shear ramp of the paper's Fig. 7); a frame outside ``0 .. len(values)-1``
+is then an error. What the amplitude means:
+
+=====================  ===============  =====================================================
+motion                 amplitude        deformation
+=====================  ===============  =====================================================
+``Translation``        ``t`` (µm, 3)    ``F = I``, ``x = X + t``
+``Rotation``           angle (deg)      right-handed about ``axis`` through ``center_um``
+``UniaxialTension``    ``λ − 1``        stretch ``λ`` along ``axis``, ``1/√λ`` across (det F = 1)
+``SimpleShear``        ``γ``            plane ``"ab"``: ``x_a = X_a + γ (X_b − c_b)``
+=====================  ===============  =====================================================
+
+:class:`UserField` wraps an arbitrary displacement function ``f(X_um, frame, **params)``.
+:func:`motion_from_dict` builds any of them from an experiment file's table.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import logging
+import math
+import numbers
+import os
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .errors import ConfigError, LfsimError
+
+log = logging.getLogger(__name__)
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+# -- helpers ----------------------------------------------------------------------------------
+def _vec3(name: str, value) -> tuple[float, float, float]:
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{name} must be three numbers (x, y, z), got {value!r}") from exc
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ConfigError(f"{name} must be three finite numbers (x, y, z), got {value!r}")
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def _check_points(X) -> np.ndarray:
+    try:
+        a = np.asarray(X, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(
+            f"reference positions X_um must be a numeric (N, 3) array: {exc}"
+        ) from exc
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ConfigError(f"reference positions X_um must have shape (N, 3), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ConfigError("reference positions X_um must be finite")
+    return a
+
+
+def _check_frame(frame) -> float | int:
+    if isinstance(frame, bool) or not isinstance(frame, numbers.Real):
+        raise ConfigError(f"frame must be a number, got {frame!r}")
+    if not math.isfinite(frame):
+        raise ConfigError(f"frame must be finite, got {frame!r}")
+    return frame
+
+
+def _cos_sin_deg(angle_deg: float) -> tuple[float, float]:
+    """cos and sin of an angle in degrees, exact at multiples of 90°."""
+    r = math.fmod(angle_deg, 360.0)
+    if r % 90.0 == 0.0:
+        return ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))[int(r // 90.0) % 4]
+    a = math.radians(angle_deg)
+    return math.cos(a), math.sin(a)
+
+
+def rotation_matrix(axis, angle_deg: float) -> np.ndarray:
+    """Right-handed rotation by ``angle_deg`` about ``axis`` (Rodrigues' formula).
+
+    Parameters
+    ----------
+    axis : array_like, shape (3,)
+        Rotation axis (any non-zero length).
+    angle_deg : float
+        Angle in degrees; positive is counter-clockwise looking down the axis towards the
+        origin (e.g. +90° about z maps x̂ to ŷ).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``R = I + sin θ K + (1 − cos θ) K²`` with ``K`` the cross-product matrix of the unit
+        axis.
+    """
+    k = np.asarray(_vec3("axis", axis))
+    norm = float(np.linalg.norm(k))
+    if norm == 0.0:
+        raise ConfigError("axis must be a non-zero vector")
+    k = k / norm
+    c, s = _cos_sin_deg(float(angle_deg))
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
+# -- base classes -----------------------------------------------------------------------------
+class Motion:
+    """A prescribed motion: reference positions ``X`` (N, 3) µm and a frame → positions."""
+
+    type_name: ClassVar[str] = ""
+    homogeneous: ClassVar[bool] = False
+
+    def displacement(self, X_um, frame) -> np.ndarray:
+        """Displacement ``u = x − X`` at a frame.
+
+        Parameters
+        ----------
+        X_um : array_like, shape (N, 3)
+            Reference positions in µm.
+        frame : int
+            Frame index (0 = reference).
+
+        Returns
+        -------
+        numpy.ndarray, shape (N, 3)
+            Displacements in µm.
+        """
+        X = _check_points(X_um)
+        return self.positions(X, frame) - X
+
+    def positions(self, X_um, frame) -> np.ndarray:  # pragma: no cover - abstract
+        """Current positions ``x`` (N, 3) µm of reference positions ``X_um`` at a frame."""
+        raise NotImplementedError
+
+    def __call__(self, X_um, frame) -> np.ndarray:
+        """Same as :meth:`positions`."""
+        return self.positions(X_um, frame)
+
+    def deformation_gradient(self, frame) -> np.ndarray:  # pragma: no cover - abstract
+        """Deformation gradient ``F`` (3, 3) at a frame (homogeneous motions only)."""
+        raise NotImplementedError
+
+    def to_dict(self) -> dict:
+        """Plain-JSON representation, the inverse of :func:`motion_from_dict`."""
+        out: dict[str, Any] = {"type": self.type_name}
+        for f in fields(self):  # type: ignore[arg-type]
+            v = getattr(self, f.name)
+            if v is None:
+                continue
+            if isinstance(v, tuple):
+                v = [list(e) if isinstance(e, tuple) else e for e in v]
+            elif isinstance(v, Mapping):
+                v = dict(v)
+            out[f.name] = v
+        return out
+
+
+@dataclass(frozen=True)
+class _Homogeneous(Motion):
+    """Homogeneous motion ``x = c + F (X − c) + t`` with a per-frame amplitude.
+
+    Subclasses name their step field in ``_step_name``; exactly one of it and ``values`` must
+    be given.
+    """
+
+    values: tuple | None = field(default=None, kw_only=True)
+
+    homogeneous: ClassVar[bool] = True
+    _step_name: ClassVar[str] = ""
+    _vector_amplitude: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        step = getattr(self, self._step_name)
+        if (step is None) == (self.values is None):
+            raise ConfigError(
+                f"{self.type_name} needs exactly one of '{self._step_name}' (amplitude per frame) "
+                "and 'values' (explicit amplitude of every frame)"
+            )
+        if step is not None:
+            object.__setattr__(self, self._step_name, self._amplitude_value(self._step_name, step))
+        else:
+            vals = self.values
+            if isinstance(vals, str | bytes) or not hasattr(vals, "__len__") or len(vals) == 0:
+                raise ConfigError(
+                    f"{self.type_name} 'values' must be a non-empty list of per-frame amplitudes, "
+                    f"got {vals!r}"
+                )
+            checked = tuple(
+                self._amplitude_value(f"values[{i}]", v) for i, v in enumerate(list(vals))
+            )
+            object.__setattr__(self, "values", checked)
+
+    def _amplitude_value(self, name: str, v):
+        if self._vector_amplitude:
+            return _vec3(f"{self.type_name} {name}", v)
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+            raise ConfigError(f"{self.type_name} {name} must be a finite number, got {v!r}")
+        return float(v)
+
+    @property
+    def n_frames(self) -> int | None:
+        """Number of frames of an explicit schedule (``None`` for a linear one)."""
+        return None if self.values is None else len(self.values)
+
+    def amplitude(self, frame):
+        """Amplitude at a frame: ``frame · step``, or ``values[frame]`` for a schedule.
+
+        Parameters
+        ----------
+        frame : int (or float for a linear schedule)
+            Frame index.
+
+        Returns
+        -------
+        float, or numpy.ndarray of shape (3,) for :class:`Translation`
+        """
+        frame = _check_frame(frame)
+        if self.values is None:
+            step = getattr(self, self._step_name)
+            return frame * np.asarray(step) if self._vector_amplitude else frame * step
+        if frame != int(frame) or not (0 <= frame < len(self.values)):
+            raise ConfigError(
+                f"{self.type_name}: frame {frame!r} is outside its 'values' schedule of "
+                f"{len(self.values)} frames (0 .. {len(self.values) - 1})"
+            )
+        a = self.values[int(frame)]
+        return np.asarray(a) if self._vector_amplitude else a
+
+    @property
+    def center(self) -> np.ndarray:
+        """Centre ``c`` (3,) µm of the deformation."""
+        return np.asarray(getattr(self, "center_um", (0.0, 0.0, 0.0)), dtype=np.float64)
+
+    def translation(self, frame) -> np.ndarray:
+        """Rigid translation ``t`` (3,) µm at a frame (zero except for :class:`Translation`)."""
+        _check_frame(frame)
+        return np.zeros(3)
+
+    def positions(self, X_um, frame) -> np.ndarray:
+        """Current positions ``x = c + F(k) (X − c) + t(k)``.
+
+        Parameters
+        ----------
+        X_um : array_like, shape (N, 3)
+            Reference positions in µm.
+        frame : int
+            Frame index.
+
+        Returns
+        -------
+        numpy.ndarray, shape (N, 3)
+            Current positions in µm.
+        """
+        X = _check_points(X_um)
+        F = self.deformation_gradient(frame)
+        c = self.center
+        return c + (X - c) @ F.T + self.translation(frame)
+
+
+# -- homogeneous motions --------------------------------------------------------------------
+@dataclass(frozen=True)
+class Translation(_Homogeneous):
+    """Rigid translation ``x = X + t``, ``t(k) = k · step_um`` (or ``values[k]``).
+
+    Parameters
+    ----------
+    step_um : array_like, shape (3,)
+        Translation per frame ``(dx, dy, dz)`` in µm.
+    values : sequence of shape (K, 3), optional, keyword-only
+        Explicit translation of every frame in µm, instead of ``step_um``.
+    """
+
+    step_um: tuple[float, float, float] | None = None
+
+    type_name: ClassVar[str] = "translation"
+    _step_name: ClassVar[str] = "step_um"
+    _vector_amplitude: ClassVar[bool] = True
+
+    def deformation_gradient(self, frame) -> np.ndarray:
+        """``F = I`` (3, 3)."""
+        _check_frame(frame)
+        return np.eye(3)
+
+    def translation(self, frame) -> np.ndarray:
+        """``t(k)`` (3,) µm."""
+        return np.array(self.amplitude(frame), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Rotation(_Homogeneous):
+    """Rigid rotation by ``k · step_deg`` (right-handed) about ``axis`` through ``center_um``.
+
+    Parameters
+    ----------
+    axis : array_like, shape (3,)
+        Rotation axis (normalised internally). Default z.
+    step_deg : float
+        Rotation per frame in degrees.
+    center_um : array_like, shape (3,)
+        A point on the axis, µm.
+    values : sequence of float, optional, keyword-only
+        Explicit angle of every frame in degrees, instead of ``step_deg``.
+    """
+
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    step_deg: float | None = None
+    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    type_name: ClassVar[str] = "rotation"
+    _step_name: ClassVar[str] = "step_deg"
+
+    def __post_init__(self) -> None:
+        axis = _vec3("rotation axis", self.axis)
+        if axis == (0.0, 0.0, 0.0):
+            raise ConfigError("rotation axis must be a non-zero vector")
+        object.__setattr__(self, "axis", axis)
+        object.__setattr__(self, "center_um", _vec3("rotation center_um", self.center_um))
+        super().__post_init__()
+
+    def deformation_gradient(self, frame) -> np.ndarray:
+        """Rotation matrix ``R(k)`` (3, 3), det 1."""
+        return rotation_matrix(self.axis, self.amplitude(frame))
+
+
+@dataclass(frozen=True)
+class UniaxialTension(_Homogeneous):
+    """Isochoric uniaxial tension: stretch ``λ = 1 + k · step_stretch`` along ``axis``.
+
+    ``F = diag`` with ``λ`` on ``axis`` and ``1/√λ`` on the two other axes, so ``det F = 1``
+    (the paper's volume-conserving tension, Fig. 6a). The amplitude is the engineering strain
+    ``λ − 1`` along the axis; it must stay > −1.
+
+    Parameters
+    ----------
+    axis : {"x", "y", "z"}
+        Tension axis.
+    step_stretch : float
+        Engineering strain added per frame (0.05 for 5 % steps).
+    center_um : array_like, shape (3,)
+        Fixed point of the deformation, µm.
+    values : sequence of float, optional, keyword-only
+        Explicit engineering strain ``λ − 1`` of every frame, instead of ``step_stretch``.
+    """
+
+    axis: str = "x"
+    step_stretch: float | None = None
+    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    type_name: ClassVar[str] = "uniaxial_tension"
+    _step_name: ClassVar[str] = "step_stretch"
+
+    def __post_init__(self) -> None:
+        if self.axis not in _AXES:
+            raise ConfigError(f"uniaxial_tension axis must be 'x', 'y' or 'z', got {self.axis!r}")
+        object.__setattr__(self, "center_um", _vec3("uniaxial_tension center_um", self.center_um))
+        super().__post_init__()
+
+    def stretch(self, frame) -> float:
+        """Stretch ``λ = 1 + amplitude(frame)`` along the axis."""
+        lam = 1.0 + self.amplitude(frame)
+        if not lam > 0:
+            raise ConfigError(
+                f"uniaxial_tension: frame {frame!r} gives stretch {lam!r}; it must be > 0"
+            )
+        return lam
+
+    def deformation_gradient(self, frame) -> np.ndarray:
+        """``F`` (3, 3): ``λ`` on the axis, ``1/√λ`` on the others."""
+        lam = self.stretch(frame)
+        d = np.full(3, 1.0 / math.sqrt(lam))
+        d[_AXES[self.axis]] = lam
+        return np.diag(d)
+
+
+@dataclass(frozen=True)
+class SimpleShear(_Homogeneous):
+    """Simple shear with amount ``γ = k · step_gamma`` in the plane ``"ab"``.
+
+    Convention: the first letter ``a`` of ``plane`` is the **displacement direction**, the
+    second ``b`` the **gradient direction** (normal of the sheared faces):
+
+        x_a = X_a + γ (X_b − c_b),     F = I + γ ê_a ê_bᵀ,     γ = 2 e_ab (engineering shear).
+
+    The default ``"xz"`` gives ``u_x = γ (Z − c_z)``: planes of constant z slide along x, as in
+    the paper's synthetic simple shear ("applied to the z-face in the x-direction", Fig. 6c)
+    and shear impact device (Fig. 7), where the paper calls it ε_zx. Note that the paper's
+    subscript order is the reverse of ``plane``'s: the paper's zx shear is ``plane="xz"``.
+
+    Parameters
+    ----------
+    plane : str
+        Two different letters of x, y, z: displacement direction then gradient direction.
+    step_gamma : float
+        Engineering shear strain added per frame (0.025 for 2.5 % steps).
+    center_um : array_like, shape (3,)
+        Point with zero displacement, µm (only its b component matters).
+    values : sequence of float, optional, keyword-only
+        Explicit ``γ`` of every frame, instead of ``step_gamma``.
+    """
+
+    plane: str = "xz"
+    step_gamma: float | None = None
+    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    type_name: ClassVar[str] = "simple_shear"
+    _step_name: ClassVar[str] = "step_gamma"
+
+    def __post_init__(self) -> None:
+        p = self.plane
+        if not isinstance(p, str) or len(p) != 2 or p[0] not in _AXES or p[1] not in _AXES:
+            raise ConfigError(
+                f"simple_shear plane must be two of 'x', 'y', 'z' (displacement direction then "
+                f"gradient direction, e.g. 'xz' for u_x = γ (Z − c_z)), got {p!r}"
+            )
+        if p[0] == p[1]:
+            raise ConfigError(f"simple_shear plane needs two different axes, got {p!r}")
+        object.__setattr__(self, "center_um", _vec3("simple_shear center_um", self.center_um))
+        super().__post_init__()
+
+    def deformation_gradient(self, frame) -> np.ndarray:
+        """``F = I + γ ê_a ê_bᵀ`` (3, 3)."""
+        F = np.eye(3)
+        F[_AXES[self.plane[0]], _AXES[self.plane[1]]] = self.amplitude(frame)
+        return F
+
+
+# -- user-defined fields ----------------------------------------------------------------------
+def _split_spec(spec: str) -> tuple[str, str]:
+    if not isinstance(spec, str) or ":" not in spec:
+        raise ConfigError(
+            f"user_field function must be 'module:function' or 'path/to/file.py:function', "
+            f"got {spec!r}"
+        )
+    module, _, name = spec.rpartition(":")
+    if not module or not name.isidentifier():
+        raise ConfigError(
+            f"user_field function must be 'module:function' or 'path/to/file.py:function', "
+            f"got {spec!r}"
+        )
+    return module, name
+
+
+def _is_path(module: str) -> bool:
+    return module.endswith(".py") or "/" in module or os.sep in module
+
+
+def _load_function(spec: str) -> Callable:
+    module, name = _split_spec(spec)
+    if _is_path(module):
+        path = Path(module)
+        if not path.is_file():
+            raise ConfigError(f"user_field {spec!r}: the file {path} does not exist")
+        digest = hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
+        mod_name = f"_lfsim_user_field_{path.stem}_{digest}"
+        mspec = importlib.util.spec_from_file_location(mod_name, path)
+        if mspec is None or mspec.loader is None:
+            raise ConfigError(f"user_field {spec!r}: cannot import {path} as a Python module")
+        mod = importlib.util.module_from_spec(mspec)
+        sys.modules[mod_name] = mod
+        try:
+            mspec.loader.exec_module(mod)
+        except Exception as exc:
+            sys.modules.pop(mod_name, None)
+            raise ConfigError(
+                f"user_field {spec!r}: importing {path} failed: {type(exc).__name__}: {exc}"
+            ) from exc
+    else:
+        try:
+            mod = importlib.import_module(module)
+        except Exception as exc:
+            raise ConfigError(
+                f"user_field {spec!r}: cannot import module {module!r}: {type(exc).__name__}: {exc}"
+            ) from exc
+    func = getattr(mod, name, None)
+    if func is None:
+        raise ConfigError(f"user_field {spec!r}: {module} has no attribute {name!r}")
+    if not callable(func):
+        raise ConfigError(f"user_field {spec!r}: {module}.{name} is not callable")
+    return func
+
+
+@dataclass(frozen=True)
+class UserField(Motion):
+    """A displacement field given by a Python function.
+
+    The function is imported on construction and called as
+    ``f(X_um, frame, **params) -> u`` with ``X_um`` the reference positions (N, 3) µm (a
+    read-only copy), ``frame`` the frame index, and ``u`` the displacement (N, 3) µm.
+
+    Parameters
+    ----------
+    function : str
+        ``"package.module:function"`` (imported from ``sys.path``) or
+        ``"path/to/file.py:function"`` (a file path; relative paths are relative to the current
+        folder, or to the experiment file's folder through :func:`motion_from_dict`).
+    params : Mapping
+        Extra keyword arguments for the function.
+
+    Raises
+    ------
+    ConfigError
+        When the function cannot be imported, or (on use) returns something other than a
+        finite (N, 3) array; the message names the function.
+    """
+
+    function: str
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+    type_name: ClassVar[str] = "user_field"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.params, Mapping):
+            raise ConfigError(
+                f"user_field {self.function!r}: params must be a table/dict, got {self.params!r}"
+            )
+        object.__setattr__(self, "params", dict(self.params))
+        object.__setattr__(self, "_func", _load_function(self.function))
+
+    def displacement(self, X_um, frame) -> np.ndarray:
+        """``u = f(X_um, frame, **params)``, shape (N, 3), µm (validated)."""
+        X = _check_points(X_um)
+        _check_frame(frame)
+        arg = X.copy()
+        arg.setflags(write=False)
+        try:
+            u = self._func(arg, frame, **self.params)  # type: ignore[attr-defined]
+        except Exception as exc:
+            raise LfsimError(
+                f"user_field {self.function!r} raised {type(exc).__name__} at frame {frame!r}: "
+                f"{exc}"
+            ) from exc
+        try:
+            u = np.asarray(u, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(
+                f"user_field {self.function!r} must return a numeric (N, 3) displacement array in "
+                f"µm, got {type(u).__name__}"
+            ) from exc
+        if u.shape != X.shape:
+            raise ConfigError(
+                f"user_field {self.function!r} returned shape {u.shape} at frame {frame!r}; "
+                f"expected {X.shape} (one displacement per reference position, µm)"
+            )
+        if not np.all(np.isfinite(u)):
+            raise ConfigError(
+                f"user_field {self.function!r} returned non-finite displacements at frame {frame!r}"
+            )
+        return u
+
+    def positions(self, X_um, frame) -> np.ndarray:
+        """``x = X + u`` (N, 3) µm."""
+        X = _check_points(X_um)
+        return X + self.displacement(X, frame)
+
+    def deformation_gradient(self, frame) -> np.ndarray:
+        """Not defined: a user field is not homogeneous."""
+        raise LfsimError(
+            f"user_field {self.function!r} is not a homogeneous motion; it has no single "
+            "deformation gradient"
+        )
+
+
+MOTION_TYPES: dict[str, type[Motion]] = {
+    cls.type_name: cls for cls in (Translation, Rotation, UniaxialTension, SimpleShear, UserField)
+}
+
+
+def motion_from_dict(d: Mapping, base_dir: str | os.PathLike | None = None) -> Motion:
+    """Build a motion from a plain dict, e.g. ``{"type": "simple_shear", "step_gamma": 0.025}``.
+
+    Parameters
+    ----------
+    d : Mapping
+        ``type`` (one of :data:`MOTION_TYPES`) plus that class's fields; unknown types and keys
+        are rejected by name.
+    base_dir : str or os.PathLike, optional
+        Folder that a relative ``.py`` path in a user field's ``function`` is relative to.
+
+    Returns
+    -------
+    Motion
+    """
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"a motion must be a table/dict, got {type(d).__name__}")
+    kind = d.get("type")
+    if kind is None:
+        raise ConfigError(f"a motion needs the key 'type', one of {sorted(MOTION_TYPES)}")
+    cls = MOTION_TYPES.get(kind)
+    if cls is None:
+        raise ConfigError(f"unknown motion type {kind!r}; expected one of {sorted(MOTION_TYPES)}")
+    allowed = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+    unknown = sorted(set(d) - {"type", *allowed})
+    if unknown:
+        raise ConfigError(
+            f"unknown key(s) {unknown} for motion type {kind!r}; expected some of "
+            f"{['type', *allowed]}"
+        )
+    kw = {k: v for k, v in d.items() if k != "type"}
+    if cls is UserField and isinstance(kw.get("function"), str) and base_dir is not None:
+        module, sep, name = kw["function"].rpartition(":")
+        if sep and _is_path(module) and not Path(module).is_absolute():
+            kw["function"] = f"{Path(base_dir) / module}:{name}"
+    try:
+        return cls(**kw)
+    except TypeError as exc:  # a required field is missing
+        raise ConfigError(f"motion type {kind!r}: {exc}") from exc

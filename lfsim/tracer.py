@@ -1,0 +1,361 @@
+"""Light tracers: emit rays from fluorescent sources and count them on the sensor.
+
+Two implementations of one optical model share the emission sampling and pixel binning:
+
+- :func:`trace_mitsuba` propagates rays through a loaded Mitsuba scene with
+  ``scene.ray_intersect`` and ``bsdf.sample`` (any optics a scene can hold: ideal or glass
+  microlens arrays, apertures, extra lenses). Mitsuba's ``ptracer`` integrator cannot reach a
+  film behind lenses, hence this tracer.
+- :func:`trace_paraxial` writes the same ideal optics (thin lenses with slopes, stop, paraxial
+  lenslet array — paper Eqs. 5–7) directly in Dr.Jit with no Mitsuba scene: the reference for
+  tests and the fast path wherever only ideal optics are needed (PSF banks).
+
+Emission (paper Eqs. 3–4). Each source emits isotropically; only rays inside the cone the
+objective accepts can reach the sensor. With the aperture stop in the objective's back focal
+plane that cone is the same for every point — half-angle ``asin(NA)`` about the optical axis —
+so directions are drawn uniformly inside it and no ray is wasted; every ray therefore stands
+for ``cone_fraction`` of the isotropic emission. Sphere sources (particles, 15 µm by default)
+start rays uniformly inside their volume; box sources (a fluorescent slide, micrometer
+divisions) uniformly inside their box.
+
+Diffraction (paper §2.2). Ray positions receive an isotropic Gaussian offset where they cross
+the microlens array and where they reach the sensor, of standard deviations
+``Optics.sigma_mla_um = 0.21 λ / NA_image`` and ``Optics.sigma_sensor_um = 0.21 λ / NA_lenslet``
+(Gaussian approximation of the Airy pattern of the objective and of one lenslet).
+
+Determinism. Every ray draws its random numbers from its own PCG32 stream indexed by the
+global ray number and the seed, and photon counts are accumulated as unsigned integers, so an
+image depends only on the inputs and the seed — not on batch size or thread count.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+MODES = ("photons", "expected")
+UM_PER_MM = 1000.0
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to trace one image.
+
+    Parameters
+    ----------
+    rays_per_particle : int
+        Rays (photons inside the collection cone) per source of brightness 1. A source of
+        brightness ``b`` emits ``round(b · rays_per_particle)`` rays in ``"photons"`` mode.
+    mode : {"photons", "expected"}
+        ``"photons"``: every ray is one photon, counts accumulate as ``uint32`` (bit-identical
+        for a seed). ``"expected"``: every source emits exactly ``rays_per_particle`` rays of
+        weight ``b``, accumulated as ``float32`` — the expected photon image for sources that
+        emit ``b · rays_per_particle`` photons into the cone (float atomics: not bit-identical
+        across thread counts).
+    diffraction : bool
+        Apply the Gaussian diffraction blur at the array and at the sensor.
+    seed : int
+    batch_rays : int
+        Rays traced per kernel launch; bounds memory (about 50 bytes per ray).
+    cone_margin : float
+        Relative widening of the sampled cone half-angle (0 = exactly the accepted cone; tests
+        use > 0 to check that the aperture stop clips the rest).
+    progress : bool
+        Show a progress bar over batches.
+    """
+
+    rays_per_particle: int = 100_000
+    mode: str = "photons"
+    diffraction: bool = True
+    seed: int = 0
+    batch_rays: int = 1 << 22
+    cone_margin: float = 0.0
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if int(self.rays_per_particle) != self.rays_per_particle or self.rays_per_particle < 1:
+            raise ConfigError(
+                f"rays_per_particle must be a positive integer, got {self.rays_per_particle!r}"
+            )
+        if self.mode not in MODES:
+            raise ConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if self.batch_rays < 1024:
+            raise ConfigError(f"batch_rays must be >= 1024, got {self.batch_rays!r}")
+        if not (0.0 <= self.cone_margin < 1.0):
+            raise ConfigError(f"cone_margin must lie in [0, 1), got {self.cone_margin!r}")
+
+
+@dataclass(frozen=True)
+class Sources:
+    """Emitters of one image, in object space (µm).
+
+    ``kind="sphere"``: ``centers_um`` (N, 3), ``sizes_um`` (N,) diameters.
+    ``kind="box"``: ``centers_um`` (N, 3) box centres, ``sizes_um`` (N, 3) box edge lengths.
+    ``weights`` (N,) relative brightness (≥ 0).
+    """
+
+    kind: str
+    centers_um: np.ndarray
+    sizes_um: np.ndarray
+    weights: np.ndarray
+
+    @classmethod
+    def spheres(cls, centers_um, diameters_um, weights=None) -> Sources:
+        c = np.asarray(centers_um, dtype=np.float64).reshape(-1, 3)
+        d = np.broadcast_to(np.asarray(diameters_um, dtype=np.float64), (len(c),)).copy()
+        w = np.ones(len(c)) if weights is None else np.asarray(weights, dtype=np.float64)
+        return cls("sphere", c, d, w)
+
+    @classmethod
+    def boxes(cls, centers_um, sizes_um, weights=None) -> Sources:
+        c = np.asarray(centers_um, dtype=np.float64).reshape(-1, 3)
+        s = np.broadcast_to(np.asarray(sizes_um, dtype=np.float64), (len(c), 3)).copy()
+        w = np.ones(len(c)) if weights is None else np.asarray(weights, dtype=np.float64)
+        return cls("box", c, s, w)
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("sphere", "box"):
+            raise ConfigError(f"source kind must be 'sphere' or 'box', got {self.kind!r}")
+        if not np.all(np.isfinite(self.centers_um)):
+            raise ConfigError("source positions must be finite (found NaN or inf)")
+        if np.any(self.sizes_um < 0) or not np.all(np.isfinite(self.sizes_um)):
+            raise ConfigError("source sizes must be finite and non-negative")
+        if np.any(self.weights < 0) or not np.all(np.isfinite(self.weights)):
+            raise ConfigError("source brightness must be finite and non-negative")
+
+    def __len__(self) -> int:
+        return len(self.centers_um)
+
+
+def _ray_counts(sources: Sources, settings: RenderSettings) -> np.ndarray:
+    n = settings.rays_per_particle
+    if settings.mode == "photons":
+        return np.rint(sources.weights * n).astype(np.int64)
+    return np.where(sources.weights > 0, n, 0).astype(np.int64)
+
+
+def _seed_words(seed: int) -> tuple[int, int]:
+    # SplitMix64 of the seed: decorrelates nearby seeds' PCG32 streams.
+    def mix(z):
+        z = (z + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+        return z ^ (z >> 31)
+
+    a = mix(seed)
+    return a, mix(a)
+
+
+class _Emitter:
+    """Samples ray origins (µm, object frame) and unit directions for a batch of rays."""
+
+    def __init__(self, sources: Sources, counts: np.ndarray, optics, settings: RenderSettings):
+        import drjit as dr
+        import mitsuba as mi
+
+        self.dr, self.mi = dr, mi
+        self.kind = sources.kind
+        self.offsets = np.concatenate([[0], np.cumsum(counts)])
+        self.total = int(self.offsets[-1])
+        self.cx = mi.Float(sources.centers_um[:, 0].astype(np.float32))
+        self.cy = mi.Float(sources.centers_um[:, 1].astype(np.float32))
+        self.cz = mi.Float(sources.centers_um[:, 2].astype(np.float32))
+        if self.kind == "sphere":
+            self.size = [mi.Float((sources.sizes_um / 2).astype(np.float32))]
+        else:
+            self.size = [mi.Float(sources.sizes_um[:, k].astype(np.float32)) for k in range(3)]
+        w = sources.weights if settings.mode == "expected" else np.ones(len(sources))
+        self.weight = mi.Float(w.astype(np.float32))
+        theta = min(optics.theta_max * (1.0 + settings.cone_margin), math.pi / 2)
+        self.cos_cutoff = math.cos(theta)
+        self.seed = _seed_words(settings.seed)
+
+    def batch(self, start: int, n: int):
+        dr, mi = self.dr, self.mi
+        idx = np.searchsorted(self.offsets, np.arange(start, start + n), side="right") - 1
+        src = mi.UInt32(idx.astype(np.uint32))
+        rng = mi.PCG32(
+            size=n,
+            initstate=mi.UInt64(self.seed[0]) + start,
+            initseq=mi.UInt64(self.seed[1]) + start,
+        )
+        c = mi.Point3f(dr.gather(mi.Float, self.cx, src), dr.gather(mi.Float, self.cy, src),
+                       dr.gather(mi.Float, self.cz, src))
+        u1, u2, u3 = rng.next_float32(), rng.next_float32(), rng.next_float32()
+        if self.kind == "sphere":
+            r = dr.gather(mi.Float, self.size[0], src) * dr.cbrt(u3)
+            o = c + mi.warp.square_to_uniform_sphere(mi.Point2f(u1, u2)) * r
+        else:
+            sx, sy, sz = (dr.gather(mi.Float, s, src) for s in self.size)
+            o = c + mi.Vector3f((u1 - 0.5) * sx, (u2 - 0.5) * sy, (u3 - 0.5) * sz)
+        d = mi.warp.square_to_uniform_cone(
+            mi.Point2f(rng.next_float32(), rng.next_float32()), self.cos_cutoff
+        )
+        w = dr.gather(mi.Float, self.weight, src)
+        return rng, o, d, w
+
+
+class _Film:
+    """Bins sensor positions (µm, sensor plane, scene axes) into pixels."""
+
+    def __init__(self, optics, settings: RenderSettings):
+        import drjit as dr
+        import mitsuba as mi
+
+        self.dr, self.mi = dr, mi
+        self.w, self.h = optics.sensor_px
+        self.ax, self.ay = optics.axis_px
+        self.pix = optics.pixel_um
+        self.photons = settings.mode == "photons"
+        dtype = mi.UInt32 if self.photons else mi.Float
+        self.data = dr.zeros(dtype, self.w * self.h)
+
+    def splat(self, x_um, y_um, weight, active):
+        dr, mi = self.dr, self.mi
+        col = mi.Int32(dr.floor(self.ax - x_um / self.pix))
+        row = mi.Int32(dr.floor(self.ay - y_um / self.pix))
+        ok = active & (col >= 0) & (col < self.w) & (row >= 0) & (row < self.h)
+        index = mi.UInt32(dr.select(ok, row * self.w + col, 0))
+        value = mi.UInt32(1) if self.photons else weight
+        dr.scatter_reduce(dr.ReduceOp.Add, self.data, value, index, ok)
+
+    def numpy(self) -> np.ndarray:
+        self.dr.eval(self.data)
+        return self.data.numpy().reshape(self.h, self.w)
+
+
+def _gauss2(rng, dr, mi):
+    g = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
+    return g.x, g.y
+
+
+def _batches(total: int, settings: RenderSettings, what: str):
+    starts = range(0, total, settings.batch_rays)
+    if settings.progress and len(starts) > 1:
+        from tqdm.auto import tqdm
+
+        return tqdm(starts, desc=what, unit="batch", leave=False)
+    return starts
+
+
+def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarray:
+    """Trace ``sources`` through a loaded :class:`~lfsim.scene.LightFieldScene`.
+
+    Returns
+    -------
+    ndarray, shape (height, width)
+        ``uint32`` photon counts (mode ``"photons"``) or ``float32`` expected photons.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    optics = scene.optics
+    counts = _ray_counts(sources, settings)
+    emitter = _Emitter(sources, counts, optics, settings)
+    film = _Film(optics, settings)
+    if emitter.total == 0:
+        return film.numpy()
+    lay = scene.layout
+    sensor_ptr = mi.ShapePtr(scene.sensor)
+    mla_ptr = mi.ShapePtr(scene.mla)
+    s_mla = optics.sigma_mla_um / UM_PER_MM if settings.diffraction else 0.0
+    s_sen = optics.sigma_sensor_um if settings.diffraction else 0.0
+    max_bounces = 6 if optics.mla_kind == "ideal" else 12
+    ctx = mi.BSDFContext()
+    for start in _batches(emitter.total, settings, "tracing"):
+        n = min(settings.batch_rays, emitter.total - start)
+        rng, o, d, w = emitter.batch(start, n)
+        origin = mi.Point3f(o.x / UM_PER_MM, o.y / UM_PER_MM, lay.object_z - o.z / UM_PER_MM)
+        ray = mi.Ray3f(origin, mi.Vector3f(d.x, d.y, d.z))
+        active = mi.Bool(True)
+        # Diffraction offsets drawn up front, in the same order as trace_paraxial.
+        if settings.diffraction:
+            gx, gy = _gauss2(rng, dr, mi)
+            hx, hy = _gauss2(rng, dr, mi)
+            blur_mla = mi.Vector3f(hx * s_mla, hy * s_mla, 0.0)
+        for _ in range(max_bounces):
+            si = scene.mi_scene.ray_intersect(ray, active)
+            active &= si.is_valid()
+            on_sensor = active & (si.shape == sensor_ptr)
+            x_um, y_um = si.p.x * UM_PER_MM, si.p.y * UM_PER_MM
+            if settings.diffraction:
+                x_um, y_um = x_um + gx * s_sen, y_um + gy * s_sen
+            film.splat(x_um, y_um, w, on_sensor)
+            active &= ~on_sensor
+            if settings.diffraction:
+                si.p = dr.select(active & (si.shape == mla_ptr), si.p + blur_mla, si.p)
+            bsdf = si.bsdf(ray)
+            bs, weight = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(0.5, 0.5), active)
+            active &= dr.any(weight > 0.0)
+            ray = si.spawn_ray(si.to_world(bs.wo))
+        dr.eval(film.data)
+    return film.numpy()
+
+
+def trace_paraxial(optics, sources: Sources, settings: RenderSettings) -> np.ndarray:
+    """Trace ``sources`` through ideal optics written directly in Dr.Jit (no Mitsuba).
+
+    The same optics as an ``mla_kind="ideal"`` scene: objective and tube lens as thin lenses
+    acting on slopes, the circular stop in their shared focal plane, the paraxial lenslet
+    array (paper Eq. 7) and the sensor one lenslet focal length behind it; clear radii as in
+    :func:`lfsim.scene.write_scene`. Random numbers are drawn in the same order as
+    :func:`trace_mitsuba`, so both tracers see the same rays.
+
+    Returns
+    -------
+    ndarray, shape (height, width)
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from .scene import _radii_mm
+
+    if optics.mla_kind != "ideal":
+        raise ConfigError("trace_paraxial models ideal lenslets only (mla_kind='ideal')")
+    counts = _ray_counts(sources, settings)
+    emitter = _Emitter(sources, counts, optics, settings)
+    film = _Film(optics, settings)
+    if emitter.total == 0:
+        return film.numpy()
+    fo, ft = optics.f_objective_um, optics.f_tube_um
+    fl, p = optics.mla_focal_um, optics.mla_pitch_um
+    r_obj, r_tube = (r * UM_PER_MM for r in _radii_mm(optics))
+    r_stop = optics.stop_radius_um
+    s_mla = optics.sigma_mla_um if settings.diffraction else 0.0
+    s_sen = optics.sigma_sensor_um if settings.diffraction else 0.0
+    for start in _batches(emitter.total, settings, "tracing"):
+        n = min(settings.batch_rays, emitter.total - start)
+        rng, o, d, w = emitter.batch(start, n)
+        u, v = d.x / d.z, d.y / d.z
+        # Object point -> objective (distance f_obj + z: z grows away from the objective).
+        t = fo + o.z
+        x, y = o.x + u * t, o.y + v * t
+        ok = x * x + y * y <= r_obj * r_obj
+        u, v = u - x / fo, v - y / fo
+        x, y = x + u * fo, y + v * fo  # aperture stop
+        ok &= x * x + y * y <= r_stop * r_stop
+        x, y = x + u * ft, y + v * ft  # tube lens
+        ok &= x * x + y * y <= r_tube * r_tube
+        u, v = u - x / ft, v - y / ft
+        x, y = x + u * ft, y + v * ft  # microlens array
+        if settings.diffraction:
+            gx, gy = _gauss2(rng, dr, mi)
+            hx, hy = _gauss2(rng, dr, mi)
+            x, y = x + hx * s_mla, y + hy * s_mla
+        sx, sy = p * dr.round(x / p), p * dr.round(y / p)
+        u, v = u - (x - sx) / fl, v - (y - sy) / fl
+        x, y = x + u * fl, y + v * fl  # sensor
+        if settings.diffraction:
+            x, y = x + gx * s_sen, y + gy * s_sen
+        film.splat(x, y, w, ok)
+        dr.eval(film.data)
+    return film.numpy()
