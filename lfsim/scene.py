@@ -33,7 +33,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from .errors import SceneError
-from .mesh import lenslet_cap_mesh, write_ply
+from .mesh import lenslet_array_mesh, write_ply
 from .optics import Optics
 
 UM_PER_MM = 1000.0
@@ -124,10 +124,37 @@ def _bsdf(parent, btype, **props):
     return b
 
 
+MESH_FACETS = 8
+
+
 def lenslet_mesh_name(optics: Optics) -> str:
-    """File name of the lenslet PLY for these optics (pitch and radius in the name's hash)."""
-    key = f"{optics.mla_pitch_um!r}:{optics.lenslet_radius_of_curvature_um!r}"
-    return f"lenslet_{hashlib.sha1(key.encode()).hexdigest()[:10]}.ply"
+    """File name of the array mesh for these optics (hash of the geometry that shapes it)."""
+    key = repr(
+        (
+            optics.mla_pitch_um,
+            optics.lenslet_radius_of_curvature_um,
+            optics.sensor_px,
+            optics.axis_px,
+            optics.pixel_um,
+            MESH_FACETS,
+        )
+    )
+    return f"mla_{hashlib.sha1(key.encode()).hexdigest()[:12]}.ply"
+
+
+def ensure_mesh(optics: Optics, path: Path) -> Path:
+    """Generate the glass array mesh at ``path`` unless it already exists (deterministic)."""
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        p = optics.mla_pitch_um / UM_PER_MM
+        v, n, f = lenslet_array_mesh(
+            lenslet_centers_mm(optics),
+            p,
+            optics.lenslet_radius_of_curvature_um / UM_PER_MM,
+            MESH_FACETS,
+        )
+        write_ply(path, v, n, f)
+    return path
 
 
 def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "") -> Path:
@@ -184,26 +211,19 @@ def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "
         _bsdf(s, "lfm_lensletarray", pitch_mm=p, focal_mm=optics.mla_focal_um / UM_PER_MM)
     else:
         mesh_name = lenslet_mesh_name(optics)
-        mesh_dir = path.parent / "meshes"
-        mesh_dir.mkdir(parents=True, exist_ok=True)
-        v, n, f = lenslet_cap_mesh(p, optics.lenslet_radius_of_curvature_um / UM_PER_MM)
-        write_ply(mesh_dir / mesh_name, v, n, f)
+        ensure_mesh(optics, path.parent / "meshes" / mesh_name)
         # Diffraction marker plane 1 µm in front of the lenslet vertices.
         s = _rect(root, "mla", xc, yc, lay.mla_z - 1e-3, mla_hw, mla_hh)
         ET.SubElement(s, "bsdf", type="null")
         glass = ET.SubElement(root, "bsdf", type="dielectric", id="mla_glass")
         ET.SubElement(glass, "float", name="int_ior", value=_fmt(optics.mla_ior))
         ET.SubElement(glass, "float", name="ext_ior", value="1.0")
-        group = ET.SubElement(root, "shape", type="shapegroup", id="mla_lenslet")
-        ply = ET.SubElement(group, "shape", type="ply")
-        ET.SubElement(ply, "string", name="filename", value=f"meshes/{mesh_name}")
-        ET.SubElement(ply, "boolean", name="face_normals", value="false")
-        ET.SubElement(ply, "ref", id="mla_glass")
-        for k, (cx, cy) in enumerate(lenslet_centers_mm(optics)):
-            inst = ET.SubElement(root, "shape", type="instance", id=f"mla_lenslet_{k}")
-            ET.SubElement(inst, "ref", id="mla_lenslet")
-            tr = ET.SubElement(inst, "transform", name="to_world")
-            ET.SubElement(tr, "translate", x=_fmt(cx), y=_fmt(cy), z=_fmt(lay.mla_z))
+        caps = ET.SubElement(root, "shape", type="ply", id="mla_caps")
+        ET.SubElement(caps, "string", name="filename", value=f"meshes/{mesh_name}")
+        ET.SubElement(caps, "boolean", name="face_normals", value="false")
+        tr = ET.SubElement(caps, "transform", name="to_world")
+        ET.SubElement(tr, "translate", x="0", y="0", z=_fmt(lay.mla_z))
+        ET.SubElement(caps, "ref", id="mla_glass")
         t = optics.mla_thickness_um / UM_PER_MM
         s = _rect(root, "mla_back", xc, yc, lay.mla_z + t, mla_hw, mla_hh)
         ET.SubElement(s, "ref", id="mla_glass")
@@ -339,10 +359,13 @@ def _check_elements(path: Path, root: ET.Element, optics: Optics) -> None:
             raise SceneError(f"{path}: glass array without <bsdf id='mla_glass'>")
         ior = next(float(c.get("value")) for c in glass if c.get("name") == "int_ior")
         _check(path, "mla_glass", "int_ior", ior, optics.mla_ior)
-        mesh = path.parent / "meshes" / lenslet_mesh_name(optics)
-        if not mesh.is_file():
+        caps = _shape(path, root, "mla_caps")
+        fname = next((c.get("value") for c in caps if c.get("name") == "filename"), "")
+        if fname != f"meshes/{lenslet_mesh_name(optics)}":
             raise SceneError(
-                f"{path}: lenslet mesh {str(mesh)!r} is missing; regenerate with `lfsim scene`"
+                f"{path}: element 'mla_caps' uses mesh {fname!r}, which does not belong to this "
+                f"scene's optics (expected 'meshes/{lenslet_mesh_name(optics)}'); regenerate the "
+                "scene with `lfsim scene`"
             )
 
 
@@ -379,6 +402,9 @@ def load_scene(path: str | os.PathLike) -> LightFieldScene:
 
     path = Path(path)
     optics = read_optics(path)
+    if optics.mla_kind == "glass":
+        # The mesh is generated, not shipped: (re)create it beside the scene when missing.
+        ensure_mesh(optics, path.parent / "meshes" / lenslet_mesh_name(optics))
     if backend_info() is None:
         init_backend()
     import mitsuba as mi

@@ -166,6 +166,10 @@ class _Emitter:
         self.kind = sources.kind
         self.offsets = np.concatenate([[0], np.cumsum(counts)])
         self.total = int(self.offsets[-1])
+        if self.total >= 2**32:
+            raise ConfigError(f"{self.total} rays in one image exceed 2**32; trace fewer rays")
+        self.n_sources = len(counts)
+        self.offsets_dr = mi.UInt32(self.offsets[:-1].astype(np.uint32))
         self.cx = mi.Float(sources.centers_um[:, 0].astype(np.float32))
         self.cy = mi.Float(sources.centers_um[:, 1].astype(np.float32))
         self.cz = mi.Float(sources.centers_um[:, 2].astype(np.float32))
@@ -181,8 +185,12 @@ class _Emitter:
 
     def batch(self, start: int, n: int):
         dr, mi = self.dr, self.mi
-        idx = np.searchsorted(self.offsets, np.arange(start, start + n), side="right") - 1
-        src = mi.UInt32(idx.astype(np.uint32))
+        ray_id = mi.UInt32(start) + dr.arange(mi.UInt32, n)
+        offsets = self.offsets_dr
+        # Source of each ray: the last source whose first ray index is <= ray_id.
+        src = dr.binary_search(
+            0, self.n_sources, lambda i: dr.gather(mi.UInt32, offsets, i) <= ray_id
+        ) - 1
         rng = mi.PCG32(
             size=n,
             initstate=mi.UInt64(self.seed[0]) + start,
@@ -270,6 +278,7 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     s_mla = optics.sigma_mla_um / UM_PER_MM if settings.diffraction else 0.0
     s_sen = optics.sigma_sensor_um if settings.diffraction else 0.0
     max_bounces = 6 if optics.mla_kind == "ideal" else 12
+    mi_scene = scene.mi_scene
     ctx = mi.BSDFContext()
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
@@ -282,21 +291,31 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
             gx, gy = _gauss2(rng, dr, mi)
             hx, hy = _gauss2(rng, dr, mi)
             blur_mla = mi.Vector3f(hx * s_mla, hy * s_mla, 0.0)
-        for _ in range(max_bounces):
-            si = scene.mi_scene.ray_intersect(ray, active)
+        else:
+            gx = gy = mi.Float(0.0)
+            blur_mla = mi.Vector3f(0.0)
+
+        def cond(ray, active, depth, rng):
+            return active
+
+        def body(ray, active, depth, rng):
+            si = mi_scene.ray_intersect(ray, active)
             active &= si.is_valid()
             on_sensor = active & (si.shape == sensor_ptr)
-            x_um, y_um = si.p.x * UM_PER_MM, si.p.y * UM_PER_MM
-            if settings.diffraction:
-                x_um, y_um = x_um + gx * s_sen, y_um + gy * s_sen
-            film.splat(x_um, y_um, w, on_sensor)
+            film.splat(si.p.x * UM_PER_MM + gx * s_sen, si.p.y * UM_PER_MM + gy * s_sen, w,
+                       on_sensor)
             active &= ~on_sensor
-            if settings.diffraction:
-                si.p = dr.select(active & (si.shape == mla_ptr), si.p + blur_mla, si.p)
+            si.p = dr.select(active & (si.shape == mla_ptr), si.p + blur_mla, si.p)
             bsdf = si.bsdf(ray)
-            bs, weight = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(0.5, 0.5), active)
-            active &= dr.any(weight > 0.0)
-            ray = si.spawn_ray(si.to_world(bs.wo))
+            bs, weight = bsdf.sample(ctx, si, rng.next_float32(active), mi.Point2f(0.5), active)
+            depth += 1
+            active &= (weight[0] > 0.0) & (depth < max_bounces)
+            ray = mi.Ray3f(si.spawn_ray(si.to_world(bs.wo)))
+            return ray, active, depth, rng
+
+        dr.while_loop(
+            (ray, active, mi.UInt32(0), rng), cond, body, labels=("ray", "active", "depth", "rng")
+        )
         dr.eval(film.data)
     return film.numpy()
 
