@@ -60,8 +60,11 @@ _STATE: BackendInfo | None = None
 
 
 def _llvm_major(path: str) -> int | None:
-    m = re.search(r"libLLVM[-.]?(\d+)", os.path.basename(path)) or re.search(
-        r"llvm-(\d+)", path
+    name = os.path.basename(path)
+    m = (
+        re.search(r"libLLVM-(\d+)", name)
+        or re.search(r"libLLVM\.so\.(\d+)", name)
+        or re.search(r"llvm-(\d+)", path)
     )
     return int(m.group(1)) if m else None
 
@@ -107,7 +110,11 @@ def find_libllvm(min_major: int = MIN_LLVM_MAJOR) -> str:
 def _cuda_available() -> bool:
     if os.environ.get("HRVPTM_DISABLE_CUDA"):
         return False
-    for pattern in ("/usr/lib/*-linux-gnu/libcuda.so*", "/usr/lib64/libcuda.so*", "/usr/lib/wsl/lib/libcuda.so*"):
+    for pattern in (
+        "/usr/lib/*-linux-gnu/libcuda.so*",
+        "/usr/lib64/libcuda.so*",
+        "/usr/lib/wsl/lib/libcuda.so*",
+    ):
         if glob.glob(pattern):
             return True
     return False

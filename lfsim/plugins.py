@@ -29,9 +29,7 @@ def _make_classes():
     import drjit as dr
     import mitsuba as mi
 
-    flags = (
-        mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
-    )
+    flags = mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
 
     class _DeltaBSDF(mi.BSDF):
         """Common part: delta transmission, no eval/pdf."""

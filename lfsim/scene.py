@@ -340,7 +340,9 @@ def _check_elements(path: Path, root: ET.Element, optics: Optics) -> None:
     sensor = _shape(path, root, "sensor")
     _check(path, "sensor", "z (mm)", _z(sensor), lay.sensor_z)
     _check(path, "sensor", "pixel_um", _prop(path, sensor, "sensor", "pixel_um"), optics.pixel_um)
-    _check(path, "sensor", "width_px", _prop(path, sensor, "sensor", "width_px"), optics.sensor_px[0])
+    _check(
+        path, "sensor", "width_px", _prop(path, sensor, "sensor", "width_px"), optics.sensor_px[0]
+    )
     _check(
         path, "sensor", "height_px", _prop(path, sensor, "sensor", "height_px"), optics.sensor_px[1]
     )

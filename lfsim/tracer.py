@@ -188,16 +188,22 @@ class _Emitter:
         ray_id = mi.UInt32(start) + dr.arange(mi.UInt32, n)
         offsets = self.offsets_dr
         # Source of each ray: the last source whose first ray index is <= ray_id.
-        src = dr.binary_search(
-            0, self.n_sources, lambda i: dr.gather(mi.UInt32, offsets, i) <= ray_id
-        ) - 1
+        src = (
+            dr.binary_search(
+                0, self.n_sources, lambda i: dr.gather(mi.UInt32, offsets, i) <= ray_id
+            )
+            - 1
+        )
         rng = mi.PCG32(
             size=n,
             initstate=mi.UInt64(self.seed[0]) + start,
             initseq=mi.UInt64(self.seed[1]) + start,
         )
-        c = mi.Point3f(dr.gather(mi.Float, self.cx, src), dr.gather(mi.Float, self.cy, src),
-                       dr.gather(mi.Float, self.cz, src))
+        c = mi.Point3f(
+            dr.gather(mi.Float, self.cx, src),
+            dr.gather(mi.Float, self.cy, src),
+            dr.gather(mi.Float, self.cz, src),
+        )
         u1, u2, u3 = rng.next_float32(), rng.next_float32(), rng.next_float32()
         if self.kind == "sphere":
             r = dr.gather(mi.Float, self.size[0], src) * dr.cbrt(u3)
@@ -255,6 +261,44 @@ def _batches(total: int, settings: RenderSettings, what: str):
     return starts
 
 
+def _propagate(scene, film, ray, rng, w, sensor_blur, blur_mla, max_bounces) -> None:
+    """Symbolic loop: intersect, bin sensor hits, blur at the array, sample the BSDF."""
+    import drjit as dr
+    import mitsuba as mi
+
+    mi_scene = scene.mi_scene
+    sensor_ptr = mi.ShapePtr(scene.sensor)
+    mla_ptr = mi.ShapePtr(scene.mla)
+    gx, gy, s_sen = sensor_blur
+    ctx = mi.BSDFContext()
+
+    def cond(ray, active, depth, rng):
+        return active
+
+    def body(ray, active, depth, rng):
+        si = mi_scene.ray_intersect(ray, active)
+        active &= si.is_valid()
+        on_sensor = active & (si.shape == sensor_ptr)
+        x_um = si.p.x * UM_PER_MM + gx * s_sen
+        y_um = si.p.y * UM_PER_MM + gy * s_sen
+        film.splat(x_um, y_um, w, on_sensor)
+        active &= ~on_sensor
+        si.p = dr.select(active & (si.shape == mla_ptr), si.p + blur_mla, si.p)
+        bsdf = si.bsdf(ray)
+        bs, weight = bsdf.sample(ctx, si, rng.next_float32(active), mi.Point2f(0.5), active)
+        depth += 1
+        active &= (weight[0] > 0.0) & (depth < max_bounces)
+        ray = mi.Ray3f(si.spawn_ray(si.to_world(bs.wo)))
+        return ray, active, depth, rng
+
+    dr.while_loop(
+        (ray, mi.Bool(True), mi.UInt32(0), rng),
+        cond,
+        body,
+        labels=("ray", "active", "depth", "rng"),
+    )
+
+
 def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarray:
     """Trace ``sources`` through a loaded :class:`~lfsim.scene.LightFieldScene`.
 
@@ -273,19 +317,14 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     if emitter.total == 0:
         return film.numpy()
     lay = scene.layout
-    sensor_ptr = mi.ShapePtr(scene.sensor)
-    mla_ptr = mi.ShapePtr(scene.mla)
     s_mla = optics.sigma_mla_um / UM_PER_MM if settings.diffraction else 0.0
     s_sen = optics.sigma_sensor_um if settings.diffraction else 0.0
     max_bounces = 6 if optics.mla_kind == "ideal" else 12
-    mi_scene = scene.mi_scene
-    ctx = mi.BSDFContext()
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
         rng, o, d, w = emitter.batch(start, n)
         origin = mi.Point3f(o.x / UM_PER_MM, o.y / UM_PER_MM, lay.object_z - o.z / UM_PER_MM)
         ray = mi.Ray3f(origin, mi.Vector3f(d.x, d.y, d.z))
-        active = mi.Bool(True)
         # Diffraction offsets drawn up front, in the same order as trace_paraxial.
         if settings.diffraction:
             gx, gy = _gauss2(rng, dr, mi)
@@ -295,27 +334,7 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
             gx = gy = mi.Float(0.0)
             blur_mla = mi.Vector3f(0.0)
 
-        def cond(ray, active, depth, rng):
-            return active
-
-        def body(ray, active, depth, rng):
-            si = mi_scene.ray_intersect(ray, active)
-            active &= si.is_valid()
-            on_sensor = active & (si.shape == sensor_ptr)
-            film.splat(si.p.x * UM_PER_MM + gx * s_sen, si.p.y * UM_PER_MM + gy * s_sen, w,
-                       on_sensor)
-            active &= ~on_sensor
-            si.p = dr.select(active & (si.shape == mla_ptr), si.p + blur_mla, si.p)
-            bsdf = si.bsdf(ray)
-            bs, weight = bsdf.sample(ctx, si, rng.next_float32(active), mi.Point2f(0.5), active)
-            depth += 1
-            active &= (weight[0] > 0.0) & (depth < max_bounces)
-            ray = mi.Ray3f(si.spawn_ray(si.to_world(bs.wo)))
-            return ray, active, depth, rng
-
-        dr.while_loop(
-            (ray, active, mi.UInt32(0), rng), cond, body, labels=("ray", "active", "depth", "rng")
-        )
+        _propagate(scene, film, ray, rng, w, (gx, gy, s_sen), blur_mla, max_bounces)
         dr.eval(film.data)
     return film.numpy()
 

@@ -85,7 +85,7 @@ def test_in_focus_point_fills_one_lenslet_disc(paper):
 def test_defocused_point_makes_spot_grid_with_lenslet_spacing(paper, z):
     o = paper.optics
     im = trace_mitsuba(paper, point(z=z), RenderSettings(rays_per_particle=400_000))
-    cx, cy, mass = spot_centroids(im)
+    cx, cy, _ = spot_centroids(im)
     predicted = o.spot_spacing_px(z)
     assert predicted == pytest.approx(15 * (1 + np.sign(z) * 1000 / (16 * 300)))
     assert len(cx) >= 20  # the 5 x 5 grid (corners may be faint)
