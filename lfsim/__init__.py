@@ -17,7 +17,10 @@ from __future__ import annotations
 import logging
 
 from .backend import BackendInfo, find_libllvm, init_backend
+from .dataset import generate_dataset
 from .errors import BackendError, ConfigError, LfsimError, OutputError, SceneError
+from .experiment import Experiment, load_experiment
+from .io import read_tiff, write_tiff
 from .optics import Optics, paper_optics, small_optics
 
 __version__ = "0.1.0"
@@ -28,13 +31,18 @@ __all__ = [
     "BackendError",
     "BackendInfo",
     "ConfigError",
+    "Experiment",
     "LfsimError",
     "Optics",
     "OutputError",
     "SceneError",
     "__version__",
     "find_libllvm",
+    "generate_dataset",
     "init_backend",
+    "load_experiment",
     "paper_optics",
+    "read_tiff",
     "small_optics",
+    "write_tiff",
 ]

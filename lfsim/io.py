@@ -114,7 +114,9 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
-        raise OutputError(f"cannot write {path}: folder {path.parent} is not writable ({exc})") from exc
+        raise OutputError(
+            f"cannot write {path}: folder {path.parent} is not writable ({exc})"
+        ) from exc
     try:
         yield Path(tmp)
         with open(tmp, "rb+") as fh:

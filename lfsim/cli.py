@@ -1,0 +1,453 @@
+"""Command-line interface ``lfsim``: scenes, single renders, calibration images, datasets.
+
+::
+
+    lfsim [--threads N] [--device {auto,llvm,cuda}] [-v] [-q] COMMAND ...
+
+    lfsim scene --preset {paper_4x,small} [--mla {ideal,glass}] [--set KEY=VALUE ...]
+                -o OUT.xml [--overwrite]
+    lfsim render SCENE.xml --particles P.csv -o IMAGE.tif [--rays 100000]
+                [--noise {none,gaussian,camera}] [--snr 17] [--bit-depth 8] [--seed 0]
+                [--tracer {mitsuba,paraxial}] [--no-diffraction] [--float] [--overwrite]
+    lfsim white SCENE.xml -o WHITE.tif [--rays-per-lenslet 20000] [--snr 50] [--bit-depth 16]
+                [--seed 0] [--overwrite]
+    lfsim micrometer SCENE.xml -o M.tif [--division-um 10] [--axis {x,y}] [--snr 50]
+                [--bit-depth 16] [--seed 0] [--overwrite]
+    lfsim dataset EXPERIMENT.toml -o DIR [--overwrite] [--quiet]
+
+Lengths in µm. SNR is ``P99.9(clean image) / sigma_noise`` (99.9th percentile of the
+noise-free image). Every error a user can cause prints one line ``lfsim: error: ...`` and exits
+with status 2; outputs are written atomically and never replace an existing file without
+``--overwrite``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, LfsimError, OutputError
+
+log = logging.getLogger("lfsim")
+
+PRESETS = ("paper_4x", "small")
+
+
+# -- helpers ----------------------------------------------------------------------------------
+def _check_output(path: Path, overwrite: bool) -> None:
+    """Fail early (before any work) if ``path`` exists and may not be replaced."""
+    if path.exists() and not overwrite:
+        raise OutputError(f"{path} already exists; pass --overwrite to replace it")
+    if path.is_dir():
+        raise OutputError(f"{path} is a folder; expected a file name")
+
+
+def _parse_set(items: list[str]) -> dict:
+    """``KEY=VALUE`` strings → Optics keyword arguments of the right types."""
+    from .optics import Optics
+
+    types = {f.name: f.type for f in fields(Optics)}
+    out: dict = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
+        if key not in types:
+            raise ConfigError(
+                f"--set: unknown optics key {key!r}; allowed keys: {', '.join(sorted(types))}"
+            )
+        try:
+            if key in ("sensor_px", "axis_px"):
+                parts = value.replace("x", ",").replace("×", ",").split(",")
+                conv = int if key == "sensor_px" else float
+                out[key] = tuple(conv(p) for p in parts if p.strip())
+            elif key == "mla_kind":
+                out[key] = value
+            else:
+                out[key] = float(value)
+        except ValueError:
+            raise ConfigError(f"--set {key}: cannot parse {value!r}") from None
+    return out
+
+
+def _read_scene(path: str):
+    from .scene import load_scene
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"scene file {p} does not exist")
+    return load_scene(p)
+
+
+def _noise_seed(seed: int) -> np.random.Generator:
+    # Independent of the tracer's stream for the same seed.
+    return np.random.default_rng(np.random.SeedSequence([seed, 0x6E6F6973]))
+
+
+def _base_meta(kind: str, scene, scene_path: str) -> dict:
+    from . import __version__
+    from .io import sha256_file
+
+    return {
+        "kind": kind,
+        "lfsim_version": __version__,
+        "scene": str(Path(scene_path).resolve()),
+        "scene_sha256": sha256_file(scene_path),
+        "pixel_size_um": scene.optics.object_pixel_um,
+    }
+
+
+# -- subcommands ----------------------------------------------------------------------------
+def cmd_scene(args) -> int:
+    from .optics import paper_optics, small_optics
+    from .scene import write_scene
+
+    out = Path(args.output)
+    _check_output(out, args.overwrite)
+    overrides = _parse_set(args.set or [])
+    if args.mla is not None:
+        if "mla_kind" in overrides and overrides["mla_kind"] != args.mla:
+            raise ConfigError("--mla and --set mla_kind disagree")
+        overrides["mla_kind"] = args.mla
+    try:
+        optics = (paper_optics if args.preset == "paper_4x" else small_optics)(**overrides)
+    except TypeError as exc:  # pragma: no cover - keys are checked above
+        raise ConfigError(str(exc)) from exc
+    desc = f"preset {args.preset}, mla {optics.mla_kind}"
+    if args.set:
+        desc += ", " + ", ".join(args.set)
+    # Write next to the destination, then move into place without clobbering.
+    write_scene(optics, out, description=desc.replace("--", "- -"))
+    x0, x1, y0, y1 = optics.field_of_view_um
+    log.info(
+        "wrote %s: field x ∈ [%.1f, %.1f] µm, y ∈ [%.1f, %.1f] µm, %.4g µm/px",
+        out,
+        x0,
+        x1,
+        y0,
+        y1,
+        optics.object_pixel_um,
+    )
+    return 0
+
+
+def cmd_render(args) -> int:
+    from .camera import NoiseSpec, apply_noise
+    from .io import sha256_file, write_tiff
+    from .particles import Particles
+    from .render import render_particles
+    from .tracer import RenderSettings
+
+    out = Path(args.output)
+    _check_output(out, args.overwrite)
+    particles = Particles.from_csv(args.particles)
+    if args.float and (args.snr is not None or args.bit_depth is not None or args.noise):
+        raise ConfigError(
+            "--float writes the noise-free image; it takes no --noise/--snr/--bit-depth"
+        )
+    noise_model = args.noise or "gaussian"
+    if args.snr is not None and noise_model != "gaussian":
+        raise ConfigError(f"--snr applies to --noise gaussian only, not {noise_model!r}")
+    spec = None
+    if not args.float:
+        spec = NoiseSpec(
+            model=noise_model,
+            snr=(17.0 if args.snr is None else args.snr) if noise_model == "gaussian" else None,
+            bit_depth=args.bit_depth,
+        )
+    scene = _read_scene(args.scene)
+    settings = RenderSettings(
+        rays_per_particle=args.rays,
+        mode="expected" if args.float else "photons",
+        diffraction=not args.no_diffraction,
+        seed=args.seed,
+        progress=not args.quiet,
+    )
+    clean = render_particles(scene, particles, settings, tracer=args.tracer)
+    meta = _base_meta("light-field image", scene, args.scene)
+    meta.update(
+        particles=str(Path(args.particles).resolve()),
+        particles_sha256=sha256_file(args.particles),
+        n_particles=len(particles),
+        rays_per_particle=args.rays,
+        tracer=args.tracer,
+        diffraction=not args.no_diffraction,
+        seed=args.seed,
+    )
+    if args.float:
+        img = clean.astype(np.float32)
+        meta["units"] = "expected photons per pixel (noise-free)"
+    else:
+        img, info = apply_noise(clean.astype(np.float64), spec, _noise_seed(args.seed))
+        meta["noise"] = info
+    write_tiff(
+        out,
+        img,
+        metadata=meta,
+        pixel_size_um=scene.optics.object_pixel_um,
+        overwrite=args.overwrite,
+    )
+    log.info("wrote %s (%s, %d particles)", out, img.dtype, len(particles))
+    return 0
+
+
+def cmd_white(args) -> int:
+    from .camera import add_gaussian_noise
+    from .io import write_tiff
+    from .render import render_white
+
+    out = Path(args.output)
+    _check_output(out, args.overwrite)
+    scene = _read_scene(args.scene)
+    clean = render_white(
+        scene, args.rays_per_lenslet, seed=args.seed, tracer=args.tracer, progress=not args.quiet
+    )
+    img, info = add_gaussian_noise(
+        clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
+    )
+    meta = _base_meta("white", scene, args.scene)
+    meta.update(rays_per_lenslet=args.rays_per_lenslet, seed=args.seed, noise=info)
+    write_tiff(
+        out,
+        img,
+        metadata=meta,
+        pixel_size_um=scene.optics.object_pixel_um,
+        overwrite=args.overwrite,
+    )
+    log.info("wrote %s", out)
+    return 0
+
+
+def cmd_micrometer(args) -> int:
+    from .camera import add_gaussian_noise
+    from .io import write_tiff
+    from .render import render_micrometer
+
+    out = Path(args.output)
+    _check_output(out, args.overwrite)
+    scene = _read_scene(args.scene)
+    clean = render_micrometer(
+        scene,
+        args.division_um,
+        line_width_um=args.line_width_um,
+        axis=args.axis,
+        rays_per_line=args.rays_per_line,
+        seed=args.seed,
+        tracer=args.tracer,
+    )
+    img, info = add_gaussian_noise(
+        clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
+    )
+    meta = _base_meta("stage micrometer", scene, args.scene)
+    meta.update(
+        division_um=args.division_um,
+        line_width_um=args.line_width_um,
+        axis=args.axis,
+        rays_per_line=args.rays_per_line,
+        seed=args.seed,
+        noise=info,
+    )
+    write_tiff(
+        out,
+        img,
+        metadata=meta,
+        pixel_size_um=scene.optics.object_pixel_um,
+        overwrite=args.overwrite,
+    )
+    log.info("wrote %s (divisions every %g µm along %s)", out, args.division_um, args.axis)
+    return 0
+
+
+def cmd_dataset(args) -> int:
+    from .dataset import generate_dataset
+    from .experiment import load_experiment
+
+    exp = load_experiment(args.experiment)
+    generate_dataset(exp, args.output, overwrite=args.overwrite, progress=not args.quiet)
+    return 0
+
+
+# -- parser -----------------------------------------------------------------------------------
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line plus usage, exit 2 (argparse's convention)
+        self.print_usage(sys.stderr)
+        self.exit(2, f"lfsim: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="lfsim",
+        description="Physically based light-field microscope simulator (lengths in µm).",
+    )
+    p.add_argument("--threads", type=int, default=None, help="CPU threads of the Dr.Jit backend")
+    p.add_argument(
+        "--device",
+        choices=("auto", "llvm", "cuda"),
+        default="auto",
+        help="Dr.Jit backend (default: CUDA if present, else LLVM)",
+    )
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    p.add_argument(
+        "-q", "--quiet", action="store_true", help="only warnings and errors; no progress bars"
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
+
+    s = sub.add_parser("scene", help="write a Mitsuba scene file of the microscope")
+    s.add_argument(
+        "--preset",
+        choices=PRESETS,
+        required=True,
+        help="paper_4x: Table 1 optics, 1280×800 px; small: 300×300 px",
+    )
+    s.add_argument(
+        "--mla",
+        choices=("ideal", "glass"),
+        default=None,
+        help="ideal paraxial lenslets (default) or a glass spherical-cap mesh",
+    )
+    s.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override an Optics field, e.g. na=0.3 or sensor_px=640,400 (repeatable)",
+    )
+    s.add_argument("-o", "--output", required=True, metavar="OUT.xml")
+    s.add_argument("--overwrite", action="store_true")
+    s.set_defaults(func=cmd_scene, needs_backend=False)
+
+    r = sub.add_parser("render", help="render particles from a CSV into a light-field image")
+    r.add_argument("scene", metavar="SCENE.xml")
+    r.add_argument(
+        "--particles",
+        required=True,
+        metavar="P.csv",
+        help="CSV with x_um,y_um,z_um[,id,diameter_um,brightness]",
+    )
+    r.add_argument("-o", "--output", required=True, metavar="IMAGE.tif")
+    r.add_argument("--rays", type=int, default=100_000, help="rays per particle (default 1e5)")
+    r.add_argument(
+        "--noise",
+        choices=("none", "gaussian", "camera"),
+        default=None,
+        help="noise model (default gaussian)",
+    )
+    r.add_argument(
+        "--snr",
+        type=float,
+        default=None,
+        help="P99.9(clean)/sigma for --noise gaussian (default 17)",
+    )
+    r.add_argument(
+        "--bit-depth",
+        type=int,
+        choices=(8, 12, 16),
+        default=None,
+        help="output bits (default 8; camera: its own 12)",
+    )
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--tracer", choices=("mitsuba", "paraxial"), default="mitsuba")
+    r.add_argument("--no-diffraction", action="store_true", help="no Gaussian diffraction blur")
+    r.add_argument(
+        "--float",
+        action="store_true",
+        help="write the noise-free float32 expected-photon image instead",
+    )
+    r.add_argument("--overwrite", action="store_true")
+    r.set_defaults(func=cmd_render, needs_backend=True)
+
+    w = sub.add_parser("white", help="flat-field image of a uniformly fluorescent slide")
+    w.add_argument("scene", metavar="SCENE.xml")
+    w.add_argument("-o", "--output", required=True, metavar="WHITE.tif")
+    w.add_argument("--rays-per-lenslet", type=int, default=20_000)
+    w.add_argument("--snr", type=float, default=50.0, help="P99.9(clean)/sigma (default 50)")
+    w.add_argument("--bit-depth", type=int, choices=(8, 12, 16), default=16)
+    w.add_argument("--seed", type=int, default=0)
+    w.add_argument("--tracer", choices=("mitsuba", "paraxial"), default="mitsuba")
+    w.add_argument("--overwrite", action="store_true")
+    w.set_defaults(func=cmd_white, needs_backend=True)
+
+    m = sub.add_parser("micrometer", help="stage-micrometer image for pixel-size calibration")
+    m.add_argument("scene", metavar="SCENE.xml")
+    m.add_argument("-o", "--output", required=True, metavar="M.tif")
+    m.add_argument("--division-um", type=float, default=10.0, help="line spacing (default 10)")
+    m.add_argument("--line-width-um", type=float, default=2.0)
+    m.add_argument(
+        "--axis",
+        choices=("x", "y"),
+        default="x",
+        help="scale direction (x: vertical lines along x)",
+    )
+    m.add_argument("--rays-per-line", type=int, default=50_000)
+    m.add_argument("--snr", type=float, default=50.0, help="P99.9(clean)/sigma (default 50)")
+    m.add_argument("--bit-depth", type=int, choices=(8, 12, 16), default=16)
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--tracer", choices=("mitsuba", "paraxial"), default="mitsuba")
+    m.add_argument("--overwrite", action="store_true")
+    m.set_defaults(func=cmd_micrometer, needs_backend=True)
+
+    d = sub.add_parser("dataset", help="generate (or resume) a dataset from an experiment TOML")
+    d.add_argument("experiment", metavar="EXPERIMENT.toml")
+    d.add_argument("-o", "--output", required=True, metavar="DIR")
+    d.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a dataset of another experiment (removes only lfsim's files)",
+    )
+    d.add_argument("--quiet", dest="sub_quiet", action="store_true", help="no progress bar")
+    d.set_defaults(func=cmd_dataset, needs_backend=True)
+    return p
+
+
+def _setup_logging(verbose: int, quiet: bool):
+    """Attach a stderr handler to the ``lfsim`` logger; returns a function undoing it."""
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
+    logger = logging.getLogger("lfsim")
+    old_level = logger.level
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("lfsim: %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(level)
+
+    def restore() -> None:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+
+    return restore
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``lfsim`` command line; returns the exit status (0 ok, 2 error)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a usage error (2)
+        return int(exc.code or 0) if not isinstance(exc.code, str) else 2
+    args.quiet = bool(args.quiet or getattr(args, "sub_quiet", False))
+    restore_logging = _setup_logging(args.verbose, args.quiet)
+    try:
+        if args.threads is not None and args.threads < 1:
+            raise ConfigError(f"--threads must be >= 1, got {args.threads}")
+        if args.needs_backend:
+            from .backend import init_backend
+
+            init_backend(args.device, args.threads)
+        return int(args.func(args) or 0)
+    except (LfsimError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
+        msg = str(exc).replace("\n", " ").strip() or type(exc).__name__
+        print(f"lfsim: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("lfsim: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        restore_logging()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,294 @@
+"""The ``lfsim`` command line (lfsim.cli.main, run in-process)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lfsim.cli import main
+from lfsim.io import read_tiff
+from lfsim.particles import Particles
+from lfsim.scene import read_optics
+
+ROOT = Path(__file__).resolve().parents[2]
+SMALL = str(ROOT / "scenes" / "small.xml")
+
+TOML = f"""
+[experiment]
+name = "cli_tiny"
+scene = "{SMALL}"
+seed = 1
+frames = 2
+
+[particles]
+kind = "box"
+count = 3
+box_um = [[-150, 150], [-150, 150], [100, 300]]
+
+[motion]
+type = "translation"
+step_um = [5, 0, 0]
+
+[render]
+rays_per_particle = 2000
+
+[white]
+rays_per_lenslet = 200
+"""
+
+
+def error_line(capsys) -> str:
+    """The single stderr line of a failed command run with -q."""
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("lfsim: error: ")
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.fixture
+def particles_csv(tmp_path):
+    path = tmp_path / "p.csv"
+    Particles(np.array([[0.0, 0.0, 150.0], [-80.0, 60.0, 250.0]])).to_csv(path)
+    return path
+
+
+def test_help_and_usage_errors(capsys):
+    assert main(["--help"]) == 0
+    assert "dataset" in capsys.readouterr().out
+    assert main([]) == 2
+    assert main(["render"]) == 2
+    assert "lfsim: error:" in capsys.readouterr().err
+
+
+def test_scene(tmp_path, capsys):
+    out = tmp_path / "s.xml"
+    assert main(["-q", "scene", "--preset", "small", "--set", "na=0.3", "-o", str(out)]) == 0
+    optics = read_optics(out)
+    assert optics.na == 0.3 and optics.sensor_px == (300, 300) and optics.mla_kind == "ideal"
+    args = ["scene", "--preset", "paper_4x", "--set", "sensor_px=640,400", "-o", str(out)]
+    before = out.read_bytes()
+    assert main(["-q", *args]) == 2
+    assert "s.xml" in error_line(capsys) and out.read_bytes() == before
+    assert main(["-q", *args, "--overwrite"]) == 0
+    assert read_optics(out).sensor_px == (640, 400)
+    assert (
+        main(["-q", "scene", "--preset", "small", "--set", "nA=0.3", "-o", str(tmp_path / "t.xml")])
+        == 2
+    )
+    line = error_line(capsys)
+    assert "'nA'" in line and "na" in line
+    assert not (tmp_path / "t.xml").exists()
+
+
+def test_render(backend, tmp_path, particles_csv):
+    out = tmp_path / "img.tif"
+    args = ["-q", "render", SMALL, "--particles", str(particles_csv), "-o", str(out)]
+    assert main([*args, "--rays", "3000", "--snr", "20", "--seed", "4"]) == 0
+    img, meta = read_tiff(out)
+    assert img.dtype == np.uint8 and img.shape == (300, 300)
+    assert meta["noise"]["snr"] == 20 and meta["n_particles"] == 2 and meta["seed"] == 4
+    assert meta["pixel_size_um"] == pytest.approx(read_optics(SMALL).object_pixel_um)
+    again = tmp_path / "again.tif"
+    args2 = ["-q", "render", SMALL, "--particles", str(particles_csv), "-o", str(again)]
+    assert main([*args2, "--rays", "3000", "--snr", "20", "--seed", "4"]) == 0
+    assert again.read_bytes() == out.read_bytes()
+
+    flt = tmp_path / "float.tif"
+    assert (
+        main(
+            [
+                "-q",
+                "render",
+                SMALL,
+                "--particles",
+                str(particles_csv),
+                "-o",
+                str(flt),
+                "--rays",
+                "3000",
+                "--float",
+            ]
+        )
+        == 0
+    )
+    clean, meta = read_tiff(flt)
+    assert clean.dtype == np.float32 and "noise" not in meta
+    assert 0 < clean.sum() <= 2 * 3000
+
+    cam = tmp_path / "cam.tif"
+    assert (
+        main(
+            [
+                "-q",
+                "render",
+                SMALL,
+                "--particles",
+                str(particles_csv),
+                "-o",
+                str(cam),
+                "--rays",
+                "3000",
+                "--noise",
+                "camera",
+            ]
+        )
+        == 0
+    )
+    img, meta = read_tiff(cam)
+    assert img.dtype == np.uint16 and meta["noise"]["model"] == "camera"
+
+
+def test_white_and_micrometer(backend, tmp_path):
+    white = tmp_path / "w.tif"
+    assert main(["-q", "white", SMALL, "-o", str(white), "--rays-per-lenslet", "200"]) == 0
+    img, meta = read_tiff(white)
+    assert img.dtype == np.uint16 and meta["kind"] == "white"
+    m = tmp_path / "m.tif"
+    assert (
+        main(
+            [
+                "-q",
+                "micrometer",
+                SMALL,
+                "-o",
+                str(m),
+                "--division-um",
+                "20",
+                "--rays-per-line",
+                "2000",
+                "--axis",
+                "y",
+            ]
+        )
+        == 0
+    )
+    img, meta = read_tiff(m)
+    assert img.shape == (300, 300) and meta["division_um"] == 20 and meta["axis"] == "y"
+    mx = tmp_path / "mx.tif"
+    assert (
+        main(
+            [
+                "-q",
+                "micrometer",
+                SMALL,
+                "-o",
+                str(mx),
+                "--division-um",
+                "20",
+                "--rays-per-line",
+                "2000",
+                "--axis",
+                "x",
+            ]
+        )
+        == 0
+    )
+    assert not np.array_equal(read_tiff(mx)[0], img)
+
+
+def test_dataset(backend, tmp_path, capsys):
+    toml = tmp_path / "e.toml"
+    toml.write_text(TOML)
+    out = tmp_path / "ds"
+    assert main(["dataset", str(toml), "-o", str(out), "--quiet"]) == 0
+    rec = json.loads((out / "dataset.json").read_text())
+    assert rec["status"] == "complete" and rec["frames"] == 2
+    assert (out / "frames" / "000001.tif").is_file() and (out / "truth" / "000001.csv").is_file()
+    before = (out / "dataset.json").read_bytes()
+    assert main(["-q", "dataset", str(toml), "-o", str(out)]) == 0  # complete: nothing to do
+    assert (out / "dataset.json").read_bytes() == before
+
+    # Another experiment into the same folder: refused without --overwrite.
+    toml2 = tmp_path / "e2.toml"
+    toml2.write_text(TOML.replace("seed = 1", "seed = 2"))
+    assert main(["-q", "dataset", str(toml2), "-o", str(out)]) == 2
+    assert str(out) in error_line(capsys) and (out / "dataset.json").read_bytes() == before
+    assert main(["-q", "dataset", str(toml2), "-o", str(out), "--overwrite"]) == 0
+    assert json.loads((out / "dataset.json").read_text())["experiment"]["experiment"]["seed"] == 2
+
+
+def test_bad_input_gives_one_line_and_exit_2(backend, tmp_path, particles_csv, capsys):
+    # Missing scene file.
+    out = tmp_path / "img.tif"
+    missing = tmp_path / "nowhere.xml"
+    assert (
+        main(["-q", "render", str(missing), "--particles", str(particles_csv), "-o", str(out)]) == 2
+    )
+    assert "nowhere.xml" in error_line(capsys) and not out.exists()
+    # Missing particle table.
+    assert (
+        main(["-q", "render", SMALL, "--particles", str(tmp_path / "none.csv"), "-o", str(out)])
+        == 2
+    )
+    assert "none.csv" in error_line(capsys) and not out.exists()
+    # Unknown TOML key.
+    toml = tmp_path / "bad.toml"
+    toml.write_text(TOML.replace("rays_per_particle", "rays_per_partcle"))
+    assert main(["-q", "dataset", str(toml), "-o", str(tmp_path / "ds")]) == 2
+    line = error_line(capsys)
+    assert "rays_per_partcle" in line and "bad.toml" in line
+    assert not (tmp_path / "ds").exists()
+    # Existing outputs are never replaced without --overwrite.
+    for cmd in (
+        ["render", SMALL, "--particles", str(particles_csv), "--rays", "1000"],
+        ["white", SMALL, "--rays-per-lenslet", "100"],
+        ["micrometer", SMALL, "--rays-per-line", "1000"],
+    ):
+        out.write_bytes(b"precious")
+        assert main(["-q", *cmd, "-o", str(out)]) == 2
+        assert "img.tif" in error_line(capsys)
+        assert out.read_bytes() == b"precious"
+    assert (
+        main(
+            [
+                "-q",
+                "render",
+                SMALL,
+                "--particles",
+                str(particles_csv),
+                "--rays",
+                "1000",
+                "-o",
+                str(out),
+                "--overwrite",
+            ]
+        )
+        == 0
+    )
+    assert read_tiff(out)[0].shape == (300, 300)
+    # Particles outside the field of view, a non-dataset output folder, conflicting options.
+    far = tmp_path / "far.csv"
+    Particles(np.array([[900.0, 0.0, 100.0]])).to_csv(far)
+    assert (
+        main(["-q", "render", SMALL, "--particles", str(far), "-o", str(tmp_path / "f.tif")]) == 2
+    )
+    assert "field of view" in error_line(capsys)
+    toml.write_text(TOML)
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "x.txt").write_text("x")
+    assert main(["-q", "dataset", str(toml), "-o", str(tmp_path / "busy")]) == 2
+    assert "busy" in error_line(capsys)
+    assert (
+        main(
+            [
+                "-q",
+                "render",
+                SMALL,
+                "--particles",
+                str(particles_csv),
+                "-o",
+                str(tmp_path / "n.tif"),
+                "--noise",
+                "none",
+                "--snr",
+                "5",
+            ]
+        )
+        == 2
+    )
+    assert "--snr" in error_line(capsys)
