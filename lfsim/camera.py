@@ -412,10 +412,55 @@ class CameraModel:
             )
         gen = _as_generator(rng)
         electrons = gen.poisson(self.quantum_efficiency * ph).astype(np.float64)
+        return self._read_out(electrons, gen)
+
+    def expose_counts(
+        self, counts: np.ndarray, photons_per_count: float, rng: np.random.Generator | int
+    ) -> np.ndarray:
+        """Simulate one exposure from a photon-count image made by a light tracer.
+
+        A tracer's integer counts are already a shot-noise realisation (every ray is one
+        photon); applying :meth:`expose` to them would count shot noise twice. Instead the
+        counts are thinned: each counted photon yields an electron with probability
+        ``QE · photons_per_count``, so electrons ``~ Binomial(counts, QE · photons_per_count)``
+        — exactly Poisson with mean ``QE · photons_per_count · E[counts]`` when the counts are
+        Poisson. When ``QE · photons_per_count > 1`` (more photons than traced rays) thinning
+        is impossible; the electrons are then drawn as ``Poisson(QE · photons_per_count ·
+        counts)``, whose variance exceeds the true shot noise by ``1 + 1 / (QE ·
+        photons_per_count)`` — a warning says to trace more rays.
+
+        Parameters
+        ----------
+        counts : ndarray of int, shape (ny, nx)
+            Photons counted per pixel by the tracer.
+        photons_per_count : float
+            Real photons each traced ray stands for (> 0).
+        rng : numpy.random.Generator or int
+        """
+        c = np.asarray(counts)
+        if not np.issubdtype(c.dtype, np.integer) or (c.size and c.min() < 0):
+            raise ConfigError("counts must be a non-negative integer image (tracer photon counts)")
+        ppc = _positive("photons_per_count", photons_per_count)
+        gen = _as_generator(rng)
+        p = self.quantum_efficiency * ppc
+        if p <= 1.0:
+            electrons = gen.binomial(c.astype(np.int64), p).astype(np.float64)
+        else:
+            log.warning(
+                "each traced ray stands for %.3g detected electrons: shot-noise variance is "
+                "overestimated by a factor %.3g; trace more rays per particle",
+                p,
+                1 + 1 / p,
+            )
+            electrons = gen.poisson(p * c).astype(np.float64)
+        return self._read_out(electrons, gen)
+
+    def _read_out(self, electrons: np.ndarray, gen: np.random.Generator) -> np.ndarray:
+        """Full well, read noise, gain, offset, quantisation and saturation (in place)."""
         if self.full_well_e is not None:
             np.minimum(electrons, self.full_well_e, out=electrons)
         if self.read_noise_e > 0:
-            electrons += gen.normal(0.0, self.read_noise_e, size=ph.shape)
+            electrons += gen.normal(0.0, self.read_noise_e, size=electrons.shape)
         return _quantise(electrons * self.gain_dn_per_e + self.offset_dn, self.bit_depth)
 
     def mean_dn(self, photons: np.ndarray | float) -> np.ndarray | float:
@@ -794,4 +839,9 @@ def apply_noise(
         "exposure_s": t_exp,
         "camera": cam.to_dict(),
     }
+    if np.issubdtype(np.asarray(clean_photons).dtype, np.integer):
+        # Tracer photon counts: thin them rather than adding shot noise a second time.
+        info["shot_noise"] = "binomial thinning of traced photon counts"
+        return cam.expose_counts(np.asarray(clean_photons), per_unit, gen), info
+    info["shot_noise"] = "poisson"
     return cam.expose(photons, gen), info

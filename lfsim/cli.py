@@ -184,7 +184,7 @@ def cmd_render(args) -> int:
         img = clean.astype(np.float32)
         meta["units"] = "expected photons per pixel (noise-free)"
     else:
-        img, info = apply_noise(clean.astype(np.float64), spec, _noise_seed(args.seed))
+        img, info = apply_noise(clean, spec, _noise_seed(args.seed))
         meta["noise"] = info
     write_tiff(
         out,

@@ -402,9 +402,8 @@ def generate_dataset(
                 check_field=False,
             )
             try:
-                img, info = apply_noise(
-                    clean.astype(np.float64), experiment.noise_for_frame(k), n_rng
-                )
+                # Integer photon counts: the camera model thins them (no double shot noise).
+                img, info = apply_noise(clean, experiment.noise_for_frame(k), n_rng)
             except ConfigError as exc:
                 raise ConfigError(
                     f"experiment {experiment.name!r}, frame {k}: {exc} (did every particle "

@@ -275,3 +275,28 @@ def test_apply_noise_dispatch(clean):
 def test_bad_input_names_parameter(clean, call, name):
     with pytest.raises(ConfigError, match=name):
         call(clean)
+
+
+def test_tracer_counts_are_thinned_not_shot_noised_twice():
+    """Integer photon counts already carry shot noise: the camera thins them (binomial)."""
+    cam = CameraModel(
+        quantum_efficiency=0.8, read_noise_e=0.0, gain_dn_per_e=1.0, offset_dn=0.0, bit_depth=16
+    )
+    rng = np.random.default_rng(5)
+    lam = 200.0
+    counts = rng.poisson(lam, size=(300, 300)).astype(np.uint32)  # a tracer's photon counts
+    ppc = 0.5  # each traced ray stands for half a real photon
+    dn = cam.expose_counts(counts, ppc, rng).astype(np.float64)
+    mean = 0.8 * ppc * lam
+    assert dn.mean() == pytest.approx(mean, rel=0.005)
+    # Poisson statistics (+ 1/12 DN² of rounding), not the doubled variance of re-sampling.
+    assert dn.var() == pytest.approx(mean + 1 / 12, rel=0.03)
+    doubled = cam.expose(ppc * counts.astype(np.float64), rng).astype(np.float64)
+    assert doubled.var() > 1.3 * dn.var()
+    # apply_noise routes integer images through the thinning path.
+    spec = NoiseSpec(model="camera", camera=cam)
+    img, info = apply_noise(counts, spec, 1)
+    assert info["shot_noise"].startswith("binomial")
+    assert img.astype(float).var() == pytest.approx(0.8 * lam + 1 / 12, rel=0.03)
+    with pytest.raises(ConfigError, match="counts"):
+        cam.expose_counts(counts.astype(float), 1.0, rng)
