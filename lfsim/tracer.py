@@ -215,13 +215,16 @@ class _Emitter:
             mi.Point2f(rng.next_float32(), rng.next_float32()), self.cos_cutoff
         )
         w = dr.gather(mi.Float, self.weight, src)
-        return rng, o, d, w
+        return rng, o, d, w, src
 
 
 class _Film:
-    """Bins sensor positions (µm, sensor plane, scene axes) into pixels."""
+    """Bins sensor positions (µm, sensor plane, scene axes) into pixels.
 
-    def __init__(self, optics, settings: RenderSettings):
+    With ``layers > 1`` every source gets its own image (``layer`` index per ray).
+    """
+
+    def __init__(self, optics, settings: RenderSettings, layers: int = 1):
         import drjit as dr
         import mitsuba as mi
 
@@ -231,20 +234,24 @@ class _Film:
         self.pix = optics.pixel_um
         self.photons = settings.mode == "photons"
         dtype = mi.UInt32 if self.photons else mi.Float
-        self.data = dr.zeros(dtype, self.w * self.h)
+        self.layers = layers
+        self.data = dr.zeros(dtype, self.w * self.h * layers)
 
-    def splat(self, x_um, y_um, weight, active):
+    def splat(self, x_um, y_um, weight, active, layer=None):
         dr, mi = self.dr, self.mi
         col = mi.Int32(dr.floor(self.ax - x_um / self.pix))
         row = mi.Int32(dr.floor(self.ay - y_um / self.pix))
         ok = active & (col >= 0) & (col < self.w) & (row >= 0) & (row < self.h)
         index = mi.UInt32(dr.select(ok, row * self.w + col, 0))
+        if layer is not None:
+            index += layer * (self.w * self.h)
         value = mi.UInt32(1) if self.photons else weight
         dr.scatter_reduce(dr.ReduceOp.Add, self.data, value, index, ok)
 
     def numpy(self) -> np.ndarray:
         self.dr.eval(self.data)
-        return self.data.numpy().reshape(self.h, self.w)
+        shape = (self.h, self.w) if self.layers == 1 else (self.layers, self.h, self.w)
+        return self.data.numpy().reshape(shape)
 
 
 def _gauss2(rng, dr, mi):
@@ -322,7 +329,7 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     max_bounces = 6 if optics.mla_kind == "ideal" else 12
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
-        rng, o, d, w = emitter.batch(start, n)
+        rng, o, d, w, src = emitter.batch(start, n)
         origin = mi.Point3f(o.x / UM_PER_MM, o.y / UM_PER_MM, lay.object_z - o.z / UM_PER_MM)
         ray = mi.Ray3f(origin, mi.Vector3f(d.x, d.y, d.z))
         # Diffraction offsets drawn up front, in the same order as trace_paraxial.
@@ -339,7 +346,9 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     return film.numpy()
 
 
-def trace_paraxial(optics, sources: Sources, settings: RenderSettings) -> np.ndarray:
+def trace_paraxial(
+    optics, sources: Sources, settings: RenderSettings, *, per_source: bool = False
+) -> np.ndarray:
     """Trace ``sources`` through ideal optics written directly in Dr.Jit (no Mitsuba).
 
     The same optics as an ``mla_kind="ideal"`` scene: objective and tube lens as thin lenses
@@ -348,9 +357,14 @@ def trace_paraxial(optics, sources: Sources, settings: RenderSettings) -> np.nda
     :func:`lfsim.scene.write_scene`. Random numbers are drawn in the same order as
     :func:`trace_mitsuba`, so both tracers see the same rays.
 
+    Parameters
+    ----------
+    per_source : bool
+        Give every source its own image (PSF banks): the result is ``(n_sources, h, w)``.
+
     Returns
     -------
-    ndarray, shape (height, width)
+    ndarray, shape (height, width) or (n_sources, height, width)
     """
     import drjit as dr
     import mitsuba as mi
@@ -361,7 +375,7 @@ def trace_paraxial(optics, sources: Sources, settings: RenderSettings) -> np.nda
         raise ConfigError("trace_paraxial models ideal lenslets only (mla_kind='ideal')")
     counts = _ray_counts(sources, settings)
     emitter = _Emitter(sources, counts, optics, settings)
-    film = _Film(optics, settings)
+    film = _Film(optics, settings, layers=len(sources) if per_source else 1)
     if emitter.total == 0:
         return film.numpy()
     fo, ft = optics.f_objective_um, optics.f_tube_um
@@ -372,7 +386,7 @@ def trace_paraxial(optics, sources: Sources, settings: RenderSettings) -> np.nda
     s_sen = optics.sigma_sensor_um if settings.diffraction else 0.0
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
-        rng, o, d, w = emitter.batch(start, n)
+        rng, o, d, w, src = emitter.batch(start, n)
         u, v = d.x / d.z, d.y / d.z
         # Object point -> objective (distance f_obj + z: z grows away from the objective).
         t = fo + o.z
@@ -394,6 +408,6 @@ def trace_paraxial(optics, sources: Sources, settings: RenderSettings) -> np.nda
         x, y = x + u * fl, y + v * fl  # sensor
         if settings.diffraction:
             x, y = x + gx * s_sen, y + gy * s_sen
-        film.splat(x, y, w, ok)
+        film.splat(x, y, w, ok, src if per_source else None)
         dr.eval(film.data)
     return film.numpy()
