@@ -221,10 +221,10 @@ class _Emitter:
 class _Film:
     """Bins sensor positions (µm, sensor plane, scene axes) into pixels.
 
-    With ``layers > 1`` every source gets its own image (``layer`` index per ray).
+    With ``layers`` set, every source gets its own image (``layer`` index per ray).
     """
 
-    def __init__(self, optics, settings: RenderSettings, layers: int = 1):
+    def __init__(self, optics, settings: RenderSettings, layers: int | None = None):
         import drjit as dr
         import mitsuba as mi
 
@@ -235,7 +235,7 @@ class _Film:
         self.photons = settings.mode == "photons"
         dtype = mi.UInt32 if self.photons else mi.Float
         self.layers = layers
-        self.data = dr.zeros(dtype, self.w * self.h * layers)
+        self.data = dr.zeros(dtype, self.w * self.h * (layers or 1))
 
     def splat(self, x_um, y_um, weight, active, layer=None):
         dr, mi = self.dr, self.mi
@@ -250,7 +250,7 @@ class _Film:
 
     def numpy(self) -> np.ndarray:
         self.dr.eval(self.data)
-        shape = (self.h, self.w) if self.layers == 1 else (self.layers, self.h, self.w)
+        shape = (self.h, self.w) if self.layers is None else (self.layers, self.h, self.w)
         return self.data.numpy().reshape(shape)
 
 
@@ -329,7 +329,7 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     max_bounces = 6 if optics.mla_kind == "ideal" else 12
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
-        rng, o, d, w, src = emitter.batch(start, n)
+        rng, o, d, w, _src = emitter.batch(start, n)
         origin = mi.Point3f(o.x / UM_PER_MM, o.y / UM_PER_MM, lay.object_z - o.z / UM_PER_MM)
         ray = mi.Ray3f(origin, mi.Vector3f(d.x, d.y, d.z))
         # Diffraction offsets drawn up front, in the same order as trace_paraxial.
@@ -375,7 +375,7 @@ def trace_paraxial(
         raise ConfigError("trace_paraxial models ideal lenslets only (mla_kind='ideal')")
     counts = _ray_counts(sources, settings)
     emitter = _Emitter(sources, counts, optics, settings)
-    film = _Film(optics, settings, layers=len(sources) if per_source else 1)
+    film = _Film(optics, settings, layers=len(sources) if per_source else None)
     if emitter.total == 0:
         return film.numpy()
     fo, ft = optics.f_objective_um, optics.f_tube_um

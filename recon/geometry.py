@@ -57,7 +57,9 @@ class ReconGrid:
             raise InputError("depths_um must be strictly increasing")
         object.__setattr__(self, "depths_um", tuple(float(v) for v in d))
         if int(self.s) != self.s or self.s < 1:
-            raise InputError(f"super-resolution factor s must be a positive integer, got {self.s!r}")
+            raise InputError(
+                f"super-resolution factor s must be a positive integer, got {self.s!r}"
+            )
         object.__setattr__(self, "s", int(self.s))
         nl = tuple(int(v) for v in self.n_lenslets)
         if len(nl) != 2 or min(nl) < 1:
@@ -120,5 +122,5 @@ def depth_range(z_min_um: float, z_max_um: float, z_step_um: float) -> np.ndarra
         raise InputError(f"z step must be > 0 µm, got {z_step_um!r}")
     if not z_max_um >= z_min_um:
         raise InputError(f"z range must satisfy z_min <= z_max, got {z_min_um}:{z_max_um}")
-    n = int(math.floor((z_max_um - z_min_um) / z_step_um + 1e-9)) + 1
+    n = math.floor((z_max_um - z_min_um) / z_step_um + 1e-9) + 1
     return z_min_um + z_step_um * np.arange(n)

@@ -159,9 +159,7 @@ class LightFieldProjector:
 
     def backward_dr(self, polyphase):
         """``Hᵀ``: flat polyphase image (Dr.Jit Float) → flat volume channels."""
-        return self._project(
-            polyphase, self._b_word, self._b_w, self._b_off, self.n_channels, +1
-        )
+        return self._project(polyphase, self._b_word, self._b_w, self._b_off, self.n_channels, +1)
 
     # -- numpy interface -------------------------------------------------------------------
     def forward(self, volume: np.ndarray) -> np.ndarray:

@@ -153,7 +153,7 @@ def pattern_radius_lenslets(optics, z_um: float) -> int:
     cone = d * math.tan(math.asin(optics.image_na))  # radius of the light cone at the array
     spread = 1.0 + optics.mla_focal_um / max(d, optics.mla_focal_um)
     sigma = 4 * (optics.sigma_mla_um + optics.sigma_sensor_um)
-    return int(math.ceil((cone * spread + optics.mla_pitch_um + sigma) / optics.mla_pitch_um)) + 1
+    return math.ceil((cone * spread + optics.mla_pitch_um + sigma) / optics.mla_pitch_um) + 1
 
 
 def compute_psf_bank(
@@ -196,7 +196,7 @@ def compute_psf_bank(
             f"the PSF bank needs an integer number of pixels per lenslet, got {n:.4g}; "
             "rectify the images first"
         )
-    n = int(round(n))
+    n = round(n)
     depths = np.asarray(depths_um, dtype=np.float64)
     if int(s) != s or s < 1:
         raise InputError(f"super-resolution factor s must be a positive integer, got {s!r}")

@@ -1,0 +1,103 @@
+"""Richardson–Lucy: monotone KL, non-negativity, and point sources found where they are."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from recon.deconvolve import kl_divergence, richardson_lucy
+from recon.errors import InputError
+from recon.filters import DepthFilter
+
+# Point sources of the acceptance test: depths outside the near-focus aliasing zone.
+POINTS = np.array(
+    [
+        [-50.0, 90.0, 150.0],
+        [120.0, -60.0, 250.0],
+        [0.0, 0.0, 330.0],
+        [-130.0, 100.0, 390.0],
+        [80.0, 110.0, 200.0],
+        [-110.0, -100.0, 300.0],
+    ]
+)
+
+
+@pytest.fixture(scope="module")
+def point_image(small_optics_):
+    from lfsim.tracer import RenderSettings, Sources, trace_paraxial
+
+    img = trace_paraxial(
+        small_optics_,
+        Sources.spheres(POINTS, 0.0),
+        RenderSettings(rays_per_particle=400_000, mode="expected", seed=11),
+    )
+    return img / 4000.0  # 100 photons per point
+
+
+def test_kl_decreases_every_iteration_on_noise_free_data(small_projector, point_image):
+    r = richardson_lucy(point_image, small_projector, 8)
+    kl = np.array(r.kl)
+    assert len(kl) == 9
+    assert np.all(np.diff(kl) < 0)
+    assert kl[-1] < 0.1 * kl[0]
+    assert r.volume.min() >= 0
+
+
+def test_kl_still_decreases_with_the_anti_aliasing_filter(
+    small_projector, point_image, small_optics_, small_bank
+):
+    f = DepthFilter.for_optics(small_optics_, small_bank.depths_um, small_bank.s)
+    assert f.active  # near focus the filter acts
+    r = richardson_lucy(point_image, small_projector, 5, depth_filter=f)
+    assert np.all(np.diff(r.kl) < 0)
+    assert r.volume.min() >= 0
+
+
+def test_points_localised_within_one_voxel_and_two_z_steps(
+    small_projector, point_image, small_grid, small_optics_, small_bank
+):
+    f = DepthFilter.for_optics(small_optics_, small_bank.depths_um, small_bank.s)
+    vol = richardson_lucy(point_image, small_projector, 10, depth_filter=f).volume
+    xs, ys, zs = small_grid.x_um(), small_grid.y_um(), np.asarray(small_grid.depths_um)
+    dz = small_grid.z_step_um
+    for p in POINTS:
+        xi, yi, zi = (
+            int(np.argmin(np.abs(a - v))) for a, v in ((xs, p[0]), (ys, p[1]), (zs, p[2]))
+        )
+        lo = [max(zi - 8, 0), max(yi - 6, 0), max(xi - 6, 0)]
+        sub = vol[lo[0] : zi + 9, lo[1] : yi + 7, lo[2] : xi + 7]
+        kz, ky, kx = np.add(np.unravel_index(np.argmax(sub), sub.shape), lo)
+        assert abs(xs[kx] - p[0]) <= small_grid.voxel_um, p
+        assert abs(ys[ky] - p[1]) <= small_grid.voxel_um, p
+        assert abs(zs[kz] - p[2]) <= 2 * dz, p
+
+
+def test_zero_and_dark_regions_do_not_blow_up(small_projector):
+    img = np.zeros(small_projector.image_shape, np.float32)
+    r = richardson_lucy(img, small_projector, 2)
+    assert np.all(np.isfinite(r.volume))
+    assert r.volume.max() == 0
+
+
+def test_stop_on_relative_change(small_projector, point_image):
+    r = richardson_lucy(point_image, small_projector, 50, stop_rel_change=0.05)
+    assert r.iterations < 50
+    assert r.rel_change[-1] < 0.05
+
+
+def test_bad_images_rejected(small_projector):
+    shape = small_projector.image_shape
+    bad = np.ones(shape, np.float32)
+    bad[3, 3] = np.nan
+    with pytest.raises(InputError, match="non-finite"):
+        richardson_lucy(bad, small_projector, 1)
+    with pytest.raises(InputError, match="non-negative"):
+        richardson_lucy(-np.ones(shape, np.float32), small_projector, 1)
+    with pytest.raises(InputError, match="rectified"):
+        richardson_lucy(np.ones((10, 10), np.float32), small_projector, 1)
+
+
+def test_kl_divergence_definition():
+    y = np.array([1.0, 0.0, 2.0])
+    m = np.array([1.0, 0.5, 1.0])
+    assert kl_divergence(y, m) == pytest.approx(0 + 0.5 + (2 * np.log(2) - 2 + 1))
