@@ -67,7 +67,7 @@ def test_cache_round_trip(backend, small_optics_, tmp_path):
     c = PSFBank.load(files[0])
     assert c.optics == small_optics_.to_dict()
     # A different s is a different bank.
-    compute_psf_bank(small_optics_, [100.0, 200.0], 1, **kw)
+    compute_psf_bank(small_optics_, [100.0, 200.0], 1, rays_per_pattern=5000, cache_dir=tmp_path)
     assert len(list(tmp_path.glob("psf_*.npz"))) == 2
 
 
