@@ -1,9 +1,14 @@
-"""The ``recon`` command line (light-field calibration and, later, volume reconstruction).
+"""The ``recon`` command line: lenslet calibration and volume reconstruction.
 
 Commands::
 
     recon calibrate WHITE.tif --scene SCENE.xml -o calib.json [--overwrite]
-    recon run ...            (not implemented yet)
+    recon run FRAMES... [--scene SCENE.xml] [--calib calib.json] [--z-range -80:720]
+              [--z-step 5] [--iterations 3] [-s 5] -o VOLDIR [--overwrite] ...
+
+``FRAMES`` are TIFF files, a folder of TIFFs, or an ``lfsim`` dataset folder (its
+``dataset.json`` names the scene and its ``white.tif`` is calibrated when no ``--calib`` is
+given).
 
 Global options (before or after the command): ``--threads N``, ``-v`` (info; ``-vv`` debug),
 ``-q`` (errors only). Errors a user can cause (bad files, no lenslet grid, an existing output)
@@ -82,8 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``recon`` argument parser (one sub-parser per command)."""
     parser = argparse.ArgumentParser(
         prog="recon",
-        description="Light-field microscopy reconstruction (hrvptm): lenslet calibration; "
-        "volume reconstruction comes in a later version.",
+        description="Light-field microscopy reconstruction (hrvptm): lenslet calibration and "
+        "Richardson-Lucy volume reconstruction on Dr.Jit.",
         parents=[_common_options(suppress=False)],
     )
     parser.add_argument("--version", action="version", version=f"recon (hrvptm) {__version__}")
@@ -114,44 +119,61 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser(
         "run",
         parents=[common],
-        help="reconstruct volumes (not implemented yet)",
-        description="Volume reconstruction (not implemented yet in this version).",
+        help="reconstruct volumes from light-field frames",
+        description="Reconstruct a time series of light-field frames into float32 volumes "
+        "(z, y, x) with Richardson-Lucy deconvolution. Resumes an interrupted run; refuses an "
+        "output folder made from other inputs unless --overwrite.",
     )
-    run.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+    run.add_argument(
+        "frames",
+        nargs="+",
+        type=Path,
+        metavar="FRAMES",
+        help="TIFF frames, a folder of TIFFs, or an lfsim dataset folder",
+    )
+    run.add_argument("--scene", type=Path, metavar="SCENE.xml", help="scene file (optics)")
+    run.add_argument("--calib", type=Path, metavar="CALIB.json", help="from recon calibrate")
+    run.add_argument(
+        "--z-range", default="-80:720", metavar="ZMIN:ZMAX", help="depths in µm (-80:720)"
+    )
+    run.add_argument("--z-step", type=float, default=5.0, help="depth step in µm (5)")
+    run.add_argument("--iterations", type=int, default=3, help="Richardson-Lucy iterations (3)")
+    run.add_argument(
+        "-s", "--super-resolution", type=int, default=5, dest="s", help="voxels per lenslet (5)"
+    )
+    run.add_argument(
+        "--lanczos", type=float, default=2.0, help="anti-aliasing filter window (2; 0 = off)"
+    )
+    run.add_argument("--stop-rel-change", type=float, default=None, help="early stop threshold")
+    run.add_argument("--rays-per-pattern", type=int, default=200_000, help="PSF bank rays")
+    run.add_argument("--dark", type=Path, metavar="DARK.tif", help="dark frame to subtract")
+    run.add_argument(
+        "--background",
+        default="auto",
+        help="constant to subtract: a number, 'auto' (the image median, default) or 'none'",
+    )
+    run.add_argument("--hot-pixels", action="store_true", help="suppress isolated hot pixels")
+    run.add_argument("--roi", default=None, metavar="X0:X1,Y0:Y1", help="pixel region")
+    run.add_argument("--device", choices=("auto", "llvm", "cuda"), default="auto")
+    run.add_argument("-o", "--output", type=Path, required=True, metavar="VOLDIR")
+    run.add_argument("--overwrite", action="store_true", help="replace another run's volumes")
     run.set_defaults(func=_cmd_run)
     return parser
 
 
 # -- commands ---------------------------------------------------------------------------------
 def read_white(path: Path) -> np.ndarray:
-    """Read a white image: one 2-D TIFF of integer or real pixels.
+    """Read a white image: one 2-D TIFF of integer or real pixels (as float32).
 
     Raises
     ------
     InputError
-        Missing or unreadable file, a stack or colour image, or a non-numeric dtype (names
-        the file).
+        Missing or unreadable file, a stack or colour image, a non-numeric dtype or
+        non-finite pixels (names the file).
     """
-    import tifffile
+    from .preprocess import read_frame
 
-    if not path.exists():
-        raise InputError(f"white image {path} does not exist")
-    if not path.is_file():
-        raise InputError(f"white image {path} is not a file")
-    try:
-        with tifffile.TiffFile(path) as tif:
-            n_pages = len(tif.pages)
-            image = tif.asarray()
-    except Exception as exc:  # tifffile raises assorted types on corrupt or foreign files
-        raise InputError(f"cannot read white image {path} as TIFF: {exc}") from exc
-    if image.ndim != 2 or n_pages != 1:
-        raise InputError(
-            f"white image {path} holds an array of shape {image.shape}; expected one 2-D "
-            "grey-level image (a stack or colour image cannot be calibrated)"
-        )
-    if image.dtype.kind not in "uif":
-        raise InputError(f"white image {path} has unsupported pixel type {image.dtype}")
-    return image
+    return read_frame(path, what="white image")
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -218,11 +240,113 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_range(text: str, what: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise InputError(f"{what} must look like MIN:MAX (e.g. -80:720), got {text!r}") from None
+    return a, b
+
+
+def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
+    if text is None:
+        return None
+    try:
+        xs, ys = text.split(",")
+        x0, x1 = (int(v) for v in xs.split(":"))
+        y0, y1 = (int(v) for v in ys.split(":"))
+    except ValueError:
+        raise InputError(f"--roi must look like X0:X1,Y0:Y1 in pixels, got {text!r}") from None
+    return (x0, x1, y0, y1)
+
+
+def _resolve_inputs(args: argparse.Namespace):
+    """Frames, optics and lenslet grid from the command line (and a dataset folder)."""
+    from lfsim.io import read_json
+    from lfsim.scene import read_optics
+
+    from .calibration import LensletGrid
+
+    frames: list[Path] = []
+    dataset = None
+    for f in args.frames:
+        if f.is_dir():
+            if (f / "dataset.json").is_file():
+                dataset = f
+                frames += sorted((f / "frames").glob("*.tif"))
+            else:
+                frames += sorted(list(f.glob("*.tif")) + list(f.glob("*.tiff")))
+        else:
+            frames.append(f)
+    if not frames:
+        raise InputError(f"no TIFF frames found in {', '.join(map(str, args.frames))}")
+    scene = args.scene
+    if scene is None and dataset is not None:
+        scene = Path(read_json(dataset / "dataset.json")["scene"]["path"])
+        if not scene.is_absolute():
+            scene = (dataset / scene).resolve()
+    if scene is None:
+        raise InputError("--scene is required (the optics of the microscope)")
+    optics = read_optics(scene)
+    if args.calib is not None:
+        grid = LensletGrid.load(args.calib)
+    elif dataset is not None and (dataset / "white.tif").is_file():
+        log.info("calibrating the lenslet grid from %s", dataset / "white.tif")
+        white = read_white(dataset / "white.tif")
+        grid = calibrate_white(white, expected_pitch_px=optics.px_per_lenslet)
+    else:
+        raise InputError("--calib is required (make one with `recon calibrate`)")
+    return frames, optics, grid, scene
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
-    raise ReconError(
-        "'recon run' (volume reconstruction) is not implemented yet in this version of hrvptm; "
-        "'recon calibrate' is available"
+    from lfsim import init_backend
+
+    from .pipeline import ReconSettings, reconstruct_series
+    from .preprocess import Preprocess, read_frame
+
+    z0, z1 = _parse_range(args.z_range, "--z-range")
+    settings = ReconSettings(
+        z_min_um=z0,
+        z_max_um=z1,
+        z_step_um=args.z_step,
+        s=args.s,
+        iterations=args.iterations,
+        lanczos_a=args.lanczos if args.lanczos > 0 else None,
+        stop_rel_change=args.stop_rel_change,
+        rays_per_pattern=args.rays_per_pattern,
+        roi_px=_parse_roi(args.roi),
     )
+    background = None if args.background == "none" else args.background
+    if background not in (None, "auto"):
+        try:
+            background = float(background)
+        except ValueError:
+            raise InputError(
+                f"--background must be a number or 'auto', got {background!r}"
+            ) from None
+    dark = read_frame(args.dark, what="dark frame") if args.dark else None
+    pre = Preprocess(dark=dark, background=background, hot_pixels=args.hot_pixels)
+    frames, optics, grid, scene = _resolve_inputs(args)
+    init_backend(device=args.device, threads=getattr(args, "threads", None))
+    t0 = time.perf_counter()
+    res = reconstruct_series(
+        frames,
+        args.output,
+        optics=optics,
+        grid=grid,
+        settings=settings,
+        preprocess=pre,
+        overwrite=args.overwrite,
+        progress=not getattr(args, "quiet", False),
+        provenance={"scene": str(Path(scene).resolve()), "command": "recon run"},
+    )
+    if not getattr(args, "quiet", False):
+        sys.stdout.write(
+            f"{args.output}: {len(res.done)} volume(s) reconstructed, {len(res.skipped)} "
+            f"already done, {time.perf_counter() - t0:.1f} s\n"
+        )
+    return 0
 
 
 # -- entry point ------------------------------------------------------------------------------
@@ -243,6 +367,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     from lfsim.errors import LfsimError
 
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # "--z-range -80:720": let a negative range follow its option like a number would.
+    for i, a in enumerate(argv[:-1]):
+        if a == "--z-range" and argv[i + 1].startswith("-"):
+            argv[i : i + 2] = [f"--z-range={argv[i + 1]}"]
+            break
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)

@@ -24,8 +24,10 @@ from .errors import InputError
 log = logging.getLogger(__name__)
 
 
-def read_frame(path: str | os.PathLike) -> np.ndarray:
-    """Read one 2-D light-field frame (8/12/16-bit integer or float TIFF) as float32.
+def read_frame(path: str | os.PathLike, what: str = "frame") -> np.ndarray:
+    """Read one 2-D light-field image (8/12/16-bit integer or float TIFF) as float32.
+
+    ``what`` names the image in error messages ("frame", "white image", "dark frame").
 
     Raises
     ------
@@ -36,22 +38,23 @@ def read_frame(path: str | os.PathLike) -> np.ndarray:
 
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"frame {str(path)!r} does not exist")
+        raise InputError(f"{what} {str(path)!r} does not exist")
     try:
-        arr = tifffile.imread(path)
-    except (OSError, ValueError, tifffile.TiffFileError) as exc:
-        raise InputError(f"cannot read frame {str(path)!r} as TIFF: {exc}") from exc
-    arr = np.squeeze(arr)
-    if arr.ndim != 2:
+        with tifffile.TiffFile(path) as tif:
+            n_pages = len(tif.pages)
+            arr = tif.asarray()
+    except (OSError, ValueError, IndexError, tifffile.TiffFileError) as exc:
+        raise InputError(f"cannot read {what} {str(path)!r} as TIFF: {exc}") from exc
+    if arr.ndim != 2 or n_pages != 1:
         raise InputError(
-            f"frame {str(path)!r} has shape {arr.shape}; expected one 2-D image (y, x) — "
-            "split stacks into one file per frame"
+            f"{what} {str(path)!r} holds an array of shape {arr.shape}; expected one 2-D "
+            "grey-level image (y, x) — split stacks into one file per frame"
         )
     if arr.dtype.kind not in "uif":
-        raise InputError(f"frame {str(path)!r} has unsupported pixel type {arr.dtype}")
+        raise InputError(f"{what} {str(path)!r} has unsupported pixel type {arr.dtype}")
     out = arr.astype(np.float32)
     if not np.all(np.isfinite(out)):
-        raise InputError(f"frame {str(path)!r} holds non-finite pixels (NaN or inf)")
+        raise InputError(f"{what} {str(path)!r} holds non-finite pixels (NaN or inf)")
     return out
 
 
@@ -91,8 +94,9 @@ class Preprocess:
     dark : ndarray or None
         Dark frame (same shape as the images) subtracted pixel by pixel.
     background : float or "auto" or None
-        Constant subtracted after the dark frame; ``"auto"`` uses the 5th percentile of the
-        image (the dark space between lenslet images and spots). ``None``: nothing.
+        Constant subtracted after the dark frame. ``"auto"`` uses the image's median: in a
+        light-field image of sparse fluorescent particles most pixels see only the camera's
+        black level (and its noise). ``None``: nothing.
     hot_pixels : bool
         Suppress isolated hot pixels (off by default; real cameras usually want it).
     hot_threshold : float
@@ -143,7 +147,7 @@ def prepare_image(image: np.ndarray, settings: Preprocess | None = None) -> tupl
     if st.hot_pixels:
         img, info["hot_pixels"] = suppress_hot_pixels(img, st.hot_threshold)
     if st.background == "auto":
-        info["background"] = float(np.percentile(img, 5))
+        info["background"] = float(np.median(img))
     elif st.background is not None:
         info["background"] = float(st.background)
     img = np.maximum(img - info["background"], 0.0).astype(np.float32)

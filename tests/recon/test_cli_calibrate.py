@@ -125,13 +125,6 @@ def test_verbosity_options(tmp_path, capsys, white_tif):
     assert rc == 0
 
 
-def test_run_is_not_implemented(capsys):
-    rc, _, err = _run(capsys, "run", "frames/", "-o", "volumes/")
-    assert rc == 2
-    assert err.count("\n") == 1
-    assert err.startswith("recon: error:") and "not implemented yet" in err
-
-
 def test_usage_errors(capsys):
     rc, _, err = _run(capsys)
     assert rc == 2 and "calibrate" in err

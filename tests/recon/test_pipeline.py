@@ -1,0 +1,210 @@
+"""End to end: an lfsim dataset through `recon run`, resume, refusals, bad input."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recon.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+EXPERIMENT = """
+[experiment]
+name = "recon_test"
+scene = "{scene}"
+seed = 3
+frames = 3
+
+[particles]
+kind = "box"
+count = 6
+box_um = [[-180, 160], [-180, 160], [150, 350]]
+min_spacing_um = 60
+diameter_um = 15
+
+[motion]
+type = "translation"
+step_um = [5.0, 0.0, 0.0]
+
+[render]
+rays_per_particle = 30000
+
+[noise]
+model = "gaussian"
+snr = 30
+
+[white]
+rays_per_lenslet = 3000
+"""
+
+FAST = ["--z-range", "-40:400", "--z-step", "20", "-s", "3", "--rays-per-pattern", "20000"]
+
+
+@pytest.fixture(scope="module")
+def dataset(backend, tmp_path_factory):
+    from lfsim.dataset import generate_dataset
+    from lfsim.experiment import load_experiment
+
+    d = tmp_path_factory.mktemp("ds")
+    toml = d / "exp.toml"
+    toml.write_text(EXPERIMENT.format(scene=(ROOT / "scenes" / "small.xml").as_posix()))
+    out = d / "dataset"
+    generate_dataset(load_experiment(toml), out, progress=False)
+    return out
+
+
+def run(capsys, *args):
+    rc = main(["-q", *map(str, args)])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_dataset_folder_reconstructs_and_finds_particles(dataset, tmp_path, capsys):
+    from lfsim.io import read_json, read_tiff
+
+    vol_dir = tmp_path / "vol"
+    rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "4", "-o", vol_dir)
+    assert rc == 0, err
+    meta = read_json(vol_dir / "recon.json")
+    assert meta["status"] == "complete"
+    assert len(meta["frames"]) == 3
+    assert all(len(f["input_sha256"]) == 64 for f in meta["frames"])
+    vol, vmeta = read_tiff(vol_dir / "000000.tif")
+    assert vol.dtype == np.float32
+    assert vol.shape == tuple(meta["volume_shape"])
+    assert vmeta["voxel_size_um"] == pytest.approx([20.0, 25 / 3, 25 / 3])
+    # Every particle has a bright voxel within 1.5 lateral voxels and 2 z-steps of it.
+    g = meta["grid"]
+    depths = np.asarray(g["depths_um"])
+    vox = g["lenslet_object_um"] / g["s"]
+    truth = np.loadtxt(dataset / "truth" / "000000.csv", delimiter=",", skiprows=1)[:, 1:4]
+    for x, y, z in truth:
+        i = int((x - g["origin_um"][0]) / vox)
+        j = int((y - g["origin_um"][1]) / vox)
+        k = int(np.argmin(np.abs(depths - z)))
+        near = vol[max(k - 2, 0) : k + 3, max(j - 2, 0) : j + 3, max(i - 2, 0) : i + 3]
+        assert near.max() > 0.3 * vol.max(), (x, y, z)
+
+
+def test_resume_and_refusal(dataset, tmp_path, capsys):
+    vol_dir = tmp_path / "vol"
+    args = ["run", dataset, *FAST, "--iterations", "1", "-o", vol_dir]
+    assert run(capsys, *args)[0] == 0
+    before = {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")}
+    (vol_dir / "000001.tif").unlink()
+    rc, out, _ = main_verbose(capsys, *args)
+    assert rc == 0
+    assert "1 volume(s) reconstructed, 2 already done" in out
+    after = {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")}
+    assert after == before  # the resumed frame is byte-identical
+    # Other settings into the same folder: refused, nothing touched.
+    rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "2", "-o", vol_dir)
+    assert rc == 2 and "other inputs or settings" in err and err.count("\n") == 1
+    assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
+    # A folder that is not ours: refused.
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    rc, _, err = run(capsys, "run", dataset, *FAST, "-o", foreign)
+    assert rc == 2 and "not empty" in err
+    assert (foreign / "notes.txt").read_text() == "mine"
+
+
+def main_verbose(capsys, *args):
+    rc = main([*map(str, args)])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_bad_inputs(dataset, tmp_path, capsys):
+    import tifffile
+
+    # Frame size different from the calibration's.
+    small = tmp_path / "small.tif"
+    tifffile.imwrite(small, np.zeros((100, 120), np.uint8))
+    calib = tmp_path / "calib.json"
+    assert (
+        run(
+            capsys,
+            "calibrate",
+            dataset / "white.tif",
+            "--scene",
+            ROOT / "scenes" / "small.xml",
+            "-o",
+            calib,
+        )[0]
+        == 0
+    )
+    rc, _, err = run(
+        capsys,
+        "run",
+        small,
+        "--scene",
+        ROOT / "scenes/small.xml",
+        "--calib",
+        calib,
+        *FAST,
+        "-o",
+        tmp_path / "v1",
+    )
+    assert rc == 2 and "calibration" in err and "small.tif" in err
+    # Non-finite pixels.
+    nan = tmp_path / "nan.tif"
+    a = np.ones((300, 300), np.float32)
+    a[5, 5] = np.nan
+    tifffile.imwrite(nan, a)
+    rc, _, err = run(
+        capsys,
+        "run",
+        nan,
+        "--scene",
+        ROOT / "scenes/small.xml",
+        "--calib",
+        calib,
+        *FAST,
+        "-o",
+        tmp_path / "v2",
+    )
+    assert rc == 2 and "non-finite" in err
+    # A depth range these optics cannot resolve on a 20 x 20-lenslet image.
+    rc, _, err = run(
+        capsys, "run", dataset, "--z-range", "0:3000", "--z-step", "50", "-o", tmp_path / "v3"
+    )
+    assert rc == 2 and "cannot be resolved" in err
+    # Missing frames, bad z step.
+    rc, _, err = run(
+        capsys,
+        "run",
+        tmp_path / "missing.tif",
+        "--scene",
+        ROOT / "scenes/small.xml",
+        "--calib",
+        calib,
+        "-o",
+        tmp_path / "v4",
+    )
+    assert rc == 2 and "missing.tif" in err
+    rc, _, err = run(capsys, "run", dataset, "--z-step", "0", "-o", tmp_path / "v5")
+    assert rc == 2 and "z step" in err
+    for d in ("v1", "v2", "v3", "v4", "v5"):
+        assert not (tmp_path / d).exists() or not any((tmp_path / d).iterdir())
+
+
+def test_roi_reconstructs_a_sub_field(dataset, tmp_path, capsys):
+    from lfsim.io import read_json
+
+    vol_dir = tmp_path / "roi"
+    rc, _, err = run(
+        capsys, "run", dataset, *FAST, "--iterations", "1", "--roi", "30:240,45:255", "-o", vol_dir
+    )
+    assert rc == 0, err
+    meta = read_json(vol_dir / "recon.json")
+    nx, ny = meta["grid"]["n_lenslets"]
+    # 14 whole lenslets lie in the region; rectification keeps those whose samples all lie
+    # inside the region's pixel centres (the border lenslets may drop out).
+    assert 12 <= nx <= 14 and 12 <= ny <= 14
+    shutil.rmtree(vol_dir)
