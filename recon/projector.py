@@ -150,7 +150,11 @@ class LightFieldProjector:
             acc = dr.fma(wt, dr.gather(Float, src, idx, ok), acc)
             return i + 1, acc
 
-        _, acc = dr.while_loop((start, dr.zeros(Float, n_groups * plane)), cond, body)
+        # max_iterations=-1: the loop is a plain sum over entries, which lets Dr.Jit
+        # differentiate it in reverse mode without storing its trajectory.
+        _, acc = dr.while_loop(
+            (start, dr.zeros(Float, n_groups * plane)), cond, body, max_iterations=-1
+        )
         return acc
 
     def forward_dr(self, channels):
