@@ -1,0 +1,224 @@
+"""Particle PSF estimate, secondary deconvolution and the detect_particles pipeline."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+from scipy.spatial import cKDTree
+
+from track.deconvolve import deconvolve
+from track.detect import DetectSettings, detect_particles
+from track.errors import InputError, TrackingError
+from track.psf_estimate import box_shape_vox, estimate_psf, find_isolated_peaks, load_psf
+
+from .conftest import random_centres, render_blobs
+
+SIGMA = (2.5, 1.2, 1.2)  # voxels, elongated along z
+VOXEL = (5.0, 1.64, 1.64)  # µm (dz, dy, dx)
+PSF_BOX_UM = (80.0, 16.0, 16.0)  # 17 × 11 × 11 voxels
+
+
+def _moment_sigmas(img):
+    w = img / img.sum()
+    g = np.indices(img.shape)
+    mean = [float((w * g[a]).sum()) for a in range(3)]
+    return np.array([np.sqrt((w * (g[a] - mean[a]) ** 2).sum()) for a in range(3)]), mean
+
+
+def _true_psf(shape):
+    c = [n // 2 for n in shape]
+    psf = render_blobs(shape, c, SIGMA)
+    return psf / psf.sum()
+
+
+# -- PSF estimate ----------------------------------------------------------------------------
+def test_estimate_psf_recovers_blob_shape_and_skips_crowded(rng):
+    shape = (64, 96, 96)
+    centres = random_centres(rng, shape, 20, (18, 12, 12), (10, 7, 7))
+    crowd = np.array([[32.2, 48.3, 46.1], [32.0, 48.1, 50.4]])  # 4.3 voxels apart along x
+    keep = np.any(np.abs(centres - crowd.mean(axis=0)) > (12, 8, 8), axis=1)
+    vol = render_blobs(shape, centres[keep], SIGMA, rng.uniform(0.7, 1.0, keep.sum()), 0.05)
+    vol += render_blobs(shape, crowd, SIGMA, 1.0)
+    vol += rng.normal(0, 0.02, shape)  # SNR 50
+    box = box_shape_vox(PSF_BOX_UM, VOXEL)
+    assert box == (17, 11, 11)
+    isolated, crowded = find_isolated_peaks(vol, box)
+    assert len(crowded) >= 1
+    near_pair = np.linalg.norm((isolated - crowd.mean(axis=0)) * VOXEL, axis=1) < 10
+    assert not near_pair.any()
+    assert len(isolated) >= 10
+    psf = estimate_psf(vol, VOXEL, n_particles=10, box_um=PSF_BOX_UM)
+    assert psf.shape == box and psf.dtype == np.float32
+    assert psf.sum() == pytest.approx(1.0, abs=1e-5) and psf.min() >= 0
+    sig, mean = _moment_sigmas(psf.astype(float))
+    true_sig, _ = _moment_sigmas(_true_psf(box))
+    print(f"PSF σ z/y/x = {sig.round(3)} voxel, true (same box) {true_sig.round(3)}")
+    np.testing.assert_allclose(sig, true_sig, rtol=0.10)
+    np.testing.assert_allclose(mean, [n // 2 for n in box], atol=0.1)
+
+
+def test_estimate_psf_errors():
+    with pytest.raises(TrackingError, match="isolated"):
+        estimate_psf(np.zeros((30, 30, 30)), VOXEL, box_um=PSF_BOX_UM)
+    with pytest.raises(InputError, match="box_um"):
+        estimate_psf(np.zeros((10, 30, 30)), VOXEL, box_um=PSF_BOX_UM)
+    with pytest.raises(InputError, match="n_particles"):
+        estimate_psf(np.zeros((30, 30, 30)), VOXEL, n_particles=0)
+
+
+def test_load_psf(tmp_path):
+    psf = _true_psf((9, 7, 7)).astype(np.float32) * 5
+    tifffile.imwrite(tmp_path / "psf.tif", psf)
+    got = load_psf(tmp_path / "psf.tif")
+    np.testing.assert_allclose(got, psf / psf.sum(), rtol=1e-5)
+    with pytest.raises(InputError, match="does not exist"):
+        load_psf(tmp_path / "missing.tif")
+    tifffile.imwrite(tmp_path / "even.tif", np.ones((8, 7, 7), np.float32))
+    with pytest.raises(InputError, match="odd"):
+        load_psf(tmp_path / "even.tif")
+    tifffile.imwrite(tmp_path / "flat.tif", np.ones((7, 7), np.float32))
+    with pytest.raises(InputError, match="3-D"):
+        load_psf(tmp_path / "flat.tif")
+    (tmp_path / "junk.tif").write_bytes(b"not a tiff")
+    with pytest.raises(InputError, match="TIFF"):
+        load_psf(tmp_path / "junk.tif")
+
+
+# -- deconvolution ---------------------------------------------------------------------------
+def test_deconvolution_sharpens_conserves_flux_and_stays_positive(rng):
+    shape = (48, 48, 48)
+    centres = random_centres(rng, shape, 6, (14, 8, 8), (12, 10, 10))
+    vol = render_blobs(shape, centres, SIGMA)
+    psf = _true_psf((21, 11, 11))
+    out = deconvolve(vol, psf, iterations=5)
+    assert out.shape == shape and out.dtype == np.float32 and out.min() >= 0
+    assert out.sum() == pytest.approx(vol.sum(), rel=0.01)
+    assert out.max() > 2.0 * vol.max()
+    p = np.rint(centres[0]).astype(int)
+    sl = tuple(slice(p[i] - 6, p[i] + 7) for i in range(3))
+    before, _ = _moment_sigmas(vol[sl])
+    after, _ = _moment_sigmas(out[sl].astype(float))
+    assert np.all(after < 0.8 * before)
+    # noisy data with negative voxels and zero regions: no blow-ups, still non-negative
+    noisy = vol + rng.normal(0, 0.05, shape)
+    noisy[:, :, :10] = 0.0
+    out2 = deconvolve(noisy, psf, iterations=5)
+    assert np.all(np.isfinite(out2)) and out2.min() >= 0 and out2.max() < 10 * out.max()
+    assert np.all(out2[:, :, :4] == 0)
+    np.testing.assert_array_equal(deconvolve(vol, psf, iterations=0), vol.astype(np.float32))
+    with pytest.raises(InputError, match="iterations"):
+        deconvolve(vol, psf, iterations=-1)
+    with pytest.raises(InputError, match="odd"):
+        deconvolve(vol, np.ones((4, 3, 3)))
+
+
+# -- the pipeline ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(7)
+    shape = (64, 96, 96)
+    centres = random_centres(rng, shape, 30, (14, 9, 9), (8, 5, 5))
+    clean = render_blobs(shape, centres, SIGMA, rng.uniform(0.7, 1.0, 30), background=0.05)
+    vol = (clean + rng.normal(0, 1.0 / 30, shape)).astype(np.float32)  # SNR 30
+    return vol, centres
+
+
+def _match(found_vox, truth_vox):
+    dist, idx = cKDTree(truth_vox).query(found_vox)
+    return dist, idx
+
+
+@pytest.mark.parametrize("method", ["radial", "centroid"])
+def test_detect_particles_end_to_end(scene, method):
+    vol, truth = scene
+    origin = (-100.0, 20.0, 300.0)
+    det = detect_particles(
+        vol, VOXEL, DetectSettings(psf_box_um=PSF_BOX_UM, method=method), origin_um=origin
+    )
+    assert not det.empty and not det.report["empty"]
+    dist, idx = _match(det.positions_vox, truth)
+    assert np.all(dist < 1.5), "false positive"
+    assert len(set(idx)) == det.n  # no particle found twice
+    assert det.n >= 0.95 * len(truth)
+    err = det.positions_vox - truth[idx]
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    print(f"{method}: RMS error z/y/x = {rms.round(4)} voxel over {det.n} particles")
+    assert np.all(rms < (0.2 if method == "radial" else 0.3))
+    if method == "radial":
+        assert np.all(rms[1:] < 0.05)
+    # (z, y, x) voxels -> (x, y, z) µm with anisotropic voxels and the origin
+    p = det.positions_vox
+    expected_um = np.column_stack(
+        [origin[0] + p[:, 2] * 1.64, origin[1] + p[:, 1] * 1.64, origin[2] + p[:, 0] * 5.0]
+    )
+    np.testing.assert_allclose(det.positions_um, expected_um, rtol=0, atol=1e-9)
+    t = truth[idx]
+    truth_um = np.column_stack(
+        [origin[0] + t[:, 2] * 1.64, origin[1] + t[:, 1] * 1.64, origin[2] + t[:, 0] * 5.0]
+    )
+    err_um = det.positions_um - truth_um
+    assert np.all(np.sqrt(np.mean(err_um**2, axis=0)) < np.array([1.64, 1.64, 5.0]) * 0.2)
+    assert det.intensities.shape == (det.n,) and det.sizes_vox.shape == (det.n,)
+    r = det.report
+    assert r["counts"]["localized"] == det.n and r["deconvolution_iterations"] == 5
+    assert "estimated" in r["psf"] and r["threshold"] > 0
+    assert all(b["reason"] for b in r["rejected"])
+
+
+def test_detect_with_given_psf_and_without_deconvolution(scene):
+    vol, truth = scene
+    psf = _true_psf((17, 11, 11))
+    for settings, p in [
+        (DetectSettings(), psf),
+        (DetectSettings(deconvolution_iterations=0), None),
+    ]:
+        det = detect_particles(vol, VOXEL, settings, psf=p)
+        dist, _ = _match(det.positions_vox, truth)
+        assert det.n >= 0.95 * len(truth) and np.all(dist < 1.5)
+
+
+def test_detect_empty_volume_returns_empty_detection(rng):
+    for vol in (np.zeros((20, 30, 30)), rng.normal(0, 1, (20, 30, 30))):
+        det = detect_particles(vol, VOXEL)
+        assert det.empty and det.report["empty"]
+        assert det.positions_um.shape == (0, 3) and det.intensities.shape == (0,)
+        assert "not available" in det.report["psf"]
+
+
+@pytest.mark.parametrize(
+    ("volume", "voxel", "kwargs", "name"),
+    [
+        (np.zeros((10, 10)), VOXEL, {}, "volume"),
+        (np.zeros((0, 10, 10)), VOXEL, {}, "volume"),
+        (np.full((5, 5, 5), np.inf), VOXEL, {}, "non-finite"),
+        (np.zeros((5, 5, 5)), (5.0, 0.0, 1.64), {}, "voxel_size_um"),
+        (np.zeros((5, 5, 5)), (5.0, 1.64), {}, "voxel_size_um"),
+        (np.zeros((5, 5, 5)), VOXEL, {"origin_um": (0, np.nan, 0)}, "origin_um"),
+        (np.zeros((5, 5, 5)), VOXEL, {"settings": "fast"}, "settings"),
+        (np.zeros((5, 5, 5)), VOXEL, {"psf": np.ones((2, 3, 3))}, "psf"),
+    ],
+)
+def test_detect_rejects_bad_input(volume, voxel, kwargs, name):
+    with pytest.raises(InputError, match=name):
+        detect_particles(volume, voxel, **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"threshold": 0.0}, "threshold"),
+        ({"threshold": "otsu"}, "threshold"),
+        ({"deconvolution_iterations": -1}, "deconvolution_iterations"),
+        ({"method": "gauss"}, "method"),
+        ({"blob_min_vox": 10, "blob_max_vox": 5}, "blob_min_vox"),
+        ({"edge_margin_um": -1.0}, "edge_margin_um"),
+        ({"half_box_vox": (3, 0, 2)}, "half_box_vox"),
+        ({"localize_on": "raw"}, "localize_on"),
+        ({"auto_size_factors": (2.0, 3.0)}, "auto_size_factors"),
+        ({"psf_box_um": (10.0, -1.0, 1.0)}, "psf_box_um"),
+    ],
+)
+def test_detect_settings_validation(kwargs, name):
+    with pytest.raises(InputError, match=name):
+        DetectSettings(**kwargs)

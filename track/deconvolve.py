@@ -1,0 +1,113 @@
+"""Secondary Richardson–Lucy deconvolution of a reconstructed volume with a particle PSF.
+
+The paper (§3.2, Table 1) deconvolves every reconstructed light-field volume a second time,
+with 5 Richardson–Lucy iterations, using the mean particle image of the first volume as the
+PSF (:mod:`track.psf_estimate`). This sharpens the elongated particle images and suppresses
+their halos before segmentation.
+
+The update of Richardson (1972) and Lucy (1974) for ``y ≈ h * x`` is
+
+``x ← x · [h̃ * (y / (h * x))] / (h̃ * 1)``,
+
+with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution restricted to the
+volume: transforms are real FFTs (:func:`scipy.fft.rfftn`) zero-padded to at least
+``n + m − 1`` samples per axis, so nothing wraps around. Dividing by ``h̃ * 1`` (which is below
+1 within half a PSF of the faces) is the boundary-corrected form of Bertero & Boccacci
+(A&A 437, 2005); it keeps the total flux ``Σ x ≈ Σ y`` for particles inside the volume. The
+data are clipped at 0 (the model is non-negative), the estimate starts from the data and stays
+non-negative, and voxels where the blurred estimate is below ``1e-6`` of its maximum contribute
+a ratio of 0 instead of blowing up.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.fft as sfft
+
+from .errors import InputError
+from .localize import check_volume
+from .psf_estimate import check_psf
+
+log = logging.getLogger(__name__)
+
+_TINY = 1e-6
+
+
+class _Convolver:
+    """Linear 'same'-size convolution of volumes of one shape with a fixed odd kernel."""
+
+    def __init__(self, shape: tuple[int, ...], kernel: np.ndarray) -> None:
+        self.shape = shape
+        self.fshape = tuple(
+            sfft.next_fast_len(n + m - 1, real=True)
+            for n, m in zip(shape, kernel.shape, strict=True)
+        )
+        self.crop = tuple(
+            slice(m // 2, m // 2 + n) for n, m in zip(shape, kernel.shape, strict=True)
+        )
+        self.otf = sfft.rfftn(kernel, s=self.fshape, workers=-1)
+        self.otf_t = sfft.rfftn(kernel[::-1, ::-1, ::-1], s=self.fshape, workers=-1)
+
+    def _apply(self, x: np.ndarray, otf: np.ndarray) -> np.ndarray:
+        full = sfft.irfftn(
+            sfft.rfftn(x, s=self.fshape, workers=-1) * otf, s=self.fshape, workers=-1
+        )
+        return full[self.crop]
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """``h * x`` (same shape as ``x``)."""
+        return self._apply(x, self.otf)
+
+    def adjoint(self, x: np.ndarray) -> np.ndarray:
+        """``h̃ * x``, the adjoint of :meth:`forward`."""
+        return self._apply(x, self.otf_t)
+
+
+def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """Richardson–Lucy deconvolution of a volume with a particle PSF (paper: 5 iterations).
+
+    Parameters
+    ----------
+    volume : ndarray, shape (nz, ny, nx)
+        Reconstructed intensities (negative values are clipped to 0).
+    psf : ndarray, shape (mz, my, mx)
+        Particle PSF with odd size along every axis, centred on its middle voxel, on the same
+        voxel grid as ``volume``; normalised here to unit sum.
+    iterations : int
+        Number of RL updates, ≥ 0 (0 returns the clipped volume).
+
+    Returns
+    -------
+    ndarray, shape (nz, ny, nx), float32
+        Non-negative deconvolved volume; for particles inside the volume its total flux
+        matches the input's.
+
+    Raises
+    ------
+    InputError
+        For a bad volume, PSF or iteration count.
+    """
+    vol = check_volume(volume)
+    kernel = check_psf(psf)
+    if isinstance(iterations, bool) or not isinstance(iterations, int | np.integer):
+        raise InputError(f"iterations must be an integer >= 0, got {iterations!r}")
+    if iterations < 0:
+        raise InputError(f"iterations must be an integer >= 0, got {iterations!r}")
+    y = np.clip(vol, 0.0, None).astype(np.float32)
+    if iterations == 0 or not float(y.max()) > 0:
+        return y
+    conv = _Convolver(y.shape, kernel)
+    norm = conv.adjoint(np.ones_like(y))
+    norm = np.where(norm > _TINY, norm, np.inf).astype(np.float32)
+    x = y.copy()
+    for it in range(int(iterations)):
+        blurred = conv.forward(x)
+        floor = _TINY * float(blurred.max())
+        ratio = np.zeros_like(y)
+        np.divide(y, blurred, out=ratio, where=blurred > floor)
+        x = np.clip(x * conv.adjoint(ratio) / norm, 0.0, None).astype(np.float32)
+        log.debug("deconvolve: iteration %d of %d done", it + 1, iterations)
+    log.info("deconvolve: %d Richardson–Lucy iterations on a %s volume", iterations, y.shape)
+    return x

@@ -1,0 +1,367 @@
+"""Particle detection in one reconstructed volume: deconvolve → segment → localise.
+
+The pipeline of the paper's §3.2 (settings of Table 1):
+
+1. **secondary deconvolution** (:mod:`track.deconvolve`): ``deconvolution_iterations``
+   Richardson–Lucy updates (paper: 5) with a particle PSF, given or estimated from this volume
+   (:mod:`track.psf_estimate`; skipped with a note in the report when no isolated particle is
+   found);
+2. **segmentation** (:mod:`track.segment`): threshold, connected components, edge, size,
+   shape and clump filters;
+3. **sub-voxel localisation** (:mod:`track.localize`): 3-D radial symmetry (Liu et al. 2013)
+   or weighted centroid in a box around every accepted blob's centroid, on the input volume
+   (``localize_on="input"``, default) or the deconvolved one. Deconvolution serves the
+   segmentation; the localisation defaults to the input because it is linear in the data and
+   does not inherit a centring error of an estimated PSF (which would shift every particle).
+   On synthetic z-elongated blobs (σ = 2.5, 1.2, 1.2 voxels) it was as accurate or better at
+   SNR ≥ 17 (0.005 vs 0.014 voxel lateral RMS at SNR 100); at SNR 10 the deconvolved volume
+   gave lower lateral errors (0.05 vs 0.08–0.1 voxel), so choose ``"deconvolved"`` for very
+   noisy data.
+
+Positions are returned in µm, columns ``x, y, z``: voxel ``(k, j, i)`` (z, y, x indices) has its
+centre at ``origin_um + (i dx, j dy, k dz)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .deconvolve import deconvolve
+from .errors import InputError, TrackingError
+from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
+from .psf_estimate import DEFAULT_BOX_UM, check_psf, estimate_psf
+from .segment import MIN_AUTO_VOX, segment
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DetectSettings:
+    """Settings of :func:`detect_particles` (defaults follow the paper's Table 1 where it has one).
+
+    Parameters
+    ----------
+    deconvolution_iterations : int
+        Richardson–Lucy iterations of the secondary deconvolution (paper: 5; 0 = off).
+    psf_box_um : tuple of 3 float
+        Box ``(z, y, x)`` (µm) of the automatic PSF estimate (see :mod:`track.psf_estimate`).
+    psf_particles : int
+        Particles averaged into the automatic PSF.
+    threshold : float or "auto"
+        Binarisation threshold: a fraction of the intensity range in (0, 1) (paper: 0.25) or
+        ``"auto"`` (robust ``median + k σ``, see :mod:`track.segment`).
+    auto_k_sigma : float
+        ``k`` of the automatic threshold.
+    blob_min_vox, blob_max_vox : int or None
+        Blob size limits in voxels (paper: 1000–5000 at 1.64 × 1.64 × 5 µm); None = automatic
+        (``auto_size_factors`` × the voxel-weighted median blob size).
+    auto_size_factors : tuple of 2 float
+        Factors of the automatic size limits.
+    max_rel_aspect : float
+        Largest aspect ratio relative to the median blob's second-moment tensor (≥ 1).
+    clump_prominence : float
+        Relative prominence of a second maximum that marks a clump (0 = test off).
+    edge_margin_um : float
+        Distance (µm) a blob's bounding box must keep from the volume faces (0 = reject only
+        blobs touching a face).
+    method : {"radial", "centroid"}
+        Sub-voxel localisation method.
+    half_box_vox : tuple of 3 int or None
+        Localisation patch half-size ``(hz, hy, hx)`` (voxels); None = automatic: 1.5 × the
+        median blob half-extent per axis, at least 2.
+    localize_on : {"deconvolved", "input"}
+        Volume the localisation runs on.
+    """
+
+    deconvolution_iterations: int = 5
+    psf_box_um: tuple[float, float, float] = DEFAULT_BOX_UM
+    psf_particles: int = 10
+    threshold: float | str = "auto"
+    auto_k_sigma: float = 5.0
+    blob_min_vox: int | None = None
+    blob_max_vox: int | None = None
+    auto_size_factors: tuple[float, float] = (0.3, 3.0)
+    max_rel_aspect: float = 1.8
+    clump_prominence: float = 0.2
+    edge_margin_um: float = 0.0
+    method: str = "radial"
+    half_box_vox: tuple[int, int, int] | None = None
+    localize_on: str = "input"
+
+    def __post_init__(self) -> None:
+        it = self.deconvolution_iterations
+        if isinstance(it, bool) or not isinstance(it, int | np.integer) or it < 0:
+            raise InputError(f"deconvolution_iterations must be an integer >= 0, got {it!r}")
+        object.__setattr__(self, "psf_box_um", check_triple(self.psf_box_um, "psf_box_um"))
+        n = self.psf_particles
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+            raise InputError(f"psf_particles must be a positive integer, got {n!r}")
+        thr = self.threshold
+        if isinstance(thr, str):
+            if thr != "auto":
+                raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}")
+        elif isinstance(thr, bool) or not isinstance(thr, int | float) or not 0 < thr < 1:
+            raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}")
+        for name in ("auto_k_sigma", "max_rel_aspect", "clump_prominence", "edge_margin_um"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise InputError(f"{name} must be a finite number, got {v!r}")
+        if self.auto_k_sigma <= 0:
+            raise InputError(f"auto_k_sigma must be > 0, got {self.auto_k_sigma!r}")
+        if self.max_rel_aspect < 1:
+            raise InputError(f"max_rel_aspect must be >= 1, got {self.max_rel_aspect!r}")
+        if not 0 <= self.clump_prominence < 1:
+            raise InputError(f"clump_prominence must lie in [0, 1), got {self.clump_prominence!r}")
+        if self.edge_margin_um < 0:
+            raise InputError(f"edge_margin_um must be >= 0, got {self.edge_margin_um!r}")
+        for name in ("blob_min_vox", "blob_max_vox"):
+            v = getattr(self, name)
+            if v is not None and (
+                isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1
+            ):
+                raise InputError(f"{name} must be a positive integer or None, got {v!r}")
+        if (
+            self.blob_min_vox is not None
+            and self.blob_max_vox is not None
+            and self.blob_min_vox > self.blob_max_vox
+        ):
+            raise InputError(
+                f"blob_min_vox ({self.blob_min_vox}) must not exceed blob_max_vox "
+                f"({self.blob_max_vox})"
+            )
+        lo_hi = self.auto_size_factors
+        if (
+            not isinstance(lo_hi, tuple | list)
+            or len(lo_hi) != 2
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in lo_hi)
+            or not 0 < lo_hi[0] <= 1 <= lo_hi[1]
+        ):
+            raise InputError(
+                f"auto_size_factors must be two numbers with 0 < low <= 1 <= high, got {lo_hi!r}"
+            )
+        object.__setattr__(self, "auto_size_factors", (float(lo_hi[0]), float(lo_hi[1])))
+        if self.method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.half_box_vox is not None:
+            object.__setattr__(
+                self, "half_box_vox", check_triple(self.half_box_vox, "half_box_vox", integer=True)
+            )
+        if self.localize_on not in ("deconvolved", "input"):
+            raise InputError(
+                f"localize_on must be 'deconvolved' or 'input', got {self.localize_on!r}"
+            )
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Particles found in one volume by :func:`detect_particles`.
+
+    Attributes
+    ----------
+    positions_um : ndarray, shape (N, 3), float64
+        Particle centres, columns ``x, y, z`` (µm).
+    positions_vox : ndarray, shape (N, 3), float64
+        The same in voxel indices ``(z, y, x)`` of the volume.
+    intensities : ndarray, shape (N,), float64
+        Peak intensity of every particle's blob (in the segmented volume).
+    sizes_vox : ndarray, shape (N,), int64
+        Blob voxel counts.
+    report : dict
+        Counts after each stage, threshold, size limits, PSF/deconvolution notes, localisation
+        fallbacks, timings, ``empty`` and the rejected blobs with their reasons
+        (JSON-serialisable; blobs under ``segment.MIN_AUTO_VOX`` voxels, noise specks, are only
+        counted, in ``rejected_specks``).
+    voxel_size_um : tuple of 3 float
+        ``(dz, dy, dx)``.
+    origin_um : tuple of 3 float
+        ``(x0, y0, z0)``: centre of voxel ``(0, 0, 0)``.
+    """
+
+    positions_um: np.ndarray
+    positions_vox: np.ndarray
+    intensities: np.ndarray
+    sizes_vox: np.ndarray
+    report: dict = field(default_factory=dict)
+    voxel_size_um: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    origin_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def n(self) -> int:
+        """Number of particles."""
+        return int(self.positions_um.shape[0])
+
+    @property
+    def empty(self) -> bool:
+        """True when no particle was found."""
+        return self.n == 0
+
+
+def voxel_to_um(
+    positions_vox: np.ndarray,
+    voxel_size_um: Sequence[float],
+    origin_um: Sequence[float] = (0.0, 0.0, 0.0),
+) -> np.ndarray:
+    """Map ``(z, y, x)`` voxel positions ``(N, 3)`` to ``(x, y, z)`` µm (see module docstring)."""
+    p = np.asarray(positions_vox, dtype=np.float64).reshape(-1, 3)
+    dz, dy, dx = check_voxel_size_um(voxel_size_um)
+    x0, y0, z0 = check_triple(origin_um, "origin_um", positive=False)
+    return np.stack([x0 + p[:, 2] * dx, y0 + p[:, 1] * dy, z0 + p[:, 0] * dz], axis=1)
+
+
+def detect_particles(
+    volume: np.ndarray,
+    voxel_size_um: Sequence[float],
+    settings: DetectSettings | None = None,
+    psf: np.ndarray | None = None,
+    *,
+    origin_um: Sequence[float] = (0.0, 0.0, 0.0),
+) -> Detection:
+    """Find and localise particles in a reconstructed volume.
+
+    Parameters
+    ----------
+    volume : ndarray, shape (nz, ny, nx)
+        Reconstructed intensities (float; finite).
+    voxel_size_um : sequence of 3 float
+        ``(dz, dy, dx)`` (µm), each > 0.
+    settings : DetectSettings, optional
+        Defaults: ``DetectSettings()``.
+    psf : ndarray, optional
+        Particle PSF (odd shape, same voxel grid) for the secondary deconvolution; estimated
+        from ``volume`` when None and deconvolution is on. Pass the PSF of the first volume
+        to treat a sequence consistently, as the paper does.
+    origin_um : sequence of 3 float
+        ``(x0, y0, z0)``: position (µm) of the centre of voxel ``(0, 0, 0)``.
+
+    Returns
+    -------
+    Detection
+        Empty (``detection.empty``, ``report["empty"]``) when no particle is found.
+
+    Raises
+    ------
+    InputError
+        For a non-3-D, empty or non-finite volume, bad voxel size, origin, PSF or settings.
+    """
+    t0 = time.perf_counter()
+    vol = check_volume(volume)
+    spacing = check_voxel_size_um(voxel_size_um)
+    origin = check_triple(origin_um, "origin_um", positive=False)
+    if settings is None:
+        settings = DetectSettings()
+    elif not isinstance(settings, DetectSettings):
+        raise InputError(f"settings must be a DetectSettings, got {type(settings).__name__}")
+    if psf is not None:
+        psf = check_psf(psf)
+    report: dict = {"volume_shape": list(vol.shape), "voxel_size_um": list(spacing)}
+    timings: dict = {}
+
+    work = vol.astype(np.float32)
+    if settings.deconvolution_iterations > 0:
+        t = time.perf_counter()
+        if psf is None:
+            try:
+                psf = estimate_psf(
+                    vol,
+                    spacing,
+                    n_particles=settings.psf_particles,
+                    box_um=settings.psf_box_um,
+                )
+                report["psf"] = f"estimated from this volume, shape {list(psf.shape)}"
+            except (TrackingError, InputError) as exc:
+                log.warning("detect_particles: no deconvolution: %s", exc)
+                report["psf"] = f"not available: {exc}"
+        else:
+            report["psf"] = f"given, shape {list(psf.shape)}"
+        if psf is not None:
+            work = deconvolve(vol, psf, settings.deconvolution_iterations)
+            report["deconvolution_iterations"] = settings.deconvolution_iterations
+        else:
+            report["deconvolution_iterations"] = 0
+        timings["deconvolve_s"] = time.perf_counter() - t
+    else:
+        report["psf"] = "not used (deconvolution off)"
+        report["deconvolution_iterations"] = 0
+
+    t = time.perf_counter()
+    margin_vox = tuple(math.ceil(settings.edge_margin_um / d) for d in spacing)
+    seg = segment(
+        work,
+        spacing,
+        threshold=settings.threshold,
+        auto_k_sigma=settings.auto_k_sigma,
+        blob_min_vox=settings.blob_min_vox,
+        blob_max_vox=settings.blob_max_vox,
+        auto_size_factors=settings.auto_size_factors,
+        max_rel_aspect=settings.max_rel_aspect,
+        clump_prominence=settings.clump_prominence,
+        edge_margin_vox=margin_vox,
+    )
+    timings["segment_s"] = time.perf_counter() - t
+    accepted = seg.accepted
+    report.update(
+        {
+            "threshold": seg.threshold,
+            "threshold_setting": settings.threshold,
+            "size_bounds_vox": list(seg.size_bounds_vox),
+            "counts": dict(seg.counts),
+            # noise specks (fewer voxels than the automatic-size floor) are only counted
+            "rejected": [b.as_dict() for b in seg.rejected if b.n_vox >= MIN_AUTO_VOX],
+            "rejected_specks": sum(1 for b in seg.rejected if b.n_vox < MIN_AUTO_VOX),
+        }
+    )
+
+    t = time.perf_counter()
+    if accepted:
+        if settings.half_box_vox is not None:
+            half = settings.half_box_vox
+        else:
+            ext = np.array(
+                [
+                    [b.bbox[1] - b.bbox[0], b.bbox[3] - b.bbox[2], b.bbox[5] - b.bbox[4]]
+                    for b in accepted
+                ],
+                dtype=float,
+            )
+            half = tuple(int(v) for v in np.maximum(np.ceil(0.75 * np.median(ext, axis=0)), 2))
+        seeds = np.array([b.centroid_vox for b in accepted])
+        loc_vol = work if settings.localize_on == "deconvolved" else vol
+        loc = localize(loc_vol, seeds, spacing, half_box_vox=half, method=settings.method)
+        keep = loc.ok
+        pos_vox = loc.positions_vox[keep]
+        report["half_box_vox"] = list(half)
+        report["localization_fallbacks"] = int(loc.fallback.sum())
+        report["localization_failures"] = int((~keep).sum())
+        intens = np.array([b.peak for b in accepted], dtype=float)[keep]
+        sizes = np.array([b.n_vox for b in accepted], dtype=np.int64)[keep]
+    else:
+        pos_vox = np.zeros((0, 3))
+        intens = np.zeros(0)
+        sizes = np.zeros(0, dtype=np.int64)
+        report["localization_fallbacks"] = 0
+        report["localization_failures"] = 0
+    timings["localize_s"] = time.perf_counter() - t
+    timings["total_s"] = time.perf_counter() - t0
+    report["counts"]["localized"] = int(pos_vox.shape[0])
+    report["method"] = settings.method
+    report["empty"] = bool(pos_vox.shape[0] == 0)
+    report["timings"] = timings
+    if report["empty"]:
+        log.warning("detect_particles: no particle found (threshold %.4g)", seg.threshold)
+    else:
+        log.info("detect_particles: %d particles in %.2f s", pos_vox.shape[0], timings["total_s"])
+    return Detection(
+        positions_um=voxel_to_um(pos_vox, spacing, origin),
+        positions_vox=pos_vox,
+        intensities=intens,
+        sizes_vox=sizes,
+        report=report,
+        voxel_size_um=spacing,
+        origin_um=origin,
+    )
