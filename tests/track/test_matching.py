@@ -1,0 +1,239 @@
+"""Acceptance tests of the SerialTrack-class linker (:func:`track.matching.link_pair`).
+
+Synthetic pairs: particles uniformly random in a box with a minimum spacing, 5 % of them
+removed from each frame independently (appearing / disappearing particles), deformed rows
+shuffled, Gaussian localisation noise of 1 % of the mean spacing (per coordinate) added to
+both frames. Ground truth comes from the particle ids.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from track.errors import InputError
+from track.matching import LinkSettings, link_pair
+
+NOISE = 0.01  # localisation noise, fraction of the mean spacing, per coordinate
+DROP = 0.05  # fraction of particles missing from each frame
+
+
+def random_cloud(n: int, seed: int, d_min_um: float = 6.0, density_um3: float = 1e-3):
+    """``n`` uniform random points with pairwise distance ≥ ``d_min_um`` (µm)."""
+    rng = np.random.default_rng(seed)
+    side = (n / density_um3) ** (1 / 3)
+    cand = rng.uniform(0.0, side, size=(2 * n, 3))
+    bad = np.zeros(cand.shape[0], dtype=bool)
+    for i, j in sorted(cKDTree(cand).query_pairs(d_min_um)):
+        if not bad[i]:
+            bad[j] = True
+    pts = cand[~bad]
+    assert pts.shape[0] >= n
+    return pts[:n]
+
+
+def mean_spacing(x):
+    d, _ = cKDTree(x).query(x, 2)
+    return float(d[:, 1].mean())
+
+
+def make_pair(x, motion, seed):
+    """Noisy reference / deformed clouds with independent drop-outs; returns ids too."""
+    rng = np.random.default_rng(seed)
+    s = mean_spacing(x)
+    y = motion(x)
+    ia = np.flatnonzero(rng.random(x.shape[0]) >= DROP)
+    ib = rng.permutation(np.flatnonzero(rng.random(x.shape[0]) >= DROP))
+    a = x[ia] + rng.normal(0.0, NOISE * s, (ia.size, 3))
+    b = y[ib] + rng.normal(0.0, NOISE * s, (ib.size, 3))
+    return a, b, ia, ib
+
+
+def motions(x):
+    s = mean_spacing(x)
+    c = x.mean(axis=0)
+    t = np.deg2rad(45.0)
+    rot = np.array([[np.cos(t), -np.sin(t), 0.0], [np.sin(t), np.cos(t), 0.0], [0.0, 0.0, 1.0]])
+    lam = 2.0
+    return {
+        "translation_1.5_spacings": lambda p: p + np.array([1.5 * s, 0.4 * s, -0.3 * s]),
+        "rotation_45deg_z": lambda p: (p - c) @ rot.T + c,
+        "simple_shear_gamma_1": lambda p: p + np.outer(p[:, 2] - c[2], [1.0, 0.0, 0.0]),
+        "isochoric_stretch_2": lambda p: (p - c) * np.array([lam, lam**-0.5, lam**-0.5]) + c,
+        "uniaxial_stretch_2": lambda p: (p - c) * np.array([lam, 1.0, 1.0]) + c,
+    }
+
+
+def score(result, x, motion, ia, ib):
+    """Tracking ratio of common particles, wrong matches, and RMSEs / mean spacing."""
+    s = mean_spacing(x)
+    m = result.matches
+    good = ia[m[:, 0]] == ib[m[:, 1]]
+    common = np.intersect1d(ia, ib).size
+    xt = x[ia[m[:, 0]]]
+    truth = motion(xt) - xt
+    raw = np.sqrt(np.mean(np.sum((result.displacement_um - truth) ** 2, axis=1))) / s
+    fld = np.sqrt(np.mean(np.sum((result.displacement_field(xt) - truth) ** 2, axis=1))) / s
+    return int(good.sum()) / common, int((~good).sum()), raw, fld
+
+
+CLOUD_1K = random_cloud(1000, seed=1)
+
+
+@pytest.mark.parametrize("name", list(motions(CLOUD_1K)))
+def test_large_deformations_1000(name):
+    x = CLOUD_1K
+    motion = motions(x)[name]
+    a, b, ia, ib = make_pair(x, motion, seed=2)
+    res = link_pair(a, b)
+    ratio, wrong, raw, fld = score(res, x, motion, ia, ib)
+    assert res.ok
+    assert wrong == 0, name
+    assert ratio >= 0.99, (name, ratio)
+    # Regularised field at the true positions: ≤ 1 % of the mean spacing.
+    assert fld <= 0.01, (name, fld)
+    # Raw matched displacements carry the noise of two localisations: sqrt(6) * 1 %.
+    assert raw <= 1.1 * np.sqrt(6) * NOISE, (name, raw)
+    assert res.iterations == len(res.history) >= 2
+    assert res.matches.dtype.kind == "i" and res.matches.shape[1] == 2
+    assert 0.9 < res.tracking_ratio <= 1.0
+
+
+def test_admm_regularization_links_shear():
+    x = CLOUD_1K
+    motion = motions(x)["simple_shear_gamma_1"]
+    a, b, ia, ib = make_pair(x, motion, seed=3)
+    res = link_pair(a, b, LinkSettings(regularization="admm"))
+    ratio, wrong, _, fld = score(res, x, motion, ia, ib)
+    assert wrong == 0 and ratio >= 0.99 and fld <= 0.01
+
+
+def test_initial_guess_replaces_bootstrap():
+    x = CLOUD_1K
+    motion = motions(x)["translation_1.5_spacings"]
+    a, b, ia, ib = make_pair(x, motion, seed=4)
+    guess_um = motion(x[:1]) - x[:1]
+    res = link_pair(a, b, initial_guess=lambda p: np.broadcast_to(guess_um, p.shape))
+    ratio, wrong, _, _ = score(res, x, motion, ia, ib)
+    assert not res.history[0].matcher.startswith("topology-moment")
+    assert res.history[0].matcher in ("topology-local", "histogram", "nearest")
+    assert wrong == 0 and ratio >= 0.99
+
+
+def test_small_pair_60_particles():
+    x = random_cloud(60, seed=5)
+    motion = motions(x)["simple_shear_gamma_1"]
+    a, b, ia, ib = make_pair(x, motion, seed=6)
+    res = link_pair(a, b)
+    ratio, wrong, _, _ = score(res, x, motion, ia, ib)
+    assert res.ok and wrong == 0 and ratio >= 0.9
+
+
+def test_nonaffine_field():
+    x = CLOUD_1K
+    s = mean_spacing(x)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+
+    def motion(p):
+        q = (p - lo) / (hi - lo)
+        u = np.column_stack(
+            [
+                1.5 * s * np.sin(np.pi * q[:, 2]),
+                0.4 * s * np.sin(np.pi * q[:, 0]),
+                0.5 * s * q[:, 1] ** 2,
+            ]
+        )
+        return p + u
+
+    a, b, ia, ib = make_pair(x, motion, seed=7)
+    # Curved fields need a softer final fit than the default (which favours affine noise
+    # suppression); the matching itself is unchanged.
+    res = link_pair(a, b, LinkSettings(smoothness=0.1))
+    ratio, wrong, _, fld = score(res, x, motion, ia, ib)
+    assert wrong == 0 and ratio >= 0.99 and fld <= 0.02
+
+
+@pytest.mark.slow
+def test_simple_shear_10000_particles():
+    x = random_cloud(10_000, seed=8)
+    motion = motions(x)["simple_shear_gamma_1"]
+    a, b, ia, ib = make_pair(x, motion, seed=9)
+    t0 = time.perf_counter()
+    res = link_pair(a, b)
+    seconds = time.perf_counter() - t0
+    ratio, wrong, _, fld = score(res, x, motion, ia, ib)
+    assert wrong == 0 and ratio >= 0.99 and fld <= 0.01
+    assert seconds < 20.0
+
+
+def test_unrelated_clouds_are_flagged_not_linked():
+    a = random_cloud(300, seed=10)
+    b = random_cloud(300, seed=11)
+    res = link_pair(a, b)
+    if res.ok:  # a few accidental matches may survive, but never a large consistent set
+        assert res.tracking_ratio < 0.2
+    else:
+        assert res.reason and res.matches.shape == (0, 2)
+
+
+@pytest.mark.parametrize(
+    ("ref", "dfm", "needle"),
+    [
+        (np.zeros((0, 3)), np.ones((10, 3)), "ref_xyz is empty"),
+        (np.random.default_rng(0).random((10, 3)), np.zeros((0, 3)), "def_xyz is empty"),
+        (
+            np.random.default_rng(0).random((3, 3)),
+            np.random.default_rng(1).random((10, 3)),
+            "at least 4",
+        ),
+        (
+            np.random.default_rng(0).random((10, 2)),
+            np.random.default_rng(1).random((10, 3)),
+            "shape",
+        ),
+        (np.random.default_rng(0).random((10, 3)), "not numbers", "def_xyz"),
+        (
+            np.c_[np.random.default_rng(0).random((10, 2)), np.zeros(10)],
+            np.ones((10, 3)),
+            "coplanar",
+        ),
+    ],
+)
+def test_bad_clouds_raise_input_error(ref, dfm, needle):
+    with pytest.raises(InputError, match=needle):
+        link_pair(ref, dfm)
+
+
+def test_nan_coordinates_named():
+    a = np.random.default_rng(0).random((20, 3))
+    b = a.copy()
+    b[7, 1] = np.nan
+    with pytest.raises(InputError, match=r"def_xyz holds NaN.*\[7\]"):
+        link_pair(a, b)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "needle"),
+    [
+        ({"n_neighbors_min": 2}, "n_neighbors_min"),
+        ({"n_neighbors_max": 4}, "n_neighbors_max"),
+        ({"outlier_threshold": 0.0}, "outlier_threshold"),
+        ({"regularization": "spline"}, "regularization"),
+        ({"grid_spacing_um": -1.0}, "grid_spacing_um"),
+        ({"descriptor_ratio": 1.5}, "descriptor_ratio"),
+        ({"max_iterations": 0}, "max_iterations"),
+    ],
+)
+def test_settings_validated(kwargs, needle):
+    with pytest.raises(InputError, match=needle):
+        LinkSettings(**kwargs)
+
+
+def test_neighbour_count_shrinks():
+    s = LinkSettings(n_neighbors_max=16, n_neighbors_min=5)
+    ks = [s.n_neighbors(i) for i in range(1, 8)]
+    assert ks[0] == 16 and ks[-1] == 5 and all(a >= b for a, b in itertools.pairwise(ks))
