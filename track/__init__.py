@@ -1,3 +1,102 @@
-"""track — see README; this package is built in its own issue."""
+"""track — particle detection, linking, and displacement/strain fields from volumes.
+
+Consumes reconstructed volumes (float32 ``(z, y, x)``, voxel size in µm) or point clouds
+from any source and produces particle tables, matches, Lagrangian trajectories and gridded
+displacement/strain fields (DESIGN.md §2 conventions: µm, x/y/z order, tensors
+``(..., 3, 3)``, ``F = I + ∂u/∂X``, ``E = (FᵀF − I)/2``, ``e = sym(∂u/∂X)``,
+``γ = 2 e_xz``, ``F_total = F_inc · F_prev``).
+
+Public API
+----------
+Detection (:mod:`track.detect`, :mod:`track.psf_estimate`)
+    :class:`DetectSettings`, :class:`Detection`, :func:`detect_particles`,
+    :func:`estimate_psf`.
+Linking (:mod:`track.matching`)
+    :class:`LinkSettings`, :class:`LinkResult`, :func:`link_pair`.
+Strain (:mod:`track.strain`)
+    :func:`particle_deformation_gradient` (local least-squares ``F`` per particle),
+    :func:`green_lagrange`, :func:`infinitesimal`, :func:`engineering_shear`.
+Fields (:mod:`track.fields`)
+    :class:`GridSettings`, :class:`GridField`, :func:`gridded_field`,
+    :func:`fit_displacement`, :func:`grid_axes`.
+Series (:mod:`track.series`)
+    :class:`SeriesSettings`, :func:`track_series` (incremental / cumulative modes,
+    trajectories, Eulerian cumulation), :func:`link_tracks`, :func:`cumulate_eulerian`.
+Files (:mod:`track.io`)
+    point/match/track CSV tables, ``.npz`` and ``.vti`` fields, volume series.
+Command line (:mod:`track.cli`)
+    ``track run | detect | link``.
+
+Detection and linking are imported on first use (``track.detect_particles`` etc.), so
+``import track`` stays light.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from .errors import InputError, TrackError, TrackingError
+from .fields import GridField, GridSettings, fit_displacement, grid_axes, gridded_field
+from .series import SeriesResult, SeriesSettings, cumulate_eulerian, link_tracks, track_series
+from .strain import (
+    LocalFitSettings,
+    ParticleStrain,
+    engineering_shear,
+    green_lagrange,
+    infinitesimal,
+    particle_deformation_gradient,
+)
 
 __version__ = "0.1.0"
+
+#: Names imported lazily from the detection and matching modules.
+_LAZY = {
+    "DetectSettings": "detect",
+    "Detection": "detect",
+    "detect_particles": "detect",
+    "estimate_psf": "psf_estimate",
+    "LinkSettings": "matching",
+    "LinkResult": "matching",
+    "link_pair": "matching",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'track' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+__all__ = [
+    "DetectSettings",
+    "Detection",
+    "GridField",
+    "GridSettings",
+    "InputError",
+    "LinkResult",
+    "LinkSettings",
+    "LocalFitSettings",
+    "ParticleStrain",
+    "SeriesResult",
+    "SeriesSettings",
+    "TrackError",
+    "TrackingError",
+    "__version__",
+    "cumulate_eulerian",
+    "detect_particles",
+    "engineering_shear",
+    "estimate_psf",
+    "fit_displacement",
+    "green_lagrange",
+    "grid_axes",
+    "gridded_field",
+    "infinitesimal",
+    "link_pair",
+    "link_tracks",
+    "particle_deformation_gradient",
+    "track_series",
+]

@@ -1,14 +1,570 @@
-"""The ``track`` command line (light-field volume trackstruction)."""
+"""The ``track`` command line: detect particles, link them, grid displacement and strain.
+
+Commands::
+
+    track run VOLDIR -o RESULTS [--mode incremental|cumulative] [--grid-spacing-um X]
+              [--threshold auto|F] [--no-deconvolution] [--overwrite] ...
+    track detect VOLDIR -o RESULTS [detection options] [--overwrite]
+    track link A.csv B.csv [C.csv ...] -o RESULTS [--mode ...] [--grid-spacing-um X] ...
+
+``VOLDIR`` holds numbered float32 volumes ``NNNNNN.tif`` (voxel size in the TIFF description
+or in ``recon.json``, see :mod:`track.io`); ``link`` takes point clouds (CSV with columns
+``x_um, y_um, z_um``) from any localisation source, frame 0 first.
+
+``RESULTS`` receives ``particles/NNNNNN.csv``, ``matches_NNNNNN.csv`` (one per linked pair,
+``NNNNNN`` = deformed frame), ``tracks.csv``, ``fields/NNNNNN.npz`` and ``.vti`` (total
+field from frame 0 to frame ``NNNNNN`` on the reference grid; incremental mode also
+``fields/increment_NNNNNN.npz``) and ``summary.json`` (parameters, input checksums, counts,
+tracking ratio and status of every pair, timings). Every file is written atomically.
+
+Resuming: ``run``/``detect`` record each volume's SHA-256 in ``summary.json`` and skip the
+detection of volumes whose particle table exists with the same checksum; linking and fields
+are recomputed. A ``RESULTS`` folder made from other inputs or detection settings is refused
+unless ``--overwrite`` (which then deletes only files ``track`` writes); a non-empty folder
+without a ``summary.json`` written by ``track`` is always refused.
+
+Errors a user can cause print one line ``track: error: <message>`` and exit with status 2.
+Frames that cannot be linked (fewer than 4 particles, tracking failure) do not stop the run:
+their pairs are marked ``"skipped: <reason>"`` in ``summary.json``.
+"""
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import shutil
 import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+import numpy as np
+
+from . import __version__
+from . import io as tio
+from .errors import InputError, TrackError
+from .fields import GridSettings
+from .series import MODES, SeriesSettings, link_pairs, track_series
+
+log = logging.getLogger("track.cli")
+
+SUMMARY = "summary.json"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``track``; the trackstruction commands are not built yet."""
-    sys.stderr.write(
-        "track: volume trackstruction is not implemented yet in this version of hrvptm "
-        "(tracked in the project's track issue)\n"
+class _Parser(argparse.ArgumentParser):
+    """Argument parser whose errors are one line ``track: error: ...`` (exit 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"track: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _count(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return v
+
+
+def _threshold(text: str) -> float | str:
+    if text == "auto":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto' or a fraction in (0, 1), got {text!r}"
+        ) from None
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a fraction in (0, 1), got {text!r}")
+    return v
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="RESULTS")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a RESULTS folder made by track from other inputs or settings",
     )
-    return 2
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more messages")
+    p.add_argument("-q", "--quiet", action="store_true", help="errors only")
+
+
+def _detect_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("detection")
+    g.add_argument(
+        "--threshold",
+        type=_threshold,
+        default="auto",
+        help="binarisation threshold: fraction of the intensity range (paper: 0.25) or 'auto'",
+    )
+    g.add_argument(
+        "--no-deconvolution", action="store_true", help="skip the secondary deconvolution"
+    )
+    g.add_argument(
+        "--deconvolution-iterations",
+        type=_count,
+        default=5,
+        metavar="N",
+        help="Richardson-Lucy iterations of the secondary deconvolution (default 5)",
+    )
+    g.add_argument("--blob-min-vox", type=_count, default=None, metavar="N")
+    g.add_argument("--blob-max-vox", type=_count, default=None, metavar="N")
+    g.add_argument("--method", choices=("radial", "centroid"), default="radial")
+    g.add_argument("--edge-margin-um", type=float, default=0.0, metavar="UM")
+
+
+def _link_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("linking and fields")
+    g.add_argument("--mode", choices=MODES, default="incremental")
+    g.add_argument(
+        "--grid-spacing-um",
+        type=_positive_float,
+        default=None,
+        metavar="UM",
+        help="node spacing of the gridded fields (default: about 50 000 nodes)",
+    )
+    g.add_argument("--target-nodes", type=_count, default=50_000, metavar="N")
+    g.add_argument(
+        "--interpolation", choices=("rbf", "linear"), default="rbf", help="gridding method"
+    )
+    g.add_argument("--smoothing", type=float, default=0.0, help="RBF smoothing (default 0)")
+    g.add_argument("--no-fields", action="store_true", help="only link; no gridded fields")
+    g.add_argument("--vti-encoding", choices=("binary", "ascii"), default="binary")
+    g.add_argument("--seed", type=_count, default=0, help="seed of the linker's RANSAC")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``track`` argument parser."""
+    p = _Parser(prog="track", description="Particle tracking and strain from volumes.")
+    p.add_argument("--version", action="version", version=f"track {__version__}")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+    r = sub.add_parser("run", help="detect → link → fields for a folder of volumes")
+    r.add_argument("voldir", type=Path, metavar="VOLDIR")
+    _common(r)
+    _detect_options(r)
+    _link_options(r)
+    r.set_defaults(func=cmd_run)
+    d = sub.add_parser("detect", help="detect particles in a folder of volumes")
+    d.add_argument("voldir", type=Path, metavar="VOLDIR")
+    _common(d)
+    _detect_options(d)
+    d.set_defaults(func=cmd_detect)
+    k = sub.add_parser("link", help="link point clouds (CSV) and compute fields")
+    k.add_argument("clouds", type=Path, nargs="+", metavar="CSV")
+    _common(k)
+    _link_options(k)
+    k.set_defaults(func=cmd_link)
+    return p
+
+
+# -- results folder --------------------------------------------------------------------------
+def _fingerprint(obj: Any) -> str:
+    text = json.dumps(obj, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _our_outputs(out: Path) -> list[Path]:
+    """Files and folders ``track`` writes in a results folder."""
+    items = [out / "particles", out / "fields", out / "tracks.csv", out / SUMMARY]
+    items += sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv"))
+    return [p for p in items if p.exists()]
+
+
+def _open_results(out: Path, fingerprint: str, overwrite: bool) -> dict | None:
+    """Check the results folder; return the previous summary to resume from, if any."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"results folder {out} is a file")
+    if not out.exists() or not any(out.iterdir()):
+        return None
+    summary = out / SUMMARY
+    prev = None
+    if summary.is_file():
+        try:
+            prev = tio.read_json(summary)
+        except InputError:
+            prev = None
+    if not isinstance(prev, dict) or prev.get("tool") != "track":
+        raise InputError(
+            f"results folder {out} is not empty and holds no {SUMMARY} written by track; "
+            "choose a new folder (nothing was written)"
+        )
+    if prev.get("fingerprint") == fingerprint:
+        return prev
+    if not overwrite:
+        raise InputError(
+            f"results folder {out} holds results made from other inputs or settings; "
+            "use a new folder or --overwrite (nothing was written)"
+        )
+    for p in _our_outputs(out):
+        if p.is_dir():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+    log.info("%s: previous results removed (--overwrite)", out)
+    return None
+
+
+def _clear_derived(out: Path) -> None:
+    """Remove the linking outputs of an earlier run (they are recomputed)."""
+    for p in sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv")):
+        p.unlink()
+    if (out / "tracks.csv").exists():
+        (out / "tracks.csv").unlink()
+    if (out / "fields").is_dir():
+        shutil.rmtree(out / "fields")
+
+
+# -- detection -------------------------------------------------------------------------------
+def _detect_settings(args):
+    from .detect import DetectSettings
+
+    iters = 0 if args.no_deconvolution else args.deconvolution_iterations
+    return DetectSettings(
+        deconvolution_iterations=iters,
+        threshold=args.threshold,
+        blob_min_vox=args.blob_min_vox or None,
+        blob_max_vox=args.blob_max_vox or None,
+        method=args.method,
+        edge_margin_um=args.edge_margin_um,
+    )
+
+
+def _settings_dict(obj) -> dict:
+    return {k: v for k, v in dataclasses.asdict(obj).items()}
+
+
+def _first_psf(vol, info, settings):
+    """PSF of the first volume, used for the whole sequence (paper §3.2)."""
+    from .errors import TrackingError
+    from .psf_estimate import estimate_psf
+
+    if settings.deconvolution_iterations == 0:
+        return None, "not used (deconvolution off)"
+    try:
+        psf = estimate_psf(
+            vol, info.voxel_size_um, n_particles=settings.psf_particles, box_um=settings.psf_box_um
+        )
+    except (TrackingError, InputError) as exc:
+        log.warning("no PSF from the first volume (%s); each volume estimates its own", exc)
+        return None, f"not available from the first volume: {exc}"
+    return psf, f"estimated from {info.path.name}, shape {list(psf.shape)}"
+
+
+def _detect_all(args, out: Path, summary: dict, prev: dict | None) -> list[np.ndarray]:
+    from .detect import detect_particles
+
+    vols = tio.scan_volumes(args.voldir)
+    settings = _detect_settings(args)
+    prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
+    frames = []
+    for v in vols:
+        frames.append(
+            {"index": v.index, "input": str(v.path), "input_sha256": tio.sha256_file(v.path)}
+        )
+    summary["frames"] = frames
+    summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
+    clouds: list[np.ndarray | None] = [None] * len(vols)
+    for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
+        old = prev_frames.get(v.index)
+        part = tio.numbered(out / "particles", v.index, ".csv")
+        if old and old.get("input_sha256") == f["input_sha256"] and part.is_file():
+            clouds[i] = tio.read_points_csv(part)
+            frames[i] = {**old, **f, "reused": True}
+    todo = [i for i in range(len(vols)) if clouds[i] is None]
+    if todo:
+        log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
+    else:
+        log.info("all %d volumes already detected; detection skipped", len(vols))
+    psf = None
+    psf_note = (prev or {}).get("psf", "")
+    t_det = time.perf_counter()
+    if todo:
+        vol0 = tio.read_volume(vols[0])
+        psf, psf_note = _first_psf(vol0, vols[0], settings)
+        bar = _progress(todo, args, "detect", "volume")
+        for i in bar:
+            v = vols[i]
+            t0 = time.perf_counter()
+            vol = vol0 if i == 0 else tio.read_volume(v)
+            det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_um=v.origin_um)
+            part = tio.numbered(out / "particles", v.index, ".csv")
+            tio.write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
+            clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
+            frames[i].update(
+                {
+                    "particles": str(part.relative_to(out)),
+                    "n_particles": int(clouds[i].shape[0]),
+                    "voxel_size_um": list(v.voxel_size_um),
+                    "origin_um": list(v.origin_um),
+                    "seconds": time.perf_counter() - t0,
+                    "report": det.report,
+                }
+            )
+            if clouds[i].shape[0] == 0:
+                log.warning("volume %s: no particle found", v.path.name)
+            summary["psf"] = psf_note
+            tio.write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
+    summary["psf"] = psf_note
+    summary["timings"]["detect_s"] = time.perf_counter() - t_det
+    summary["frame_ids"] = [v.index for v in vols]
+    return [c for c in clouds if c is not None]
+
+
+# -- linking and outputs ---------------------------------------------------------------------
+def _series_settings(args) -> SeriesSettings:
+    from .matching import LinkSettings
+
+    grid = GridSettings(
+        spacing_um=args.grid_spacing_um,
+        target_nodes=max(int(args.target_nodes), 8),
+        method=args.interpolation,
+        smoothing=float(args.smoothing),
+    )
+    return SeriesSettings(
+        mode=args.mode,
+        grid=grid,
+        link=LinkSettings(seed=int(args.seed)),
+        compute_fields=not args.no_fields,
+    )
+
+
+def _link_and_write(args, out: Path, summary: dict, clouds, frame_ids) -> None:
+    settings = _series_settings(args)
+    summary["parameters"]["series"] = {
+        "mode": settings.mode,
+        "min_particles": settings.min_particles,
+        "grid": _settings_dict(settings.grid),
+        "link": _settings_dict(settings.link),
+    }
+    _clear_derived(out)
+    if len(clouds) < 2:
+        raise InputError(f"linking needs at least 2 frames, got {len(clouds)}")
+    t0 = time.perf_counter()
+    bar = _progress(range(len(clouds) - 1), args, "link", "pair")
+    it = iter(bar)
+
+    def tick(_pair) -> None:
+        next(it, None)
+
+    pairs = link_pairs(clouds, settings, on_pair=tick)
+    if hasattr(bar, "close"):
+        bar.close()
+    t1 = time.perf_counter()
+    res = track_series(clouds, settings, pairs=pairs)
+    t2 = time.perf_counter()
+    increments = []
+    for k, pair in enumerate(res.pairs):
+        ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
+        mfile = out / f"matches_{def_id:06d}.csv"
+        tio.write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
+        entry = {
+            "ref_frame": ref_id,
+            "def_frame": def_id,
+            "status": pair.status,
+            "n_ref": int(clouds[pair.ref_frame].shape[0]),
+            "n_def": int(clouds[pair.def_frame].shape[0]),
+            "n_matches": int(pair.matches.shape[0]),
+            "tracking_ratio": pair.tracking_ratio,
+            "iterations": pair.iterations,
+            "matches": mfile.name,
+            "field_status": res.field_status[k],
+            "field": None,
+        }
+        if not pair.ok:
+            log.warning("frames %d → %d %s", ref_id, def_id, pair.status)
+        fld = res.total_fields[k]
+        if fld is not None:
+            base = out / "fields" / f"{def_id:06d}"
+            tio.write_field_npz(base.with_suffix(".npz"), fld, overwrite=True)
+            tio.write_field_vti(
+                base.with_suffix(".vti"), fld, encoding=args.vti_encoding, overwrite=True
+            )
+            entry["field"] = f"fields/{def_id:06d}"
+            entry["mask_fraction"] = float(fld.mask.mean())
+        inc = res.increment_fields[k]
+        if inc is not None:
+            p = out / "fields" / f"increment_{def_id:06d}.npz"
+            tio.write_field_npz(p, inc, overwrite=True)
+            entry["increment_field"] = str(p.relative_to(out))
+        increments.append(entry)
+    tracks = res.tracks
+    ids = np.asarray(frame_ids, dtype=np.int64)
+    tracks = dataclasses.replace(tracks, frame=ids[tracks.frame])
+    tio.write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
+    summary["increments"] = increments
+    summary["counts"] = {
+        "frames": len(clouds),
+        "particles_per_frame": [int(c.shape[0]) for c in clouds],
+        "pairs_linked": sum(p.ok for p in res.pairs),
+        "pairs_skipped": sum(not p.ok for p in res.pairs),
+        "tracks": int(np.unique(tracks.track_id).size),
+    }
+    if res.axes is not None:
+        summary["grid"] = {
+            "shape_zyx": list(res.axes.shape),
+            "spacing_um": list(res.axes.spacing_um),
+            "origin_um": list(res.axes.origin_um),
+        }
+    summary["timings"]["link_s"] = t1 - t0
+    summary["timings"]["fields_s"] = t2 - t1
+    summary["timings"]["write_s"] = time.perf_counter() - t2
+
+
+def _progress(items, args, desc: str, unit: str):
+    from tqdm.auto import tqdm
+
+    disable = True if (args.no_progress or args.quiet) else None
+    return tqdm(items, desc=desc, unit=unit, disable=disable, file=sys.stderr)
+
+
+def _new_summary(args, command: str, fingerprint: str, parameters: dict) -> dict:
+    return {
+        "tool": "track",
+        "version": __version__,
+        "command": command,
+        "argv": list(args.argv),
+        "fingerprint": fingerprint,
+        "status": "incomplete",
+        "parameters": parameters,
+        "timings": {},
+    }
+
+
+def _detect_fingerprint(args) -> tuple[str, dict]:
+    settings = _detect_settings(args)
+    params = {"detect": _settings_dict(settings)}
+    fp = _fingerprint({"voldir": str(args.voldir.resolve()), **params})
+    return fp, params
+
+
+def cmd_detect(args, *, then_link: bool = False) -> int:
+    """``track detect`` (and the detection stage of ``track run``)."""
+    t0 = time.perf_counter()
+    if not args.voldir.is_dir():
+        raise InputError(f"volume folder {args.voldir} does not exist or is not a folder")
+    tio.scan_volumes(args.voldir)  # validate the series before touching RESULTS
+    fp, params = _detect_fingerprint(args)
+    out = args.output
+    prev = _open_results(out, fp, args.overwrite)
+    summary = _new_summary(args, "run" if then_link else "detect", fp, params)
+    out.mkdir(parents=True, exist_ok=True)
+    clouds = _detect_all(args, out, summary, prev)
+    if then_link:
+        _link_and_write(args, out, summary, clouds, summary["frame_ids"])
+    summary["status"] = "complete"
+    summary["timings"]["total_s"] = time.perf_counter() - t0
+    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    log.info("results in %s", out)
+    return 0
+
+
+def cmd_run(args) -> int:
+    """``track run``: detect, link, grid."""
+    _series_settings(args)  # validate before any work
+    return cmd_detect(args, then_link=True)
+
+
+def cmd_link(args) -> int:
+    """``track link``: link point clouds given as CSV files."""
+    t0 = time.perf_counter()
+    if len(args.clouds) < 2:
+        raise InputError(f"link needs at least 2 point clouds, got {len(args.clouds)}")
+    _series_settings(args)
+    clouds = [tio.read_points_csv(p) for p in args.clouds]
+    checks = [tio.sha256_file(p) for p in args.clouds]
+    params = {"sources": [str(p.resolve()) for p in args.clouds]}
+    fp = _fingerprint({**params, "sha256": checks})
+    out = args.output
+    _open_results(out, fp, args.overwrite)
+    summary = _new_summary(args, "link", fp, {})
+    summary["inputs"] = [
+        {"path": str(p), "sha256": s} for p, s in zip(args.clouds, checks, strict=True)
+    ]
+    out.mkdir(parents=True, exist_ok=True)
+    frames = []
+    for i, (p, c) in enumerate(zip(args.clouds, clouds, strict=True)):
+        part = tio.numbered(out / "particles", i, ".csv")
+        tio.write_points_csv(part, c, overwrite=True)
+        frames.append(
+            {
+                "index": i,
+                "input": str(p),
+                "particles": str(part.relative_to(out)),
+                "n_particles": int(c.shape[0]),
+            }
+        )
+    summary["frames"] = frames
+    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    _link_and_write(args, out, summary, clouds, list(range(len(clouds))))
+    summary["status"] = "complete"
+    summary["timings"]["total_s"] = time.perf_counter() - t0
+    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    return 0
+
+
+class _Formatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return f"track: {record.levelname.lower()}: {record.getMessage()}"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``track``; returns the exit status (0 success, 2 user error)."""
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error (already printed)
+        return int(exc.code or 0)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    args.argv = argv
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Formatter())
+    level = logging.ERROR if args.quiet else (logging.WARNING, logging.INFO)[min(args.verbose, 1)]
+    if args.verbose >= 2:
+        level = logging.DEBUG
+    root = logging.getLogger("track")
+    saved = root.level
+    root.setLevel(level)
+    root.addHandler(handler)
+    try:
+        return int(args.func(args))
+    except TrackError as exc:
+        message = " ".join(str(exc).split())
+        sys.stderr.write(f"track: error: {message}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("track: interrupted\n")
+        return 130
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(saved)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
+
+
+__all__ = ["build_parser", "main"]

@@ -1,0 +1,251 @@
+"""The ``track`` command line (track.cli)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from track import io as tio
+from track.cli import main
+
+from .conftest import random_centres, render_blobs
+
+N = 300
+
+
+def _write_cloud(path: Path, xyz, extra=True):
+    cols = "x_um,y_um,z_um,intensity" if extra else "x_um,y_um,z_um"
+    lines = [cols] + [",".join(repr(float(v)) for v in (*p, 1.0)[: 4 if extra else 3]) for p in xyz]
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture(scope="module")
+def clouds(tmp_path_factory):
+    """Three clouds under small simple-shear increments, rows shuffled with known ids."""
+    d = tmp_path_factory.mktemp("clouds")
+    rng = np.random.default_rng(7)
+    X = rng.uniform([0, 0, 0], [400, 400, 300], (N, 3))
+    ids = [np.arange(N)]
+    paths = [d / "a.csv"]
+    _write_cloud(paths[0], X)
+    for k in (1, 2):
+        F = np.array([[1, 0, 0.02 * k], [0, 1, 0], [0, 0, 1.0]])
+        perm = rng.permutation(N)
+        ids.append(perm)
+        paths.append(d / f"{'bc'[k - 1]}.csv")
+        _write_cloud(paths[-1], (X @ F.T)[perm])
+    return paths, ids
+
+
+def _run(argv, capsys):
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.err
+
+
+@pytest.fixture(scope="module")
+def linked(clouds, tmp_path_factory):
+    paths, _ = clouds
+    out = tmp_path_factory.mktemp("res") / "results"
+    argv = ["link", *paths, "-o", out, "--target-nodes", "2000", "--no-progress", "-q"]
+    rc = main([str(a) for a in argv])
+    assert rc == 0
+    return out
+
+
+def test_link_writes_all_outputs(clouds, linked):
+    paths, ids = clouds
+    out = linked
+    for k in range(3):
+        assert (out / "particles" / f"{k:06d}.csv").is_file()
+    for k in (1, 2):
+        f = out / f"matches_{k:06d}.csv"
+        assert f.read_text().splitlines()[0] == "row_ref,row_def,ux_um,uy_um,uz_um"
+        m, _ = tio.read_matches_csv(f)
+        assert len(m) >= 0.95 * N
+        # row_ref in frame k-1 and row_def in frame k must be the same particle
+        assert np.array_equal(ids[k - 1][m[:, 0]], ids[k][m[:, 1]])
+        assert (out / "fields" / f"{k:06d}.npz").is_file()
+        assert (out / "fields" / f"{k:06d}.vti").is_file()
+    assert (out / "tracks.csv").read_text().startswith("frame,track_id,x_um,y_um,z_um\n")
+    t = tio.read_tracks_csv(out / "tracks.csv")
+    # the track id of a particle is its row in frame 0 (known through the permutations)
+    for k in (1, 2):
+        sel = t["frame"] == k
+        xyz = np.c_[t["x_um"], t["y_um"], t["z_um"]][sel]
+        rows = np.array(
+            [np.flatnonzero(np.all(tio.read_points_csv(paths[k]) == p, 1))[0] for p in xyz]
+        )
+        matched = t["track_id"][sel] < N
+        assert matched.mean() > 0.95
+        assert np.array_equal(t["track_id"][sel][matched], ids[k][rows][matched])
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "complete" and s["command"] == "link"
+    assert [i["status"] for i in s["increments"]] == ["ok", "ok"]
+    assert all(i["tracking_ratio"] > 0.95 for i in s["increments"])
+    assert {"link_s", "fields_s", "total_s"} <= set(s["timings"])
+    g = tio.read_field_npz(out / "fields" / "000002.npz")
+    gamma = 2 * g.e[..., 0, 2][g.mask]
+    assert abs(np.median(gamma) - 0.04) < 0.004  # two 0.02 increments of simple shear
+
+
+def test_existing_results_are_protected(clouds, linked, tmp_path, capsys):
+    paths, _ = clouds
+    before = {p: p.stat().st_mtime_ns for p in linked.rglob("*")}
+    # other inputs into the same folder: refused, nothing touched
+    rc, err = _run(["link", paths[0], paths[2], "-o", linked, "--no-progress"], capsys)
+    assert rc == 2 and err.startswith("track: error:") and len(err.strip().splitlines()) == 1
+    assert "other inputs" in err
+    assert {p: p.stat().st_mtime_ns for p in linked.rglob("*")} == before
+    # a user's folder is never overwritten, even with --overwrite
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "notes.txt").write_text("keep")
+    rc, err = _run(["link", *paths, "-o", user, "--overwrite", "--no-progress"], capsys)
+    assert rc == 2 and "no summary.json" in err
+    assert os.listdir(user) == ["notes.txt"]
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        ("", "file is empty"),
+        ("x_um,y_um,z_um\n1,2,3\n1,nan,3\n", "line 3"),
+        ("x_um,y_um\n1,2\n", "missing column"),
+    ],
+)
+def test_bad_clouds_exit_2_with_one_line(clouds, tmp_path, capsys, content, match):
+    paths, _ = clouds
+    bad = tmp_path / "bad.csv"
+    bad.write_text(content)
+    out = tmp_path / "out"
+    rc, err = _run(["link", paths[0], bad, "-o", out, "--no-progress"], capsys)
+    assert rc == 2
+    assert err.startswith("track: error:") and len(err.strip().splitlines()) == 1
+    assert match in err and str(bad) in err
+    assert not out.exists()
+
+
+def test_frame_with_fewer_than_4_particles_is_flagged(clouds, tmp_path, capsys):
+    paths, _ = clouds
+    few = tmp_path / "few.csv"
+    _write_cloud(few, [[1, 2, 3], [4, 5, 6], [7, 8, 10]], extra=False)
+    out = tmp_path / "out"
+    rc, err = _run(
+        ["link", paths[0], few, paths[1], "-o", out, "--target-nodes", "500", "--no-progress"],
+        capsys,
+    )
+    assert rc == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    st = [i["status"] for i in s["increments"]]
+    assert st[0].startswith("skipped: fewer than 4 particles in frame 1")
+    assert st[1].startswith("skipped: fewer than 4 particles in frame 1")
+    assert s["increments"][0]["tracking_ratio"] is None
+    assert not (out / "fields" / "000001.npz").exists()
+    assert "Traceback" not in err
+
+
+def test_usage_errors_are_one_line(tmp_path, capsys):
+    rc, err = _run(["link", "-o", tmp_path / "x"], capsys)
+    assert rc == 2 and err.startswith("track: error:") and len(err.strip().splitlines()) == 1
+    rc, err = _run(["run", tmp_path / "nothere", "-o", tmp_path / "x"], capsys)
+    assert rc == 2 and "does not exist" in err
+    rc, err = _run(["link", tmp_path / "a.csv", "-o", tmp_path / "x", "--mode", "x"], capsys)
+    assert rc == 2 and "invalid choice" in err
+
+
+# -- volumes ---------------------------------------------------------------------------------
+SHAPE = (30, 64, 64)
+VOXEL = (2.0, 1.0, 1.0)
+
+
+def _volumes(folder: Path, n_frames=3, shift_um=1.5, vs=VOXEL, seed=3, empty=()):
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    c = random_centres(rng, SHAPE, 20, (8, 6, 6), (5, 5, 5))
+    for k in range(n_frames):
+        vol = render_blobs(
+            SHAPE, c + np.array([0, 0, shift_um * k / vs[2]]), (2.5, 1.2, 1.2), 100.0, 1.0
+        )
+        if k in empty:
+            vol = np.ones(SHAPE)
+        vol += rng.normal(0, 0.5, SHAPE)
+        tifffile.imwrite(
+            folder / f"{k:06d}.tif",
+            vol.astype(np.float32),
+            description=json.dumps({"voxel_size_um": list(vs)}),
+            photometric="minisblack",
+        )
+    return c
+
+
+def test_run_end_to_end_and_resume(tmp_path, capsys):
+    vols = tmp_path / "vols"
+    _volumes(vols)
+    out = tmp_path / "res"
+    argv = ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4", "--no-progress"]
+    rc, err = _run(argv, capsys)
+    assert rc == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "complete" and len(s["frames"]) == 3
+    assert all(len(f["input_sha256"]) == 64 for f in s["frames"])
+    for k in range(3):
+        assert tio.read_points_csv(out / "particles" / f"{k:06d}.csv").shape[0] >= 10
+    for inc in s["increments"]:
+        assert inc["status"] == "ok" and inc["tracking_ratio"] > 0.9
+        _, d = tio.read_matches_csv(out / f"matches_{inc['def_frame']:06d}.csv")
+        assert np.allclose(np.median(d, axis=0), [1.5, 0, 0], atol=0.1)
+    g = tio.read_field_npz(out / "fields" / "000002.npz")
+    assert np.allclose(np.median(g.u[g.mask], axis=0), [3.0, 0, 0], atol=0.15)
+    # resume: detection is skipped for unchanged volumes, outputs are rewritten
+    mtime = (out / "particles" / "000001.csv").stat().st_mtime_ns
+    rc, err = _run(argv, capsys)
+    assert rc == 0, err
+    s2 = json.loads((out / "summary.json").read_text())
+    assert all(f.get("reused") for f in s2["frames"])
+    assert (out / "particles" / "000001.csv").stat().st_mtime_ns == mtime
+    # other detection settings: refused without --overwrite, accepted with it
+    rc, err = _run([*argv, "--threshold", "0.3"], capsys)
+    assert rc == 2 and "other inputs or settings" in err
+    rc, err = _run([*argv, "--threshold", "0.3", "--overwrite"], capsys)
+    assert rc == 0, err
+
+
+def test_run_bad_series_exit_2(tmp_path, capsys):
+    vols = tmp_path / "gap"
+    _volumes(vols)
+    (vols / "000001.tif").unlink()
+    rc, err = _run(["run", vols, "-o", tmp_path / "r1", "--no-progress"], capsys)
+    assert rc == 2 and "000001.tif is missing" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r1").exists()
+    vols2 = tmp_path / "mixed"
+    _volumes(vols2, n_frames=2)
+    _volumes(tmp_path / "other", n_frames=3, vs=(2.0, 1.2, 1.2))
+    os.replace(tmp_path / "other" / "000002.tif", vols2 / "000002.tif")
+    rc, err = _run(["detect", vols2, "-o", tmp_path / "r2", "--no-progress"], capsys)
+    assert rc == 2 and "mismatched voxel sizes" in err
+    assert not (tmp_path / "r2").exists()
+
+
+def test_run_with_an_empty_volume_flags_the_pairs(tmp_path, capsys):
+    vols = tmp_path / "vols"
+    _volumes(vols, n_frames=3, empty=(2,))
+    out = tmp_path / "res"
+    rc, err = _run(
+        ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4", "--no-progress"],
+        capsys,
+    )
+    assert rc == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["frames"][2]["n_particles"] < 4
+    assert s["increments"][0]["status"] == "ok"
+    assert s["increments"][1]["status"].startswith("skipped: fewer than 4 particles in frame 2")
+    assert s["increments"][1]["field"] is None
+    assert (out / "fields" / "000001.npz").is_file()
+    assert not (out / "fields" / "000002.npz").exists()
+    assert "Traceback" not in err

@@ -1,0 +1,181 @@
+"""Files of track: CSV tables, gridded fields (npz, vti), volumes (track.io)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+import tifffile
+
+from track import io
+from track.errors import InputError
+from track.fields import GridSettings, gridded_field
+from track.series import link_tracks
+
+
+def _field():
+    X = np.random.default_rng(0).uniform([0, 10, -5], [100, 80, 60], (80, 3))
+    u = X @ np.array([[0.0, 0.0, 0.1], [0.0, 0.02, 0.0], [0.0, 0.0, -0.01]]).T
+    return gridded_field(X, u, GridSettings(spacing_um=12.0))
+
+
+def test_points_csv_round_trip_and_extra_columns(tmp_path):
+    xyz = np.random.default_rng(1).normal(size=(7, 3)) * 100
+    p = io.write_points_csv(tmp_path / "particles" / "000000.csv", xyz, np.arange(7.0))
+    assert p.read_text().splitlines()[0] == "x_um,y_um,z_um,intensity"
+    assert np.array_equal(io.read_points_csv(p), xyz)  # repr() round-trips floats exactly
+    other = tmp_path / "other.csv"
+    other.write_text("id,z_um,y_um,x_um,note\n3,1.5,2.5,3.5,a\n4,4,5,6,b\n")
+    assert np.array_equal(io.read_points_csv(other), [[3.5, 2.5, 1.5], [6, 5, 4]])
+    header_only = tmp_path / "h.csv"
+    header_only.write_text("x_um,y_um,z_um\n")
+    assert io.read_points_csv(header_only).shape == (0, 3)
+    with pytest.raises(InputError, match="already exists"):
+        io.write_points_csv(p, xyz)
+    assert not list(tmp_path.glob("particles/.*.tmp"))
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("", "line 1: file is empty"),
+        ("x_um,y_um\n1,2\n", "line 1: missing column"),
+        ("x_um,y_um,z_um\n1,2,3\n4,nan,6\n", "line 3: column y_um"),
+        ("x_um,y_um,z_um\n1,2,3\n4,5\n", "line 3: expected 3 values"),
+        ("x_um,y_um,z_um\n1,2,abc\n", "line 2: column z_um: 'abc' is not a number"),
+    ],
+)
+def test_bad_point_csv_names_file_and_line(tmp_path, text, match):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    with pytest.raises(InputError, match=match) as info:
+        io.read_points_csv(p)
+    assert str(p) in str(info.value)
+
+
+def test_missing_csv(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        io.read_points_csv(tmp_path / "none.csv")
+
+
+def test_matches_and_tracks_round_trip(tmp_path):
+    m = np.array([[0, 2], [1, 0], [3, 1]])
+    d = np.array([[0.1, 0.2, 0.3], [1, 2, 3], [-1, 0, 1.5]])
+    p = io.write_matches_csv(tmp_path / "matches_000001.csv", m, d)
+    assert p.read_text().splitlines()[0] == "row_ref,row_def,ux_um,uy_um,uz_um"
+    m2, d2 = io.read_matches_csv(p)
+    assert np.array_equal(m2, m) and m2.dtype.kind == "i" and np.array_equal(d2, d)
+    xyz = [np.zeros((4, 3)), np.ones((3, 3))]
+    tr = link_tracks([4, 3], [m], positions_um=xyz)
+    p = io.write_tracks_csv(tmp_path / "tracks.csv", tr)
+    assert p.read_text().splitlines()[0] == "frame,track_id,x_um,y_um,z_um"
+    t = io.read_tracks_csv(p)
+    assert list(t["frame"]) == [0, 0, 0, 0, 1, 1, 1]
+    assert sorted(t["track_id"][t["frame"] == 1]) == [0, 1, 3]
+
+
+def test_field_npz_round_trip(tmp_path):
+    g = _field()
+    p = io.write_field_npz(tmp_path / "fields" / "000001.npz", g)
+    g2 = io.read_field_npz(p)
+    for k in ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask"):
+        assert np.array_equal(getattr(g2, k), getattr(g, k))
+
+
+def _decode(da, n_values):
+    vtype = {"Float32": "<f4", "UInt8": "<u1"}[da.get("type")]
+    if da.get("format") == "ascii":
+        return np.array(da.text.split(), dtype=vtype)
+    raw = base64.b64decode(da.text)
+    nbytes = int(np.frombuffer(raw[:8], "<u8")[0])
+    assert nbytes == len(raw) - 8 == n_values * np.dtype(vtype).itemsize
+    return np.frombuffer(raw[8:], vtype)
+
+
+@pytest.mark.parametrize("encoding", ["binary", "ascii"])
+def test_vti_parses_with_grid_and_arrays(tmp_path, encoding):
+    g = _field()
+    p = io.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
+    root = ET.parse(p).getroot()
+    assert root.get("type") == "ImageData" and root.get("header_type") == "UInt64"
+    img = root.find("ImageData")
+    nz, ny, nx = g.shape
+    assert img.get("WholeExtent") == f"0 {nx - 1} 0 {ny - 1} 0 {nz - 1}"
+    assert np.allclose([float(v) for v in img.get("Origin").split()], g.origin_um)
+    assert np.allclose([float(v) for v in img.get("Spacing").split()], (12.0, 12.0, 12.0))
+    pd = img.find("Piece/PointData")
+    arrays = {da.get("Name"): da for da in pd.findall("DataArray")}
+    assert {"displacement", "F", "E", "e", "E_xx", "E_xz", "e_yz", "gamma_xz", "mask"} <= set(
+        arrays
+    )
+    n = nx * ny * nz
+    comps = {"displacement": 3, "F": 9, "E": 9, "e": 9, "E_xx": 1, "mask": 1}
+    for name, nc in comps.items():
+        assert int(arrays[name].get("NumberOfComponents")) == nc
+        vals = _decode(arrays[name], n * nc)
+        assert vals.size == n * nc
+    u = _decode(arrays["displacement"], n * 3).reshape(nz, ny, nx, 3)
+    assert np.allclose(u, g.u, rtol=1e-5, atol=1e-4)  # x fastest: VTK point order
+    F = _decode(arrays["F"], n * 9).reshape(nz, ny, nx, 3, 3)
+    assert np.allclose(F, g.F, atol=1e-6)
+    gam = _decode(arrays["gamma_xz"], n)
+    assert np.allclose(gam, 2 * g.e[..., 0, 2].ravel(), atol=1e-6)
+
+
+def _volume(path, vs=(5.0, 1.6, 1.6), meta=None):
+    desc = json.dumps({"voxel_size_um": list(vs), **(meta or {})}) if vs is not None else None
+    tifffile.imwrite(
+        path, np.zeros((4, 6, 5), np.float32), description=desc, photometric="minisblack"
+    )
+
+
+def test_scan_volume_series_with_metadata(tmp_path):
+    for k in range(3):
+        _volume(tmp_path / f"{k:06d}.tif", meta={"origin_um": [10.0, 20.0], "depths_um": [-5]})
+    vols = io.scan_volumes(tmp_path)
+    assert [v.index for v in vols] == [0, 1, 2]
+    assert vols[0].shape == (4, 6, 5) and vols[0].voxel_size_um == (5.0, 1.6, 1.6)
+    assert vols[0].origin_um == pytest.approx((10.8, 20.8, -5.0))
+    assert io.read_volume(vols[1]).dtype == np.float32
+
+
+def test_recon_json_supplies_voxel_size(tmp_path):
+    for k in range(2):
+        _volume(tmp_path / f"{k:06d}.tif", vs=None)
+    with pytest.raises(InputError, match="no voxel size"):
+        io.scan_volumes(tmp_path)
+    recon = {"voxel_size_um": [4, 2, 2], "grid": {"origin_um": [0, 0], "depths_um": [100, 104]}}
+    (tmp_path / "recon.json").write_text(json.dumps(recon))
+    vols = io.scan_volumes(tmp_path)
+    assert vols[1].voxel_size_um == (4.0, 2.0, 2.0)
+    assert vols[1].origin_um == pytest.approx((1.0, 1.0, 100.0))
+
+
+def test_mismatched_voxel_sizes(tmp_path):
+    _volume(tmp_path / "000000.tif")
+    _volume(tmp_path / "000001.tif", vs=(5.0, 1.7, 1.6))
+    with pytest.raises(InputError, match="mismatched voxel sizes") as info:
+        io.scan_volumes(tmp_path)
+    assert "000001.tif" in str(info.value)
+
+
+def test_missing_volume_in_series(tmp_path):
+    for k in (0, 1, 3):
+        _volume(tmp_path / f"{k:06d}.tif")
+    with pytest.raises(InputError, match=r"000002\.tif is missing"):
+        io.scan_volumes(tmp_path)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="no numbered volumes"):
+        io.scan_volumes(empty)
+    with pytest.raises(InputError, match="not a folder"):
+        io.scan_volumes(tmp_path / "000000.tif")
+
+
+def test_json_writes_nan_as_null(tmp_path):
+    p = io.write_json(tmp_path / "s.json", {"a": float("nan"), "b": np.float32(1.5), "c": [1]})
+    assert json.loads(p.read_text()) == {"a": None, "b": 1.5, "c": [1]}
+    assert len(io.sha256_file(p)) == 64

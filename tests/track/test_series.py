@@ -1,0 +1,229 @@
+"""Series of point clouds: trajectories and Eulerian cumulation (track.series)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from track.errors import InputError, TrackingError
+from track.fields import GridSettings
+from track.series import (
+    SeriesSettings,
+    cumulate_eulerian,
+    lagrangian_displacements,
+    link_tracks,
+    track_series,
+)
+from track.strain import infinitesimal
+
+
+def _shear(g):
+    return np.array([[1.0, 0.0, g], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_y(deg):
+    t = np.deg2rad(deg)
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _cloud(n=150, seed=11):
+    return np.random.default_rng(seed).uniform([0, 0, 0], [200, 160, 120], (n, 3))
+
+
+def _identity_linker(ref, dfm, settings, initial_guess=None):
+    """Known matches: the clouds hold the same particles in the same rows."""
+    n = ref.shape[0]
+    return SimpleNamespace(
+        matches=np.c_[np.arange(n), np.arange(n)],
+        displacement_um=dfm - ref,
+        tracking_ratio=1.0,
+        iterations=1,
+    )
+
+
+def _series(increments, seed=11):
+    clouds = [_cloud(seed=seed)]
+    for F in increments:
+        clouds.append(clouds[-1] @ F.T)  # homogeneous increment about the origin
+    return clouds
+
+
+def _product(increments):
+    total = np.eye(3)
+    for F in increments:
+        total = F @ total  # F_total = F_inc · F_prev
+    return total
+
+
+SETTINGS = SeriesSettings(grid=GridSettings(target_nodes=2000))
+
+
+def _rel_err(F, F_ref):
+    return np.max(np.abs(F - F_ref)) / np.max(np.abs(F_ref - np.eye(3)))
+
+
+@pytest.mark.parametrize(
+    "increments",
+    [
+        [_shear(0.05)] * 10,
+        [_rot_y(6.0) @ _shear(0.05) if k % 2 else _shear(0.05) @ _rot_y(-4.0) for k in range(10)],
+    ],
+    ids=["simple-shear", "rotation+shear"],
+)
+def test_eulerian_cumulation_matches_product_of_increments(increments):
+    clouds = _series(increments)
+    res = track_series(clouds, SETTINGS, linker=_identity_linker)
+    assert all(p.ok for p in res.pairs) and set(res.field_status) == {"ok"}
+    F_true = _product(increments)
+    g = res.total_fields[-1]
+    inner = g.mask.copy()
+    inner[[0, -1], :, :] = inner[:, [0, -1], :] = inner[:, :, [0, -1]] = False
+    assert inner.sum() > 100
+    F = g.F[inner]
+    assert _rel_err(F, F_true) < 0.005  # < 0.5 % of the applied deformation
+    # total displacement: x(X) = F_true X for a homogeneous deformation about the origin
+    X = np.stack(np.meshgrid(g.z_um, g.y_um, g.x_um, indexing="ij"), -1)[..., ::-1]
+    assert np.allclose(g.u[inner], (X @ (F_true - np.eye(3)).T)[inner], atol=1e-6)
+    assert np.allclose(g.e, infinitesimal(g.F))
+    # The MATLAB bug: reversed composition or symmetrised increments give a different F.
+    reversed_F = np.eye(3)
+    sym_F = np.eye(3)
+    for Fi in increments:
+        reversed_F = reversed_F @ Fi
+        sym_F = (np.eye(3) + infinitesimal(Fi)) @ sym_F
+    wrong = [reversed_F, sym_F]
+    errors = [_rel_err(F, W) for W in wrong]
+    assert max(errors) > 0.05  # at least one bug is 10× beyond the tolerance
+    if len({Fi.tobytes() for Fi in increments}) > 1:  # non-commuting increments
+        assert min(errors) > 0.02
+
+
+def test_cumulate_eulerian_function_and_displaced_evaluation():
+    """Evaluating the increment at X (not x(X)) is wrong for non-uniform increments."""
+    from track.fields import fit_displacement, grid_axes
+
+    X0 = _cloud(seed=4)
+    u1 = np.c_[0.1 * X0[:, 2], np.zeros(len(X0)), np.zeros(len(X0))]  # shear: x moves with z
+    X1 = X0 + u1
+    u2 = np.c_[np.zeros(len(X0)), 1e-3 * X1[:, 0] ** 2, np.zeros(len(X0))]  # depends on x
+    ax = grid_axes(X0, 20.0)
+    inc = [fit_displacement(X0, u1), fit_displacement(X1, u2)]
+    tot = cumulate_eulerian(ax, inc)
+    P = ax.points()
+    x1 = P + np.c_[0.1 * P[:, 2], 0 * P[:, :2]]
+    expect_uy = 1e-3 * x1[:, 0] ** 2
+    m = tot[-1].mask.ravel()
+    got = tot[-1].u.reshape(-1, 3)
+    err_right = np.sqrt(np.mean((got[m, 1] - expect_uy[m]) ** 2))
+    err_wrong = np.sqrt(np.mean((got[m, 1] - 1e-3 * P[m, 0] ** 2) ** 2))
+    assert err_right < 0.1 * err_wrong
+    assert err_right < 0.01 * np.max(np.abs(expect_uy))
+
+
+def test_lagrangian_tracks_persist_through_increments():
+    # frame sizes 5, 6, 4 with known matches
+    m1 = np.array([[0, 3], [1, 0], [2, 1], [4, 5]])  # particle 3 of frame 0 is lost
+    m2 = np.array([[3, 0], [0, 2], [5, 3]])  # rows of frame 1 -> frame 2
+    t = link_tracks([5, 6, 4], [m1, m2])
+    ids = {f: t.track_id[t.frame == f] for f in range(3)}
+    assert list(ids[0]) == [0, 1, 2, 3, 4]
+    assert list(ids[1][[3, 0, 1, 5]]) == [0, 1, 2, 4]
+    new = sorted(set(ids[1]) - {0, 1, 2, 4})
+    assert new == [5, 6]
+    assert ids[2][0] == 0 and ids[2][2] == 1 and ids[2][3] == 4  # through two increments
+    assert ids[2][1] not in set(ids[1])
+    assert len(set(t.track_id[t.frame == 2])) == 4
+    # a skipped increment breaks every track
+    t2 = link_tracks([3, 3, 3], [None, np.c_[[0, 1, 2], [0, 1, 2]]])
+    assert set(t2.track_id[t2.frame == 1]).isdisjoint(range(3))
+    with pytest.raises(TrackingError, match="used twice"):
+        link_tracks([3, 3], [np.array([[0, 1], [1, 1]])])
+
+
+def test_tracks_in_series_follow_known_permutation():
+    rng = np.random.default_rng(2)
+    base = _cloud(60)
+    perms = [np.arange(60), rng.permutation(60), rng.permutation(60)]
+    clouds = [base[p] + 0.5 * k for k, p in enumerate(perms)]
+
+    def linker(ref, dfm, settings, initial_guess=None):
+        # match by nearest position (displacement 0.5 µm is tiny versus spacing)
+        d = np.linalg.norm(ref[:, None] - dfm[None], axis=2)
+        j = d.argmin(axis=1)
+        return SimpleNamespace(
+            matches=np.c_[np.arange(len(ref)), j],
+            displacement_um=dfm[j] - ref,
+            tracking_ratio=1.0,
+            iterations=1,
+        )
+
+    res = track_series(clouds, SeriesSettings(compute_fields=False), linker=linker)
+    tr = res.tracks
+    for k in (1, 2):
+        sel = tr.frame == k
+        # row r of frame k is particle perms[k][r] of frame 0, whose track id is its row
+        assert np.array_equal(tr.track_id[sel][np.argsort(tr.row[sel])], perms[k])
+    assert res.field_status == ("skipped: fields not requested",) * 2
+    tid, x0, u = lagrangian_displacements(tr, 2)
+    assert np.array_equal(tid, np.arange(60))
+    assert np.allclose(x0, base) and np.allclose(u, 1.0)
+
+
+def test_cumulative_mode_links_to_frame_zero_and_passes_a_guess():
+    inc = [_shear(0.05)] * 3
+    clouds = _series(inc)
+    calls = []
+
+    def linker(ref, dfm, settings, initial_guess=None):
+        calls.append(initial_guess)
+        r = _identity_linker(ref, dfm, settings)
+        r.displacement_field = lambda p: p * 0
+        return r
+
+    res = track_series(
+        clouds,
+        SeriesSettings(mode="cumulative", grid=GridSettings(target_nodes=1500)),
+        linker=linker,
+    )
+    assert [p.ref_frame for p in res.pairs] == [0, 0, 0]
+    assert calls[0] is None and callable(calls[1])
+    g = res.total_fields[-1]
+    assert _rel_err(g.F[g.mask], _product(inc)) < 1e-6
+    assert res.increment_fields == (None, None, None)
+
+
+def test_frame_with_too_few_particles_is_flagged_not_extrapolated():
+    clouds = _series([_shear(0.02)] * 3)
+    clouds[2] = clouds[2][:3]
+    res = track_series(clouds, SETTINGS, linker=_identity_linker)
+    st = [p.status for p in res.pairs]
+    assert st[0] == "ok"
+    assert st[1].startswith("skipped: fewer than 4 particles in frame 2")
+    assert st[2].startswith("skipped: fewer than 4 particles in frame 2")
+    assert res.field_status[0] == "ok"
+    assert res.field_status[1].startswith("skipped")
+    assert res.field_status[2].startswith("skipped")
+    assert res.total_fields[1] is None and res.total_fields[2] is None
+
+
+def test_failed_linking_is_flagged():
+    def linker(ref, dfm, settings, initial_guess=None):
+        return SimpleNamespace(ok=False, reason="bootstrap failed", matches=np.zeros((0, 2), int))
+
+    res = track_series(_series([_shear(0.02)]), SETTINGS, linker=linker)
+    assert res.pairs[0].status == "skipped: tracking failed: bootstrap failed"
+    assert np.isnan(res.pairs[0].tracking_ratio)
+
+
+def test_bad_inputs():
+    with pytest.raises(InputError, match="mode"):
+        SeriesSettings(mode="lagrangian")
+    with pytest.raises(InputError, match="at least 2 frames"):
+        track_series([_cloud()], linker=_identity_linker)
+    c = _cloud()
+    c[3, 2] = np.nan
+    with pytest.raises(InputError, match="frame 1"):
+        track_series([_cloud(), c], linker=_identity_linker)

@@ -1,0 +1,654 @@
+"""Files of :mod:`track`: point tables, matches, tracks, gridded fields, volumes, JSON.
+
+Every writer is **atomic**: data go to a hidden temporary file in the destination folder,
+are flushed to disk and only then take the destination's name, so a reader sees the old
+file, no file or the complete new file, never a partial one. Writers refuse to replace an
+existing file unless ``overwrite=True``.
+
+Formats (lengths in µm, DESIGN.md §2):
+
+- ``particles/NNNNNN.csv``: ``x_um,y_um,z_um[,intensity]``;
+- ``matches_NNNNNN.csv``: ``row_ref,row_def,ux_um,uy_um,uz_um`` (0-based rows into the two
+  frames' particle tables);
+- ``tracks.csv``: ``frame,track_id,x_um,y_um,z_um``;
+- ``fields/NNNNNN.npz``: arrays ``x_um, y_um, z_um, u, F, E, e, mask`` of a
+  :class:`~track.fields.GridField`;
+- ``fields/NNNNNN.vti``: VTK XML ImageData (our own writer, no vtk dependency), origin and
+  spacing in µm, point data ``displacement`` (3 components), ``F``, ``E``, ``e`` (9
+  components, row-major: ParaView shows them as tensors), scalars ``E_xx … e_yz``,
+  ``gamma_xz`` (= 2 e_xz) and ``mask``; inline ``ascii`` or ``binary`` (base64 of a UInt64
+  byte count followed by the little-endian values, one base64 stream);
+- volumes: a folder of ``NNNNNN.tif`` float32 ``(z, y, x)`` volumes. The voxel size comes
+  from the JSON ``ImageDescription`` (``"voxel_size_um": [dz, dy, dx]``, as
+  ``lfsim.io.write_tiff`` writes it) or from the folder's ``recon.json``
+  (``voxel_size_um``; ``grid.origin_um`` ``[x0, y0]`` and ``grid.depths_um`` place the
+  volume in object space).
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import csv
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+from .fields import GridField
+
+log = logging.getLogger(__name__)
+
+POINT_COLUMNS = ("x_um", "y_um", "z_um")
+MATCH_COLUMNS = ("row_ref", "row_def", "ux_um", "uy_um", "uz_um")
+TRACK_COLUMNS = ("frame", "track_id", "x_um", "y_um", "z_um")
+
+#: Pattern of the numbered files of a series (6 digits).
+NUMBERED = re.compile(r"^(\d{6})\.(tif|tiff|csv)$")
+
+#: Name of the reconstruction metadata file next to volumes.
+RECON_JSON = "recon.json"
+
+
+# -- atomic writes -------------------------------------------------------------------------
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _refuse(path: Path) -> InputError:
+    return InputError(f"{path} already exists; refusing to overwrite it (use --overwrite)")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary path in ``path``'s folder that becomes ``path`` on success.
+
+    Parameters
+    ----------
+    path : path
+        Destination (missing parent folders are created).
+    overwrite : bool
+        Replace an existing file; otherwise an existing ``path`` raises :class:`InputError`.
+
+    Raises
+    ------
+    InputError
+        ``path`` exists (without ``overwrite``), is a folder, or cannot be written.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a folder; expected a file name")
+    if not overwrite and os.path.lexists(path):
+        raise _refuse(path)
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc}") from exc
+    try:
+        yield Path(tmp)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)  # fails if path appeared meanwhile: never clobbers
+                os.unlink(tmp)
+            except FileExistsError:
+                raise _refuse(path) from None
+            except OSError:
+                if os.path.lexists(path):
+                    raise _refuse(path) from None
+                os.replace(tmp, path)
+        tmp = None
+        _fsync_dir(path.parent)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc}") from exc
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False) -> Path:
+    """Write ``data`` to ``path`` atomically; see :func:`atomic_path`."""
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
+        fh.write(data)
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically; see :func:`atomic_path`."""
+    return atomic_write_bytes(path, text.encode("utf-8"), overwrite=overwrite)
+
+
+# -- JSON and checksums --------------------------------------------------------------------
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _finite(obj: Any) -> Any:
+    """Replace NaN/inf floats by ``None`` (JSON has no NaN)."""
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    return obj
+
+
+def write_json(path: str | os.PathLike, obj: Any, *, overwrite: bool = False) -> Path:
+    """Write ``obj`` as indented JSON atomically (NaN/inf written as ``null``)."""
+    try:
+        text = json.dumps(_finite(obj), indent=2, default=_json_default, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"cannot write {path} as JSON: {exc}") from exc
+    return atomic_write_text(path, text + "\n", overwrite=overwrite)
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """Read a JSON file; a missing or invalid file raises :class:`InputError` naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read JSON file {path}: {exc}") from exc
+
+
+def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    path = Path(path)
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            while block := fh.read(chunk):
+                h.update(block)
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc}") from exc
+    return h.hexdigest()
+
+
+# -- CSV tables ----------------------------------------------------------------------------
+def _fmt(v: float) -> str:
+    return repr(float(v)) if math.isfinite(v) else "nan"
+
+
+def _write_table(path, header: Sequence[str], columns: Sequence[np.ndarray], overwrite) -> Path:
+    n = len(columns[0]) if columns else 0
+    lines = [",".join(header)]
+    cols = [
+        [str(int(v)) for v in c] if np.asarray(c).dtype.kind in "iub" else [_fmt(v) for v in c]
+        for c in columns
+    ]
+    lines.extend(",".join(c[i] for c in cols) for i in range(n))
+    return atomic_write_text(path, "\n".join(lines) + "\n", overwrite=overwrite)
+
+
+def _read_table(path, required: Sequence[str], kinds: Mapping[str, str]) -> dict:
+    """Columns ``required`` of a CSV file; errors name the file and line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read {path}: {exc}") from exc
+    rows = list(csv.reader(text.splitlines()))
+    if not rows or not any(cell.strip() for cell in rows[0]):
+        raise InputError(f"{path}: line 1: file is empty; expected a header {','.join(required)}")
+    header = [c.strip() for c in rows[0]]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InputError(
+            f"{path}: line 1: missing column(s) {', '.join(missing)} "
+            f"(header has {', '.join(header)})"
+        )
+    idx = {c: header.index(c) for c in required}
+    out = {c: [] for c in required}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or not any(cell.strip() for cell in row):
+            continue
+        if len(row) != len(header):
+            raise InputError(
+                f"{path}: line {lineno}: expected {len(header)} values, got {len(row)}"
+            )
+        for c in required:
+            cell = row[idx[c]].strip()
+            try:
+                v = int(cell) if kinds.get(c) == "i" else float(cell)
+            except ValueError:
+                raise InputError(
+                    f"{path}: line {lineno}: column {c}: {cell!r} is not a number"
+                ) from None
+            if not math.isfinite(v):
+                raise InputError(f"{path}: line {lineno}: column {c} is {cell!r} (not finite)")
+            out[c].append(v)
+    return {
+        c: np.asarray(v, dtype=np.int64 if kinds.get(c) == "i" else float) for c, v in out.items()
+    }
+
+
+def write_points_csv(
+    path: str | os.PathLike,
+    xyz_um: np.ndarray,
+    intensity: np.ndarray | None = None,
+    *,
+    overwrite: bool = False,
+) -> Path:
+    """Write a particle table ``x_um,y_um,z_um[,intensity]``.
+
+    Parameters
+    ----------
+    xyz_um : ndarray, shape (N, 3)
+        Positions (µm), x, y, z.
+    intensity : ndarray, shape (N,), optional
+    """
+    xyz = np.asarray(xyz_um, dtype=float).reshape(-1, 3)
+    cols = [xyz[:, 0], xyz[:, 1], xyz[:, 2]]
+    header = list(POINT_COLUMNS)
+    if intensity is not None:
+        inten = np.asarray(intensity, dtype=float).reshape(-1)
+        if inten.shape[0] != xyz.shape[0]:
+            raise InputError(f"{path}: {inten.shape[0]} intensities for {xyz.shape[0]} particles")
+        cols.append(inten)
+        header.append("intensity")
+    return _write_table(path, header, cols, overwrite)
+
+
+def read_points_csv(path: str | os.PathLike) -> np.ndarray:
+    """Read a point cloud: columns ``x_um, y_um, z_um`` (others are ignored).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Positions (µm); ``N`` may be 0 (header only).
+
+    Raises
+    ------
+    InputError
+        Missing/empty file, missing columns, or a non-numeric/NaN coordinate (names the file
+        and line).
+    """
+    t = _read_table(path, POINT_COLUMNS, {})
+    return np.stack([t[c] for c in POINT_COLUMNS], axis=1).reshape(-1, 3)
+
+
+def write_matches_csv(
+    path: str | os.PathLike,
+    matches: np.ndarray,
+    displacement_um: np.ndarray,
+    *,
+    overwrite: bool = False,
+) -> Path:
+    """Write matches ``row_ref,row_def,ux_um,uy_um,uz_um`` (0-based rows)."""
+    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    d = np.asarray(displacement_um, dtype=float).reshape(-1, 3)
+    if m.shape[0] != d.shape[0]:
+        raise InputError(f"{path}: {m.shape[0]} matches but {d.shape[0]} displacements")
+    return _write_table(
+        path, MATCH_COLUMNS, [m[:, 0], m[:, 1], d[:, 0], d[:, 1], d[:, 2]], overwrite
+    )
+
+
+def read_matches_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read matches: ``(matches (K, 2) int, displacement_um (K, 3))``."""
+    t = _read_table(path, MATCH_COLUMNS, {"row_ref": "i", "row_def": "i"})
+    m = np.stack([t["row_ref"], t["row_def"]], axis=1).reshape(-1, 2)
+    d = np.stack([t["ux_um"], t["uy_um"], t["uz_um"]], axis=1).reshape(-1, 3)
+    return m, d
+
+
+def write_tracks_csv(path: str | os.PathLike, tracks, *, overwrite: bool = False) -> Path:
+    """Write :class:`track.series.Tracks` as ``frame,track_id,x_um,y_um,z_um``."""
+    xyz = np.asarray(tracks.xyz_um, dtype=float).reshape(-1, 3)
+    order = np.lexsort((tracks.track_id, tracks.frame))
+    cols = [tracks.frame[order], tracks.track_id[order], *(xyz[order, i] for i in range(3))]
+    return _write_table(path, TRACK_COLUMNS, cols, overwrite)
+
+
+def read_tracks_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read ``tracks.csv``: dict of columns ``frame, track_id`` (int) and ``x_um, y_um, z_um``."""
+    return _read_table(path, TRACK_COLUMNS, {"frame": "i", "track_id": "i"})
+
+
+# -- gridded fields ------------------------------------------------------------------------
+_FIELD_ARRAYS = ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask")
+
+
+def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool = False) -> Path:
+    """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``)."""
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **{k: getattr(fld, k) for k in _FIELD_ARRAYS})
+    return Path(path)
+
+
+def read_field_npz(path: str | os.PathLike) -> GridField:
+    """Read a field written by :func:`write_field_npz`."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in _FIELD_ARRAYS}
+    except FileNotFoundError:
+        raise InputError(f"{path} does not exist") from None
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(f"cannot read field file {path}: {exc}") from exc
+    return GridField(**arrays)
+
+
+_SCALARS = ("xx", "yy", "zz", "xy", "xz", "yz")
+_IJ = {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+
+
+def vti_arrays(fld: GridField) -> dict[str, np.ndarray]:
+    """Point-data arrays of the VTI file, each ``(nz*ny*nx, ncomp)`` in VTK point order."""
+    n = int(np.prod(fld.shape))
+    arrays = {"displacement": fld.u.reshape(n, 3)}
+    for name in ("F", "E", "e"):
+        arrays[name] = getattr(fld, name).reshape(n, 9)
+    for name in ("E", "e"):
+        t = getattr(fld, name).reshape(n, 3, 3)
+        for c in _SCALARS:
+            i, j = _IJ[c]
+            arrays[f"{name}_{c}"] = t[:, i, j].reshape(n, 1)
+    arrays["gamma_xz"] = 2.0 * fld.e.reshape(n, 3, 3)[:, 0, 2].reshape(n, 1)
+    arrays["mask"] = fld.mask.reshape(n, 1).astype(np.uint8)
+    return arrays
+
+
+def write_field_vti(
+    path: str | os.PathLike,
+    fld: GridField,
+    *,
+    encoding: str = "binary",
+    overwrite: bool = False,
+) -> Path:
+    """Write a :class:`GridField` as VTK XML ImageData (``.vti``), readable by ParaView.
+
+    Parameters
+    ----------
+    path : path
+    fld : GridField
+    encoding : {"binary", "ascii"}
+        Inline base64 (UInt64 byte count + little-endian data, one base64 stream) or text.
+    overwrite : bool
+
+    Notes
+    -----
+    VTK point order (x fastest, then y, then z) is the C order of our ``(nz, ny, nx)``
+    arrays. Floating-point arrays are written as Float32. Tensors are 9 components,
+    row-major (``F_xx, F_xy, F_xz, F_yx, …``).
+    """
+    if encoding not in ("binary", "ascii"):
+        raise InputError(f"encoding must be 'binary' or 'ascii', got {encoding!r}")
+    nz, ny, nx = fld.shape
+    dx, dy, dz = fld.spacing_um
+    x0, y0, z0 = fld.origin_um
+    ext = f"0 {nx - 1} 0 {ny - 1} 0 {nz - 1}"
+    parts = [
+        '<?xml version="1.0"?>',
+        '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" header_type="UInt64">',
+        f'  <ImageData WholeExtent="{ext}" Origin="{x0!r} {y0!r} {z0!r}" '
+        f'Spacing="{dx!r} {dy!r} {dz!r}">',
+        f'    <Piece Extent="{ext}">',
+        '      <PointData Vectors="displacement" Tensors="F" Scalars="E_xx">',
+    ]
+    for name, arr in vti_arrays(fld).items():
+        if arr.dtype == np.uint8:
+            data, vtype = arr.astype("<u1"), "UInt8"
+        else:
+            data, vtype = arr.astype("<f4"), "Float32"
+        if encoding == "binary":
+            raw = data.tobytes()
+            body = base64.b64encode(np.uint64(len(raw)).astype("<u8").tobytes() + raw).decode()
+        else:
+            fmt = "%d" if vtype == "UInt8" else "%.7g"
+            body = " ".join(fmt % v for v in data.ravel())
+        parts.append(
+            f'        <DataArray type="{vtype}" Name="{name}" '
+            f'NumberOfComponents="{arr.shape[1]}" format="{encoding}">{body}</DataArray>'
+        )
+    parts += ["      </PointData>", "    </Piece>", "  </ImageData>", "</VTKFile>", ""]
+    return atomic_write_text(path, "\n".join(parts), overwrite=overwrite)
+
+
+# -- volumes -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class VolumeInfo:
+    """One volume of a numbered series (metadata only; read the voxels with :func:`read_volume`).
+
+    Attributes
+    ----------
+    path : Path
+    index : int
+        Frame number from the file name ``NNNNNN.tif``.
+    shape : tuple of int
+        ``(nz, ny, nx)``.
+    voxel_size_um : tuple of float
+        ``(dz, dy, dx)`` (µm).
+    origin_um : tuple of float
+        Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm).
+    """
+
+    path: Path
+    index: int
+    shape: tuple
+    voxel_size_um: tuple
+    origin_um: tuple
+
+
+def _voxel_size(value, where: str) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: voxel_size_um must be [dz, dy, dx], got {value!r}") from None
+    if len(vals) != 3 or not all(math.isfinite(v) and v > 0 for v in vals):
+        raise InputError(f"{where}: voxel_size_um must be 3 positive numbers, got {value!r}")
+    return vals
+
+
+def _origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | None:
+    """Voxel-centre origin from ``origin_um`` [x0, y0] (lenslet corner) and ``depths_um``."""
+    o = meta.get("origin_um")
+    d = meta.get("depths_um")
+    if o is None and d is None:
+        return None
+    try:
+        ox, oy = (float(v) for v in (o if o is not None else (0.0, 0.0))[:2])
+        z0 = float(d[0]) if d else 0.0
+    except (TypeError, ValueError, IndexError):
+        raise InputError(f"{where}: bad origin_um/depths_um {o!r} / {d!r}") from None
+    # recon places voxel column i at origin + (i + 0.5) · dx (geometry.ReconGrid.x_um)
+    return (ox + 0.5 * vs[2], oy + 0.5 * vs[1], z0)
+
+
+def _tiff_header(path: Path) -> tuple[tuple, str, Any]:
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            page = tif.pages[0]
+            desc = page.description or ""
+            tag = page.tags.get(65000)
+            shape = tuple(tif.series[0].shape)
+            dtype = tif.series[0].dtype
+            tagval = tag.value if tag is not None else None
+    except Exception as exc:  # tifffile raises assorted types on corrupt files
+        raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
+    if tagval is not None:
+        with contextlib.suppress(ValueError, KeyError, TypeError):
+            shape = tuple(json.loads(tagval)["shape"])
+    if len(shape) == 2:
+        shape = (1, *shape)
+    if len(shape) != 3:
+        raise InputError(f"{path}: expected a (z, y, x) volume, got shape {shape}")
+    return shape, desc, dtype
+
+
+def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
+    """The numbered volumes ``NNNNNN.tif`` of a folder, with voxel size and origin.
+
+    Parameters
+    ----------
+    folder : path
+        Folder holding ``000000.tif, 000001.tif, …`` (and optionally ``recon.json``).
+
+    Returns
+    -------
+    list of VolumeInfo
+        In frame order.
+
+    Raises
+    ------
+    InputError
+        No volumes, a gap in the numbering ("volume NNNNNN.tif is missing"), a volume
+        without a voxel size, or voxel sizes/shapes that differ ("mismatched voxel sizes").
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"volume folder {folder} does not exist or is not a folder")
+    files = {}
+    for p in folder.iterdir():
+        m = NUMBERED.match(p.name)
+        if m and m.group(2) in ("tif", "tiff"):
+            files[int(m.group(1))] = p
+    if not files:
+        raise InputError(f"{folder} holds no numbered volumes NNNNNN.tif")
+    idx = sorted(files)
+    missing = sorted(set(range(idx[0], idx[-1] + 1)) - set(idx))
+    recon = {}
+    if (folder / RECON_JSON).is_file():
+        recon = read_json(folder / RECON_JSON)
+        if not isinstance(recon, Mapping):
+            raise InputError(f"{folder / RECON_JSON} is not a JSON object")
+        n_frames = len(recon.get("frames") or [])
+        if n_frames:
+            missing = sorted(set(missing) | (set(range(n_frames)) - set(idx)))
+    if missing:
+        names = ", ".join(f"{k:06d}.tif" for k in missing[:5])
+        raise InputError(f"{folder}: volume {names} is missing from the numbered series")
+    recon_vs = None
+    if recon.get("voxel_size_um") is not None:
+        recon_vs = _voxel_size(recon["voxel_size_um"], str(folder / RECON_JSON))
+    out = []
+    for k in idx:
+        p = files[k]
+        shape, desc, dtype = _tiff_header(p)
+        if np.dtype(dtype).kind not in "uif":
+            raise InputError(f"{p}: unsupported voxel type {dtype}")
+        meta: dict = {}
+        with contextlib.suppress(json.JSONDecodeError):
+            obj = json.loads(desc) if desc else {}
+            meta = obj if isinstance(obj, dict) else {}
+        if meta.get("voxel_size_um") is not None:
+            vs = _voxel_size(meta["voxel_size_um"], str(p))
+        elif recon_vs is not None:
+            vs = recon_vs
+        else:
+            raise InputError(
+                f"{p}: no voxel size (no 'voxel_size_um' in the TIFF description and no "
+                f"{RECON_JSON} in {folder})"
+            )
+        origin = _origin(meta, vs, str(p)) or _origin(recon.get("grid") or {}, vs, RECON_JSON)
+        out.append(VolumeInfo(p, k, shape, vs, origin or (0.0, 0.0, 0.0)))
+    first = out[0]
+    for v in out[1:]:
+        if not np.allclose(v.voxel_size_um, first.voxel_size_um, rtol=1e-6, atol=0):
+            raise InputError(
+                f"mismatched voxel sizes: {v.path} has {list(v.voxel_size_um)} µm, "
+                f"{first.path} has {list(first.voxel_size_um)} µm"
+            )
+    return out
+
+
+def read_volume(info: VolumeInfo | str | os.PathLike) -> np.ndarray:
+    """Voxels of a volume as float32 ``(z, y, x)``.
+
+    Raises
+    ------
+    InputError
+        Unreadable file or non-finite voxels.
+    """
+    import tifffile
+
+    path = Path(info.path if isinstance(info, VolumeInfo) else info)
+    try:
+        arr = tifffile.imread(path)
+    except Exception as exc:  # tifffile raises assorted types on corrupt files
+        raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
+    if arr.ndim == 2:
+        arr = arr[None]
+    if isinstance(info, VolumeInfo):
+        arr = arr.reshape(info.shape)
+    if arr.ndim != 3:
+        raise InputError(f"{path}: expected a (z, y, x) volume, got shape {arr.shape}")
+    arr = arr.astype(np.float32, copy=False)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{path}: volume holds NaN or infinite voxels")
+    return arr
+
+
+def numbered(folder: str | os.PathLike, index: int, suffix: str) -> Path:
+    """``folder/NNNNNN<suffix>``."""
+    return Path(folder) / f"{int(index):06d}{suffix}"
+
+
+__all__ = [
+    "MATCH_COLUMNS",
+    "POINT_COLUMNS",
+    "TRACK_COLUMNS",
+    "VolumeInfo",
+    "atomic_path",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "numbered",
+    "read_field_npz",
+    "read_json",
+    "read_matches_csv",
+    "read_points_csv",
+    "read_tracks_csv",
+    "read_volume",
+    "scan_volumes",
+    "sha256_file",
+    "vti_arrays",
+    "write_field_npz",
+    "write_field_vti",
+    "write_json",
+    "write_matches_csv",
+    "write_points_csv",
+    "write_tracks_csv",
+]

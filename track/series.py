@@ -1,0 +1,618 @@
+"""Tracking a time series of point clouds: incremental or cumulative, Lagrangian and Eulerian.
+
+Modes (:class:`SeriesSettings.mode`):
+
+``"incremental"``
+    Link frame ``i−1 → i`` for every ``i``. Small displacements per pair keep the matching
+    easy. Results are cumulated two ways:
+
+    - **Lagrangian trajectories** (:func:`link_tracks`): a particle matched from ``i−1`` to
+      ``i`` keeps its track id; unmatched particles start new tracks. Rows
+      ``frame, track_id, x_um, y_um, z_um`` (``tracks.csv``).
+    - **Eulerian cumulation on the reference grid** (:func:`cumulate_eulerian`), with the
+      finite-deformation composition described there.
+
+``"cumulative"``
+    Link frame ``0 → i`` directly for every ``i``. Displacements are total already; track
+    ids are the rows of frame 0 (unmatched particles of later frames get fresh ids).
+
+Eulerian cumulation (the MATLAB reference composes in reverse order and symmetrises the
+increment, which loses rotation; here the composition is exact):
+
+Let ``X`` be a node of the fixed reference grid (frame 0 configuration), ``u_prev(X)`` and
+``F_prev(X)`` the totals up to frame ``i−1``, and ``u_inc``, ``F_inc = I + ∂u_inc/∂x`` the
+increment ``i−1 → i``, a field over the frame ``i−1`` configuration ``x``. The material
+point ``X`` sits at ``x(X) = X + u_prev(X)`` in frame ``i−1``, so
+
+    u_total(X) = u_prev(X) + u_inc(x(X))
+    F_total(X) = F_inc(x(X)) · F_prev(X)
+
+``u_inc`` and ``F_inc`` are evaluated **at the displaced positions** ``x(X)`` from the
+increment's continuous interpolant (:func:`track.fields.fit_displacement`); ``∂u_inc/∂x`` by
+central differences with the grid spacing as step (the same stencil :func:`numpy.gradient`
+uses on the grid). By the chain rule ``F_total = I + ∂u_total/∂X``, and the node is supported
+(:attr:`GridField.mask`) only while every increment was supported at ``x(X)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError, TrackError, TrackingError
+from .fields import (
+    DisplacementInterpolant,
+    GridAxes,
+    GridField,
+    GridSettings,
+    field_on_grid,
+    fit_displacement,
+    grid_axes,
+)
+from .strain import green_lagrange, infinitesimal
+
+log = logging.getLogger(__name__)
+
+MODES = ("incremental", "cumulative")
+
+#: Status of a pair, increment or field that was computed.
+OK = "ok"
+
+
+@dataclass(frozen=True)
+class SeriesSettings:
+    """How a series of point clouds is linked and cumulated.
+
+    Attributes
+    ----------
+    mode : {"incremental", "cumulative"}
+        Link ``i−1 → i`` (and cumulate) or ``0 → i``.
+    min_particles : int
+        Frames with fewer particles are not linked; their pairs are marked
+        ``"skipped: fewer than N particles ..."`` (≥ 4, the minimum for a 3-D affine fit).
+    grid : GridSettings
+        Gridding of the displacement fields.
+    link : object, optional
+        Settings passed to the linker (:class:`track.matching.LinkSettings`).
+    compute_fields : bool
+        Grid displacements and strains (default) or only link.
+    """
+
+    mode: str = "incremental"
+    min_particles: int = 4
+    grid: GridSettings = field(default_factory=GridSettings)
+    link: Any = None
+    compute_fields: bool = True
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise InputError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if isinstance(self.min_particles, bool) or int(self.min_particles) < 4:
+            raise InputError(f"min_particles must be an integer >= 4, got {self.min_particles!r}")
+        if not isinstance(self.grid, GridSettings):
+            raise InputError(f"grid must be a GridSettings, got {type(self.grid).__name__}")
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """The link between two frames.
+
+    Attributes
+    ----------
+    ref_frame, def_frame : int
+        Frame indices (reference, deformed).
+    status : str
+        ``"ok"`` or ``"skipped: <reason>"``.
+    matches : ndarray of int, shape (K, 2)
+        Rows ``[row_ref, row_def]`` into the two frames' point tables (0-based).
+    displacement_um : ndarray, shape (K, 3)
+        Displacement of each matched particle (µm).
+    tracking_ratio : float
+        Fraction of reference particles matched (NaN when skipped).
+    iterations : int
+        Linker iterations (0 when skipped).
+    """
+
+    ref_frame: int
+    def_frame: int
+    status: str
+    matches: np.ndarray
+    displacement_um: np.ndarray
+    tracking_ratio: float = math.nan
+    iterations: int = 0
+
+    @property
+    def ok(self) -> bool:
+        """Whether the pair was linked."""
+        return self.status == OK
+
+
+@dataclass(frozen=True)
+class Tracks:
+    """Lagrangian trajectories: one row per particle and frame.
+
+    Attributes
+    ----------
+    frame, track_id, row : ndarray of int, shape (M,)
+        Frame index, track id, and row of the particle in its frame's point table.
+    xyz_um : ndarray, shape (M, 3)
+        Position (µm).
+    """
+
+    frame: np.ndarray
+    track_id: np.ndarray
+    row: np.ndarray
+    xyz_um: np.ndarray
+
+    def positions(self, track_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(frames, xyz_um)`` of one track, in frame order."""
+        sel = self.track_id == track_id
+        order = np.argsort(self.frame[sel])
+        return self.frame[sel][order], self.xyz_um[sel][order]
+
+
+@dataclass(frozen=True)
+class SeriesResult:
+    """Everything :func:`track_series` computed.
+
+    Attributes
+    ----------
+    mode : str
+    pairs : tuple of PairResult
+        One per frame ``i ≥ 1``: ``i−1 → i`` (incremental) or ``0 → i`` (cumulative).
+    tracks : Tracks
+    axes : GridAxes or None
+        Reference grid (over frame 0's particles); ``None`` when it could not be built.
+    increment_fields : tuple of (GridField or None)
+        Incremental mode: the field of each increment on the grid (over the frame ``i−1``
+        configuration). Cumulative mode: all ``None``.
+    total_fields : tuple of (GridField or None)
+        Total field from frame 0 to each frame ``i ≥ 1`` on the reference grid (Eulerian
+        cumulation in incremental mode; direct in cumulative mode).
+    field_status : tuple of str
+        ``"ok"`` or ``"skipped: <reason>"`` for each entry of ``total_fields``.
+    """
+
+    mode: str
+    pairs: tuple[PairResult, ...]
+    tracks: Tracks
+    axes: GridAxes | None
+    increment_fields: tuple[GridField | None, ...]
+    total_fields: tuple[GridField | None, ...]
+    field_status: tuple[str, ...]
+
+
+def _check_matches(m, n_ref: int, n_def: int, where: str) -> np.ndarray:
+    m = np.asarray(m)
+    if m.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    if m.ndim != 2 or m.shape[1] != 2 or m.dtype.kind not in "iu":
+        raise TrackingError(f"{where}: matches must be an (K, 2) integer array, got {m.shape}")
+    m = m.astype(np.int64)
+    if (
+        np.any(m < 0)
+        or np.any(m[:, 0] >= n_ref)
+        or np.any(m[:, 1] >= n_def)
+        or np.unique(m[:, 0]).size != m.shape[0]
+        or np.unique(m[:, 1]).size != m.shape[0]
+    ):
+        raise TrackingError(f"{where}: matches hold rows out of range or used twice")
+    return m
+
+
+def link_tracks(
+    n_particles: Sequence[int],
+    matches: Sequence[np.ndarray | None],
+    *,
+    mode: str = "incremental",
+    positions_um: Sequence[np.ndarray] | None = None,
+) -> Tracks:
+    """Assign track ids from pairwise matches.
+
+    Parameters
+    ----------
+    n_particles : sequence of int
+        Particles in each frame (``T`` frames).
+    matches : sequence of (ndarray, shape (K, 2)) or None
+        ``T − 1`` entries: rows ``[row_ref, row_def]`` linking frame ``i−1 → i``
+        (incremental) or ``0 → i`` (cumulative); ``None`` for a skipped pair.
+    mode : {"incremental", "cumulative"}
+    positions_um : sequence of (ndarray, shape (N_i, 3)), optional
+        Positions of each frame's particles, copied into :attr:`Tracks.xyz_um`.
+
+    Returns
+    -------
+    Tracks
+        Frame 0 particle ``r`` has track id ``r``. A particle matched from a particle with
+        id ``t`` has id ``t`` (incremental: through every increment; cumulative: to frame 0);
+        every other particle starts a new track with the next unused id.
+    """
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {MODES}, got {mode!r}")
+    n = [int(v) for v in n_particles]
+    if len(matches) != max(len(n) - 1, 0):
+        raise InputError(
+            f"expected {len(n) - 1} match arrays for {len(n)} frames, got {len(matches)}"
+        )
+    ids = [np.arange(n[0], dtype=np.int64)] if n else []
+    next_id = n[0] if n else 0
+    for i in range(1, len(n)):
+        cur = np.full(n[i], -1, dtype=np.int64)
+        src = ids[i - 1] if mode == "incremental" else ids[0]
+        m = matches[i - 1]
+        if m is not None:
+            ref_n = n[i - 1] if mode == "incremental" else n[0]
+            m = _check_matches(m, ref_n, n[i], f"matches of frame {i}")
+            cur[m[:, 1]] = src[m[:, 0]]
+        new = cur < 0
+        cur[new] = next_id + np.arange(int(new.sum()))
+        next_id += int(new.sum())
+        ids.append(cur)
+    frame = np.concatenate([np.full(k, i, dtype=np.int64) for i, k in enumerate(n)]) if n else []
+    row = np.concatenate([np.arange(k, dtype=np.int64) for k in n]) if n else []
+    if positions_um is not None:
+        xyz = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 3) for p in positions_um])
+        if xyz.shape[0] != sum(n):
+            raise InputError("positions_um do not have n_particles rows per frame")
+    else:
+        xyz = np.full((sum(n), 3), np.nan)
+    return Tracks(
+        frame=np.asarray(frame, dtype=np.int64),
+        track_id=np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64),
+        row=np.asarray(row, dtype=np.int64),
+        xyz_um=xyz,
+    )
+
+
+def lagrangian_displacements(
+    tracks: Tracks, frame: int, reference_frame: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Total displacement of the tracks present in both ``reference_frame`` and ``frame``.
+
+    This is the Lagrangian framework of the paper (§3.2): the total particle displacement
+    follows from the linked trajectories; grid it on the reference positions with
+    :func:`track.fields.gridded_field` to get the total field at ``frame``.
+
+    Returns
+    -------
+    track_id : ndarray of int, shape (K,)
+    reference_um : ndarray, shape (K, 3)
+        Positions in ``reference_frame`` (µm).
+    displacement_um : ndarray, shape (K, 3)
+        ``x(frame) − x(reference_frame)`` (µm).
+    """
+    ref = tracks.frame == reference_frame
+    cur = tracks.frame == frame
+    common, i_ref, i_cur = np.intersect1d(
+        tracks.track_id[ref], tracks.track_id[cur], assume_unique=True, return_indices=True
+    )
+    x0 = tracks.xyz_um[ref][i_ref]
+    x1 = tracks.xyz_um[cur][i_cur]
+    return common, x0, x1 - x0
+
+
+def compose_step(
+    reference_um: np.ndarray,
+    u_prev_um: np.ndarray,
+    F_prev: np.ndarray,
+    increment: DisplacementInterpolant,
+    step_um: float | tuple,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One Eulerian cumulation step at reference points ``X``.
+
+    Parameters
+    ----------
+    reference_um : ndarray, shape (P, 3)
+        Reference positions ``X`` (µm).
+    u_prev_um : ndarray, shape (P, 3)
+        Total displacement up to the previous frame at ``X``.
+    F_prev : ndarray, shape (P, 3, 3)
+        Total deformation gradient up to the previous frame at ``X``.
+    increment : DisplacementInterpolant
+        Increment field over the previous frame's configuration.
+    step_um : float or (hx, hy, hz)
+        Central-difference step for ``∂u_inc/∂x``.
+
+    Returns
+    -------
+    u_total : ndarray, shape (P, 3)
+        ``u_prev(X) + u_inc(X + u_prev(X))``.
+    F_total : ndarray, shape (P, 3, 3)
+        ``F_inc(X + u_prev(X)) · F_prev(X)``.
+    supported : ndarray of bool, shape (P,)
+        Whether the increment is supported by data at ``X + u_prev(X)``.
+    """
+    x = np.asarray(reference_um, float) + np.asarray(u_prev_um, float)
+    u_inc = increment(x)
+    F_inc = np.eye(3) + increment.gradient(x, step_um)
+    F_total = np.einsum("pij,pjk->pik", F_inc, np.asarray(F_prev, float))
+    return np.asarray(u_prev_um, float) + u_inc, F_total, increment.supported(x)
+
+
+def cumulate_eulerian(
+    axes: GridAxes, increments: Sequence[DisplacementInterpolant]
+) -> list[GridField]:
+    """Total fields on the reference grid from a sequence of increment fields.
+
+    Parameters
+    ----------
+    axes : GridAxes
+        Reference grid (frame 0 configuration).
+    increments : sequence of DisplacementInterpolant
+        Increment ``k`` (frame ``k → k+1``) is a field over the frame ``k`` configuration.
+
+    Returns
+    -------
+    list of GridField
+        Entry ``k``: total displacement and ``F = F_inc,k · … · F_inc,0`` from frame 0 to
+        frame ``k + 1`` (module docstring), with ``E`` and ``e`` of that ``F``.
+    """
+    X = axes.points()
+    u = np.zeros_like(X)
+    F = np.broadcast_to(np.eye(3), (X.shape[0], 3, 3)).copy()
+    mask = np.ones(X.shape[0], dtype=bool)
+    step = axes.spacing_um
+    out = []
+    for inc in increments:
+        u, F, sup = compose_step(X, u, F, inc, step)
+        mask &= sup
+        shape = axes.shape
+        Fg = F.reshape(*shape, 3, 3)
+        out.append(
+            GridField(
+                axes.x_um,
+                axes.y_um,
+                axes.z_um,
+                u.reshape(*shape, 3),
+                Fg,
+                green_lagrange(Fg),
+                infinitesimal(Fg),
+                mask.reshape(shape),
+            )
+        )
+    return out
+
+
+def _points(arr, name: str) -> np.ndarray:
+    a = np.asarray(arr, dtype=float)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise InputError(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{name} holds NaN or infinite coordinates")
+    return a
+
+
+def _default_linker():
+    try:
+        from .matching import link_pair
+    except ImportError as exc:  # pragma: no cover - depends on the installed modules
+        raise TrackingError(f"particle matching (track.matching) is not available: {exc}") from exc
+    return link_pair
+
+
+def _skipped(ref: int, dfm: int, reason: str) -> PairResult:
+    return PairResult(
+        ref, dfm, f"skipped: {reason}", np.zeros((0, 2), np.int64), np.zeros((0, 3)), math.nan, 0
+    )
+
+
+def link_pairs(
+    clouds: Sequence[np.ndarray],
+    settings: SeriesSettings | None = None,
+    *,
+    linker: Callable[..., Any] | None = None,
+    on_pair: Callable[[PairResult], None] | None = None,
+) -> list[PairResult]:
+    """Link the frames of a series pairwise (``i−1 → i`` or ``0 → i``).
+
+    Parameters
+    ----------
+    clouds : sequence of ndarray, shape (N_i, 3)
+        Particle positions of each frame (µm).
+    settings : SeriesSettings, optional
+    linker : callable, optional
+        ``linker(ref_xyz, def_xyz, link_settings, initial_guess=None) -> result`` with
+        ``.matches``, ``.displacement_um``, ``.tracking_ratio``, ``.iterations`` (and
+        optionally ``.ok``, ``.reason``, ``.displacement_field``). Default
+        :func:`track.matching.link_pair`. In cumulative mode the previous pair's
+        ``displacement_field`` (frame 0 → i−1) is passed as ``initial_guess`` for 0 → i;
+        incremental pairs start without a guess.
+    on_pair : callable, optional
+        Called with each :class:`PairResult` as it is finished (progress).
+
+    Returns
+    -------
+    list of PairResult
+        Pairs with a frame of fewer than ``settings.min_particles`` particles, or that the
+        linker could not track (``ok=False``, or a :class:`~track.errors.TrackError` such as
+        coplanar clouds), are returned with a
+        ``"skipped: ..."`` status.
+    """
+    settings = settings or SeriesSettings()
+    pts = [_points(c, f"frame {i} positions") for i, c in enumerate(clouds)]
+    if len(pts) < 2:
+        raise InputError(f"a series needs at least 2 frames, got {len(pts)}")
+    linker = linker or _default_linker()
+    out: list[PairResult] = []
+    prev_field = None
+    for i in range(1, len(pts)):
+        r = i - 1 if settings.mode == "incremental" else 0
+        few = [f for f in (r, i) if pts[f].shape[0] < settings.min_particles]
+        if few:
+            f = few[0]
+            res = _skipped(
+                r,
+                i,
+                f"fewer than {settings.min_particles} particles in frame {f} "
+                f"({pts[f].shape[0]} found)",
+            )
+        else:
+            try:
+                guess = None
+                if settings.mode == "cumulative" and out and out[-1].ok:
+                    guess = prev_field
+                lr = linker(pts[r], pts[i], settings.link, initial_guess=guess)
+                if not getattr(lr, "ok", True):
+                    raise TrackingError(getattr(lr, "reason", "") or "no consistent matches")
+                m = _check_matches(
+                    lr.matches, pts[r].shape[0], pts[i].shape[0], f"frames {r} → {i}"
+                )
+                d = np.asarray(lr.displacement_um, dtype=float).reshape(-1, 3)
+                if d.shape[0] != m.shape[0]:
+                    raise TrackingError(
+                        f"frames {r} → {i}: {m.shape[0]} matches but {d.shape[0]} displacements"
+                    )
+                res = PairResult(
+                    r, i, OK, m, d, float(lr.tracking_ratio), int(getattr(lr, "iterations", 0))
+                )
+                prev_field = getattr(lr, "displacement_field", None)
+            except TrackError as exc:
+                log.warning("frames %d → %d not tracked: %s", r, i, exc)
+                res = _skipped(r, i, f"tracking failed: {exc}")
+        log.info("frames %d → %d: %s, %d matches", r, i, res.status, res.matches.shape[0])
+        if on_pair is not None:
+            on_pair(res)
+        out.append(res)
+    return out
+
+
+def track_series(
+    clouds: Sequence[np.ndarray],
+    settings: SeriesSettings | None = None,
+    *,
+    linker: Callable[..., Any] | None = None,
+    pairs: Sequence[PairResult] | None = None,
+    on_pair: Callable[[PairResult], None] | None = None,
+) -> SeriesResult:
+    """Link a series of point clouds and compute trajectories and displacement/strain fields.
+
+    Parameters
+    ----------
+    clouds : sequence of ndarray, shape (N_i, 3)
+        Particle positions of each frame (µm), frame 0 first (the reference).
+    settings : SeriesSettings, optional
+    linker : callable, optional
+        See :func:`link_pairs`.
+    pairs : sequence of PairResult, optional
+        Already linked pairs (skip the linking).
+    on_pair : callable, optional
+        Progress callback, see :func:`link_pairs`.
+
+    Returns
+    -------
+    SeriesResult
+        Skipped pairs and fields carry a ``"skipped: <reason>"`` status; nothing is silently
+        extrapolated across them (the Eulerian total stops at the first missing increment).
+    """
+    settings = settings or SeriesSettings()
+    pts = [_points(c, f"frame {i} positions") for i, c in enumerate(clouds)]
+    if pairs is None:
+        pairs = link_pairs(pts, settings, linker=linker, on_pair=on_pair)
+    pairs = tuple(pairs)
+    if len(pairs) != len(pts) - 1:
+        raise InputError(f"expected {len(pts) - 1} pairs for {len(pts)} frames, got {len(pairs)}")
+    tracks = link_tracks(
+        [p.shape[0] for p in pts],
+        [p.matches if p.ok else None for p in pairs],
+        mode=settings.mode,
+        positions_um=pts,
+    )
+    n = len(pairs)
+    inc_fields: list[GridField | None] = [None] * n
+    totals: list[GridField | None] = [None] * n
+    status = ["skipped: fields not requested"] * n
+    axes = None
+    if settings.compute_fields:
+        try:
+            if pts[0].shape[0] < settings.min_particles:
+                raise InputError(f"fewer than {settings.min_particles} particles in frame 0")
+            g = settings.grid
+            axes = grid_axes(pts[0], g.spacing_um, target_nodes=g.target_nodes)
+        except InputError as exc:
+            status = [f"skipped: no reference grid ({exc})"] * n
+        if axes is not None:
+            _fields(pts, pairs, settings, axes, inc_fields, totals, status)
+    return SeriesResult(
+        mode=settings.mode,
+        pairs=pairs,
+        tracks=tracks,
+        axes=axes,
+        increment_fields=tuple(inc_fields),
+        total_fields=tuple(totals),
+        field_status=tuple(status),
+    )
+
+
+def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpolant:
+    if not pair.ok:
+        raise InputError(pair.status.removeprefix("skipped: "))
+    if pair.matches.shape[0] < settings.min_particles:
+        raise InputError(
+            f"fewer than {settings.min_particles} matched particles "
+            f"({pair.matches.shape[0]} matched)"
+        )
+    ref = pts[pair.ref_frame][pair.matches[:, 0]]
+    return fit_displacement(ref, pair.displacement_um, settings.grid)
+
+
+def _fields(pts, pairs, settings, axes, inc_fields, totals, status) -> None:
+    step = axes.spacing_um
+    X = axes.points()
+    shape = axes.shape
+    if settings.mode == "cumulative":
+        for k, pair in enumerate(pairs):
+            try:
+                totals[k] = field_on_grid(_fit(pts, pair, settings), axes)
+                status[k] = OK
+            except InputError as exc:
+                status[k] = f"skipped: {exc}"
+        return
+    u = np.zeros_like(X)
+    F = np.broadcast_to(np.eye(3), (X.shape[0], 3, 3)).copy()
+    mask = np.ones(X.shape[0], dtype=bool)
+    broken = None
+    for k, pair in enumerate(pairs):
+        try:
+            interp = _fit(pts, pair, settings)
+        except InputError as exc:
+            status[k] = f"skipped: {exc}"
+            broken = broken or f"skipped: increment {pair.ref_frame} → {pair.def_frame} missing"
+            continue
+        inc_fields[k] = field_on_grid(interp, axes)
+        if broken is not None:
+            status[k] = broken
+            continue
+        u, F, sup = compose_step(X, u, F, interp, step)
+        mask &= sup
+        Fg = F.reshape(*shape, 3, 3)
+        totals[k] = GridField(
+            axes.x_um,
+            axes.y_um,
+            axes.z_um,
+            u.reshape(*shape, 3),
+            Fg,
+            green_lagrange(Fg),
+            infinitesimal(Fg),
+            mask.reshape(shape),
+        )
+        status[k] = OK
+
+
+__all__ = [
+    "MODES",
+    "PairResult",
+    "SeriesResult",
+    "SeriesSettings",
+    "Tracks",
+    "compose_step",
+    "cumulate_eulerian",
+    "lagrangian_displacements",
+    "link_pairs",
+    "link_tracks",
+    "track_series",
+]
