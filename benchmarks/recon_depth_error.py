@@ -54,11 +54,10 @@ def main() -> int:
         f"{'(voxels / z-steps)':>19s} {'Eq.2 1/ν µm':>12s}"
     )
     for z in np.arange(-80.0, 721.0, 40.0):
-        pts = np.c_[
-            rng.uniform(-150, 150, args.points),
-            rng.uniform(-150, 150, args.points),
-            np.full(args.points, z),
-        ]
+        # Sources 200 µm apart (farther than any search window), jittered off the voxel grid.
+        corners = np.array([[-100, -100], [100, -100], [-100, 100], [100, 100]], float)
+        xy = corners + rng.uniform(-12.5, 12.5, corners.shape)
+        pts = np.c_[xy, np.full(len(xy), z)]
         img = trace_paraxial(
             o, Sources.spheres(pts, 0.0), RenderSettings(rays_per_particle=200_000, mode="expected")
         )
