@@ -155,6 +155,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--hot-pixels", action="store_true", help="suppress isolated hot pixels")
     run.add_argument("--roi", default=None, metavar="X0:X1,Y0:Y1", help="pixel region")
     run.add_argument("--device", choices=("auto", "llvm", "cuda"), default="auto")
+    run.add_argument(
+        "--projector",
+        choices=("auto", "gather", "sparse"),
+        default="auto",
+        help="projector implementation (auto: fastest for the backend)",
+    )
     run.add_argument("-o", "--output", type=Path, required=True, metavar="VOLDIR")
     run.add_argument("--overwrite", action="store_true", help="replace another run's volumes")
     run.set_defaults(func=_cmd_run)
@@ -316,6 +322,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         stop_rel_change=args.stop_rel_change,
         rays_per_pattern=args.rays_per_pattern,
         roi_px=_parse_roi(args.roi),
+        projector=args.projector,
     )
     background = None if args.background == "none" else args.background
     if background not in (None, "auto"):

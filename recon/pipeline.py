@@ -27,7 +27,7 @@ from .errors import InputError, ReconError
 from .filters import DepthFilter
 from .geometry import ReconGrid, depth_range
 from .preprocess import Preprocess, prepare_image, read_frame
-from .projector import LightFieldProjector
+from .projector import PROJECTORS, make_projector
 from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,8 @@ class ReconSettings:
         Rays traced per PSF-bank pattern.
     roi_px : tuple of int or None
         ``(x0, x1, y0, y1)``: reconstruct only lenslets whose images lie inside these pixels.
+    projector : {"auto", "gather", "sparse"}
+        ``"auto"``: the fastest for the backend (:func:`recon.projector.make_projector`).
     """
 
     z_min_um: float = -80.0
@@ -75,8 +77,11 @@ class ReconSettings:
     stop_rel_change: float | None = None
     rays_per_pattern: int = 200_000
     roi_px: tuple | None = None
+    projector: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.projector not in PROJECTORS:
+            raise InputError(f"projector must be one of {PROJECTORS}, got {self.projector!r}")
         for name in ("z_min_um", "z_max_um", "z_step_um"):
             v = getattr(self, name)
             if not isinstance(v, int | float) or not math.isfinite(v):
@@ -297,7 +302,7 @@ def reconstruct_series(
         bank = compute_psf_bank(
             ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
         )
-        projector = LightFieldProjector(bank, (nx, ny))
+        projector = make_projector(bank, (nx, ny), st.projector)
         filt = (
             DepthFilter.for_optics(ropt, depths, st.s, st.lanczos_a)
             if st.lanczos_a is not None

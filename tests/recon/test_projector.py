@@ -73,3 +73,23 @@ def test_shape_errors(small_projector):
         small_projector.forward(np.zeros((2, 3, 4), np.float32))
     with pytest.raises(InputError, match="image shape"):
         small_projector.backward(np.zeros((3, 4), np.float32))
+
+
+def test_sparse_projector_is_the_same_operator(small_bank, small_projector, rng):
+    from recon.projector import SparseProjector, make_projector
+
+    sp = SparseProjector(small_bank, (20, 20), block_mb=0.5)  # force several blocks per depth
+    assert len(sp._blocks) > small_bank.depths_um.size
+    x = rng.random(sp.volume_shape).astype(np.float32)
+    y = rng.random(sp.image_shape).astype(np.float32)
+    hx, hty = small_projector.forward(x), small_projector.backward(y)
+    np.testing.assert_allclose(sp.forward(x), hx, rtol=0, atol=1e-5 * hx.max())
+    np.testing.assert_allclose(sp.backward(y), hty, rtol=0, atol=1e-5 * hty.max())
+    lhs = np.dot(sp.forward(x).ravel().astype(np.float64), y.ravel())
+    rhs = np.dot(x.ravel().astype(np.float64), sp.backward(y).ravel())
+    assert abs(lhs - rhs) <= 1e-5 * abs(lhs)
+    assert sp.macs_per_projection == small_projector.macs_per_projection
+    auto = make_projector(small_bank, (20, 20))
+    assert isinstance(auto, SparseProjector)  # CPU backend: the measured winner
+    with pytest.raises(InputError, match="projector"):
+        make_projector(small_bank, (20, 20), "fft")
