@@ -177,20 +177,30 @@ def init_backend(
         os.environ["DRJIT_CACHE_DIR"] = str(cache_dir)
 
     libllvm = None
-    if device == "auto":
+    auto = device == "auto"
+    if auto:
         device = "cuda" if _cuda_available() else "llvm"
-    if device == "llvm":
-        libllvm = find_libllvm()
-        os.environ["DRJIT_LIBLLVM_PATH"] = libllvm
 
     import drjit as dr
     import mitsuba as mi
 
+    if device == "cuda":
+        try:
+            mi.set_variant("cuda_ad_mono")
+        except (ImportError, AttributeError, RuntimeError) as exc:  # pragma: no cover - GPU
+            if not auto:
+                raise BackendError(f"cannot use the CUDA backend: {exc}") from exc
+            # A CUDA driver library without a usable GPU: fall back to the CPU.
+            log.warning("CUDA backend unavailable (%s); using the LLVM CPU backend", exc)
+            device = "llvm"
+    if device == "llvm":
+        libllvm = find_libllvm()
+        os.environ["DRJIT_LIBLLVM_PATH"] = libllvm
+        try:
+            mi.set_variant("llvm_ad_mono")
+        except (ImportError, AttributeError, RuntimeError) as exc:  # pragma: no cover
+            raise BackendError(f"cannot set Mitsuba variant 'llvm_ad_mono': {exc}") from exc
     variant = f"{device}_ad_mono"
-    try:
-        mi.set_variant(variant)
-    except (ImportError, AttributeError, RuntimeError) as exc:  # pragma: no cover - platform
-        raise BackendError(f"cannot set Mitsuba variant {variant!r}: {exc}") from exc
     if device == "llvm":
         if threads is not None:
             dr.set_thread_count(threads)
