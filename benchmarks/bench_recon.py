@@ -17,7 +17,8 @@ memory is its own):
    projection, backward projection, update and anti-aliasing filter (Lanczos window 2 for
    both). pyolaf's iteration is its example's loop body (``examples/deconvolve_image.py``)
    with the forward projection done (its first iteration reuses ``H 1``). Without CuPy,
-   pyolaf runs on numpy's FFT (one thread); ours runs on Dr.Jit's LLVM backend (all cores).
+   pyolaf runs on numpy's FFT (one thread); ours uses the projector ``make_projector`` picks
+   (on the CPU ``SparseProjector``: scipy sparse × dense products; Dr.Jit gathers on CUDA).
 2. **Paper-size frame** (``--paper``; ``--full`` for ``s = 15``). The 1280 × 800 px frame of
    ``bench_lfsim.py`` (60 particles of 15 µm at z = 100…400 µm, 10⁵ rays each), rectified to
    1275 × 795 px, z = −80…720 µm in 5 µm steps (161 planes), 3 iterations with the depth
@@ -451,7 +452,8 @@ def compare(args, tmp: Path, results: dict) -> None:
         us, po = ok[0]
         firsts = ", ".join(f"{u['iteration_s'][0]:.2f}" for u, _ in ok)
         print(
-            f"ours: {us['threads']} Dr.Jit threads ({us['device']}); iteration = median of 3 "
+            f"ours: {us.get('projector', '?')}, {us['threads']} Dr.Jit threads "
+            f"({us['device']}); iteration = median of 3 "
             f"RL iterations with the depth filter (first ones: {firsts} s), cpu = CPU seconds "
             f"of all threads (median); setup = H^T 1; PSF = traced bank.\n"
             f"pyolaf {po['pyolaf']}: {po['backend']} backend (one thread); iteration = forward "
