@@ -137,9 +137,34 @@ def cmd_scene(args) -> int:
     return 0
 
 
+def _write_image(args, scene, img, meta) -> Path:
+    """Write a rendered image with its metadata and object-space pixel size (atomic)."""
+    from .io import write_tiff
+
+    return write_tiff(
+        Path(args.output),
+        img,
+        metadata=meta,
+        pixel_size_um=scene.optics.object_pixel_um,
+        overwrite=args.overwrite,
+    )
+
+
+def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
+    """White and micrometer images: Gaussian noise at ``--snr``, metadata, atomic write."""
+    from .camera import add_gaussian_noise
+
+    img, info = add_gaussian_noise(
+        clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
+    )
+    meta = _base_meta(kind, scene, args.scene)
+    meta.update(**extra, seed=args.seed, noise=info)
+    return _write_image(args, scene, img, meta)
+
+
 def cmd_render(args) -> int:
     from .camera import NoiseSpec, apply_noise
-    from .io import sha256_file, write_tiff
+    from .io import sha256_file
     from .particles import Particles
     from .render import render_particles
     from .tracer import RenderSettings
@@ -186,20 +211,12 @@ def cmd_render(args) -> int:
     else:
         img, info = apply_noise(clean, spec, _noise_seed(args.seed))
         meta["noise"] = info
-    write_tiff(
-        out,
-        img,
-        metadata=meta,
-        pixel_size_um=scene.optics.object_pixel_um,
-        overwrite=args.overwrite,
-    )
+    _write_image(args, scene, img, meta)
     log.info("wrote %s (%s, %d particles)", out, img.dtype, len(particles))
     return 0
 
 
 def cmd_white(args) -> int:
-    from .camera import add_gaussian_noise
-    from .io import write_tiff
     from .render import render_white
 
     out = Path(args.output)
@@ -208,25 +225,12 @@ def cmd_white(args) -> int:
     clean = render_white(
         scene, args.rays_per_lenslet, seed=args.seed, tracer=args.tracer, progress=not args.quiet
     )
-    img, info = add_gaussian_noise(
-        clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
-    )
-    meta = _base_meta("white", scene, args.scene)
-    meta.update(rays_per_lenslet=args.rays_per_lenslet, seed=args.seed, noise=info)
-    write_tiff(
-        out,
-        img,
-        metadata=meta,
-        pixel_size_um=scene.optics.object_pixel_um,
-        overwrite=args.overwrite,
-    )
+    _write_noisy_slide(args, scene, clean, "white", rays_per_lenslet=args.rays_per_lenslet)
     log.info("wrote %s", out)
     return 0
 
 
 def cmd_micrometer(args) -> int:
-    from .camera import add_gaussian_noise
-    from .io import write_tiff
     from .render import render_micrometer
 
     out = Path(args.output)
@@ -241,24 +245,15 @@ def cmd_micrometer(args) -> int:
         seed=args.seed,
         tracer=args.tracer,
     )
-    img, info = add_gaussian_noise(
-        clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
-    )
-    meta = _base_meta("stage micrometer", scene, args.scene)
-    meta.update(
+    _write_noisy_slide(
+        args,
+        scene,
+        clean,
+        "stage micrometer",
         division_um=args.division_um,
         line_width_um=args.line_width_um,
         axis=args.axis,
         rays_per_line=args.rays_per_line,
-        seed=args.seed,
-        noise=info,
-    )
-    write_tiff(
-        out,
-        img,
-        metadata=meta,
-        pixel_size_um=scene.optics.object_pixel_um,
-        overwrite=args.overwrite,
     )
     log.info("wrote %s (divisions every %g µm along %s)", out, args.division_um, args.axis)
     return 0
