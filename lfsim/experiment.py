@@ -46,6 +46,8 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
     bit_depth = 16
     enabled = true
 
+    [study], [recon], [track]       # not read here: settings of ``hrvptm study`` (validation)
+
 SNR is the paper's ``P99.9(clean image) / sigma_noise`` with ``P99.9`` the 99.9th percentile of
 the noise-free image (DESIGN.md §2).
 """
@@ -82,6 +84,10 @@ WHITE_KEYS = ("rays_per_lenslet", "snr", "bit_depth", "enabled")
 PARTICLE_KEYS = tuple(f.name for f in fields(SeedingSpec))
 NOISE_KEYS = tuple(f.name for f in fields(NoiseSpec))
 SECTIONS = ("experiment", "particles", "motion", "render", "noise", "white")
+#: Sections read by the tools downstream of the simulator (``hrvptm study``: the validation
+#: study, the reconstruction and the tracking settings). lfsim skips them; they are not part
+#: of the dataset it makes (nor of its fingerprint).
+DOWNSTREAM_SECTIONS = ("study", "recon", "track")
 #: Noise keys that may be a list with one value per frame.
 PER_FRAME_NOISE_KEYS = ("snr", "fps")
 
@@ -274,8 +280,10 @@ class Experiment:
         if not isinstance(data, Mapping):
             raise ConfigError(f"{where}: expected a table of sections, got {type(data).__name__}")
         for key in data:
+            if key in DOWNSTREAM_SECTIONS:
+                continue
             if key not in SECTIONS:
-                hint = difflib.get_close_matches(str(key), SECTIONS, n=1)
+                hint = difflib.get_close_matches(str(key), SECTIONS + DOWNSTREAM_SECTIONS, n=1)
                 did = f" (did you mean [{hint[0]}]?)" if hint else ""
                 raise ConfigError(
                     f"{where}: unknown section or key [{key}]{did}; allowed sections: "

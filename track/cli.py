@@ -115,8 +115,9 @@ def _detect_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--threshold",
         type=_threshold,
-        default="auto",
-        help="binarisation threshold: fraction of the intensity range (paper: 0.25) or 'auto'",
+        default=0.25,
+        help="binarisation threshold: fraction of the intensity range (default and paper: "
+        "0.25) or 'auto'",
     )
     g.add_argument(
         "--no-deconvolution", action="store_true", help="skip the secondary deconvolution"

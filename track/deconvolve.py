@@ -9,14 +9,20 @@ The update of Richardson (1972) and Lucy (1974) for ``y ≈ h * x`` is
 
 ``x ← x · [h̃ * (y / (h * x))] / (h̃ * 1)``,
 
-with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution restricted to the
-volume: transforms are real FFTs (:func:`scipy.fft.rfftn`) zero-padded to at least
-``n + m − 1`` samples per axis, so nothing wraps around. Dividing by ``h̃ * 1`` (which is below
-1 within half a PSF of the faces) is the boundary-corrected form of Bertero & Boccacci
-(A&A 437, 2005); it keeps the total flux ``Σ x ≈ Σ y`` for particles inside the volume. The
-data are clipped at 0 (the model is non-negative), the estimate starts from the data and stays
-non-negative, and voxels where the blurred estimate is below ``1e-6`` of its maximum contribute
-a ratio of 0 instead of blowing up.
+with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution: transforms are real
+FFTs (:func:`scipy.fft.rfftn`) zero-padded to at least ``n + m − 1`` samples per axis, so
+nothing wraps around.
+
+Boundaries follow Bertero & Boccacci (A&A 437, 2005): the object ``x`` is estimated on the
+volume *extended by half a PSF* on every face, the data ``y`` only on the volume (``y = M (h *
+x)`` with ``M`` the crop to the volume), and the update is divided by ``h̃ * Mᵀ1``. Light near a
+face is then explained by sources inside or just outside the volume, instead of being piled
+onto the face voxels (estimating ``x`` on the volume alone, a uniform background grows there
+by about ×2 per iteration). The extension is cropped off at the end; for particles inside the
+volume the total flux ``Σ x ≈ Σ y`` is kept. The data are clipped at 0 (the model is
+non-negative), the estimate starts from the data (edge values in the extension) and stays
+non-negative, and voxels where the blurred estimate is below ``1e-6`` of its maximum
+contribute a ratio of 0 instead of blowing up.
 """
 
 from __future__ import annotations
@@ -36,17 +42,27 @@ _TINY = 1e-6
 
 
 class _Convolver:
-    """Linear 'same'-size convolution of volumes of one shape with a fixed odd kernel."""
+    """Linear convolution with a fixed odd kernel, from an extended domain to a volume.
+
+    The object lives on the volume of shape ``shape`` extended by ``m // 2`` voxels on both
+    faces of every axis (``m``: kernel size); :meth:`forward` blurs it and crops to the volume,
+    :meth:`adjoint` is its exact transpose.
+    """
 
     def __init__(self, shape: tuple[int, ...], kernel: np.ndarray) -> None:
         self.shape = shape
+        self.pad = tuple(m // 2 for m in kernel.shape)
+        self.ext_shape = tuple(n + 2 * p for n, p in zip(shape, self.pad, strict=True))
         self.fshape = tuple(
             sfft.next_fast_len(n + m - 1, real=True)
-            for n, m in zip(shape, kernel.shape, strict=True)
+            for n, m in zip(self.ext_shape, kernel.shape, strict=True)
         )
-        self.crop = tuple(
-            slice(m // 2, m // 2 + n) for n, m in zip(shape, kernel.shape, strict=True)
+        # 'same' crop of the full linear convolution on the extended domain ...
+        self.same = tuple(
+            slice(m // 2, m // 2 + n) for n, m in zip(self.ext_shape, kernel.shape, strict=True)
         )
+        # ... and the volume inside the extended domain.
+        self.inner = tuple(slice(p, p + n) for n, p in zip(shape, self.pad, strict=True))
         self.otf = sfft.rfftn(kernel, s=self.fshape, workers=-1)
         self.otf_t = sfft.rfftn(kernel[::-1, ::-1, ::-1], s=self.fshape, workers=-1)
 
@@ -54,15 +70,25 @@ class _Convolver:
         full = sfft.irfftn(
             sfft.rfftn(x, s=self.fshape, workers=-1) * otf, s=self.fshape, workers=-1
         )
-        return full[self.crop]
+        return full[self.same]
 
     def forward(self, x: np.ndarray) -> np.ndarray:
-        """``h * x`` (same shape as ``x``)."""
-        return self._apply(x, self.otf)
+        """``M (h * x)``: extended-domain object → volume-shaped data."""
+        return self._apply(x, self.otf)[self.inner]
 
-    def adjoint(self, x: np.ndarray) -> np.ndarray:
-        """``h̃ * x``, the adjoint of :meth:`forward`."""
-        return self._apply(x, self.otf_t)
+    def adjoint(self, r: np.ndarray) -> np.ndarray:
+        """``h̃ * Mᵀ r``: volume-shaped data → extended domain (adjoint of :meth:`forward`)."""
+        ext = np.zeros(self.ext_shape, dtype=r.dtype)
+        ext[self.inner] = r
+        return self._apply(ext, self.otf_t)
+
+    def extend(self, y: np.ndarray) -> np.ndarray:
+        """``y`` on the extended domain (edge values repeated): the starting estimate."""
+        return np.pad(y, [(p, p) for p in self.pad], mode="edge")
+
+    def crop(self, x: np.ndarray) -> np.ndarray:
+        """The volume part of an extended-domain array."""
+        return x[self.inner]
 
 
 def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.ndarray:
@@ -101,7 +127,7 @@ def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.n
     conv = _Convolver(y.shape, kernel)
     norm = conv.adjoint(np.ones_like(y))
     norm = np.where(norm > _TINY, norm, np.inf).astype(np.float32)
-    x = y.copy()
+    x = conv.extend(y)
     for it in range(int(iterations)):
         blurred = conv.forward(x)
         floor = _TINY * float(blurred.max())
@@ -110,4 +136,4 @@ def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.n
         x = np.clip(x * conv.adjoint(ratio) / norm, 0.0, None).astype(np.float32)
         log.debug("deconvolve: iteration %d of %d done", it + 1, iterations)
     log.info("deconvolve: %d Richardson–Lucy iterations on a %s volume", iterations, y.shape)
-    return x
+    return np.ascontiguousarray(conv.crop(x))

@@ -472,6 +472,20 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
             best = (n_inl, label, cand[fit[1]], cand.shape[0], fit[0])
         if best is not None and best[0] >= 0.3 * min(sub.size, dfm.shape[0]):
             break  # overwhelming consensus already
+    if best is None or best[0] < 0.3 * min(sub.size, dfm.shape[0]):
+        # Small-motion hypothesis: increments well below the particle spacing (the usual case
+        # at high frame rates) pair nearest neighbours of the unwarped clouds. It rescues
+        # sparse, noisy clouds whose topology descriptors disagree (a few tens of particles
+        # with spurious or missing detections); the affine consensus still has to agree.
+        cand = match_nearest(ref, dfm, 0.5 * spacing, settings.nn_ratio)
+        if cand.shape[0] >= min_inl:
+            fit = ransac_affine(
+                ref[cand[:, 0]], dfm[cand[:, 1]], thr, seed=settings.seed, min_inliers=min_inl
+            )
+            n_inl = -1 if fit is None else int(fit[1].sum())
+            logger.debug("bootstrap nearest: %d candidates, %d agree", cand.shape[0], max(n_inl, 0))
+            if fit is not None and (best is None or n_inl > best[0]):
+                best = (n_inl, "nearest", cand[fit[1]], cand.shape[0], fit[0])
     if best is None:
         return None
     _, label, pairs, n_cand, aff0 = best

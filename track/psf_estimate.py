@@ -99,18 +99,20 @@ def find_isolated_peaks(
     is_max = smooth == ndimage.maximum_filter(smooth, size=3, mode="nearest")
     peaks = np.argwhere(is_max & (smooth - b_sm > 5.0 * s_sm))
     height = vol[tuple(peaks.T)] - b
-    top = float(height.max()) if peaks.size else 0.0
+    # Only maxima whose box fits in the volume can be used, and only they set the reference
+    # height: bright artefacts on the volume faces (reconstruction boundary effects) must not
+    # make every real particle look faint.
+    shape = np.asarray(vol.shape)
+    inside = np.all((peaks - half - 1 >= 0) & (peaks + half + 1 < shape), axis=1)
+    top = float(height[inside].max()) if inside.any() else 0.0
     if not top > 0:
         return np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3), dtype=np.int64)
-    cand = (height >= min_snr * s) & (height >= min_rel_height * top)
+    cand = inside & (height >= min_snr * s) & (height >= min_rel_height * top)
     order = np.argsort(-height, kind="stable")
     pts = peaks[order][cand[order]]
     h = 5.0 * s_sm  # prominence a maximum needs to count as a separate particle
-    shape = np.asarray(vol.shape)
     isolated, crowded = [], []
     for p in pts:
-        if np.any(p - half - 1 < 0) or np.any(p + half + 1 >= shape):
-            continue
         d = np.abs(peaks - p)
         near = peaks[np.all(d <= half, axis=1) & np.any(d > 0, axis=1)]
         if any(_separate(smooth, p, q, h) for q in near):

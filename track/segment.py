@@ -152,12 +152,27 @@ class Segmentation:
         return tuple(b for b in self.blobs if not b.accepted)
 
 
+#: Voxels of each face left out of the intensity range: light-field reconstructions pile
+#: light from outside the field onto their outermost voxels (boundary artefacts), which must
+#: not set the threshold of the particles inside.
+FACE_VOX = 2
+
+
+def interior(vol: np.ndarray) -> np.ndarray:
+    """The volume without its :data:`FACE_VOX` outer voxels (axes too short keep them all)."""
+    sl = tuple(
+        slice(FACE_VOX, n - FACE_VOX) if n > 4 * FACE_VOX else slice(None) for n in vol.shape
+    )
+    return vol[sl]
+
+
 def auto_threshold(volume: np.ndarray, k_sigma: float = 5.0) -> float:
-    """Robust noise threshold ``median + k · 1.4826 MAD``, floored at 5 % of the range."""
+    """Robust noise threshold ``median + k · 1.4826 MAD``, floored at 5 % of the range (the
+    range of the interior, see :func:`interior`)."""
     vol = check_volume(volume)
     med = float(np.median(vol))
     sigma = 1.4826 * float(np.median(np.abs(vol - med)))
-    top = float(vol.max())
+    top = float(interior(vol).max())
     return max(med + k_sigma * sigma, med + 0.05 * (top - med))
 
 
@@ -170,7 +185,8 @@ def _threshold(vol: np.ndarray, threshold: float | str, k_sigma: float) -> float
         raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {threshold!r}")
     if not 0.0 < float(threshold) < 1.0:
         raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {threshold!r}")
-    lo, hi = float(vol.min()), float(vol.max())
+    core = interior(vol)
+    lo, hi = float(core.min()), float(core.max())
     return lo + float(threshold) * (hi - lo)
 
 

@@ -87,8 +87,8 @@ def test_example_loads(path):
     json.dumps(d, allow_nan=False)
     assert Experiment.from_dict(json.loads(json.dumps(d))) == exp
     assert len(exp.fingerprint()) == 64
-    if path.stem.endswith("_test"):
-        assert exp.optics.sensor_px == (300, 300)
+    if path.stem.endswith("_test") or path.stem.startswith("demo_"):
+        assert exp.optics.sensor_px == (600, 450)  # scenes/medium*.xml
     else:
         assert exp.optics.sensor_px == (1280, 800)
         assert exp.render.rays_per_particle == 100_000

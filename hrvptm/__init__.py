@@ -1,0 +1,48 @@
+"""hrvptm — validation studies of the HR-VPTM toolkit, end to end on synthetic light fields.
+
+Sits above :mod:`lfsim`, :mod:`recon` and :mod:`track` (none of them imports it) and
+rebuilds the paper's studies (Figs. 4–7): an experiment file is simulated, reconstructed,
+tracked and compared frame by frame with its known truth.
+
+Public API
+----------
+:func:`load_study`, :class:`Study`
+    Study files: an lfsim experiment TOML with ``[study]``, ``[recon]``, ``[track]``
+    sections (:mod:`hrvptm.config`).
+:func:`run_study`
+    Run or resume a study into a report folder (:mod:`hrvptm.study`).
+:func:`analyse`, :class:`Analysis`
+    The comparison with the truth (:mod:`hrvptm.analysis`, :mod:`hrvptm.compare`).
+:func:`collect`
+    Gather reports into one page (:mod:`hrvptm.collect`).
+Command line
+    ``hrvptm study | demo | collect`` (:mod:`hrvptm.cli`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+from .analysis import Analysis, analyse
+from .collect import collect
+from .config import Study, load_study
+from .errors import ReportExistsError, StageError, StudyConfigError, StudyError
+from .study import run_study
+
+__version__ = "0.1.0"
+
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+__all__ = [
+    "Analysis",
+    "ReportExistsError",
+    "StageError",
+    "Study",
+    "StudyConfigError",
+    "StudyError",
+    "__version__",
+    "analyse",
+    "collect",
+    "load_study",
+    "run_study",
+]

@@ -1,0 +1,355 @@
+"""Compare a variant's detections, links and fields with the truth of its dataset.
+
+One function per kind of study (:data:`hrvptm.config.KINDS`). Each returns an
+:class:`Analysis`: per-frame (or per-pair) table rows, pooled summary numbers and the arrays
+the plots need. Lengths in µm, strains dimensionless (0.01 = 1 %), Green–Lagrange
+``E = (FᵀF − I)/2`` (DESIGN.md §2); the imposed strain comes from the prescribed motion's
+deformation gradient (``lfsim.motion``), or from central differences of a user field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .compare import (
+    AXES,
+    TENSOR_COMPONENTS,
+    associate,
+    green_lagrange,
+    numerical_deformation_gradient,
+    tensor_stats,
+    vector_stats,
+)
+from .errors import StageError
+from .stages import VariantPaths
+
+
+@dataclass
+class Analysis:
+    """What one variant measured against the truth.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One per frame (localization, series) or pair (pairs): the CSV table.
+    summary : dict
+        Pooled numbers (see the analysis functions).
+    arrays : dict
+        Data for the plots (vectors and fields of the peak frame, …).
+    """
+
+    rows: list[dict]
+    summary: dict
+    arrays: dict = field(default_factory=dict)
+
+
+# -- inputs ------------------------------------------------------------------------------------
+def _read_csv_table(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise StageError(f"missing {path}")
+    with path.open(encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if data.size == 0:
+        data = np.zeros((0, len(header)))
+    return {h: data[:, j] for j, h in enumerate(header)}
+
+
+@dataclass
+class VariantData:
+    """The files of one variant, read once: truth, detections and the volume's extent."""
+
+    study: object
+    paths: VariantPaths
+    truth_ids: list[np.ndarray]
+    truth_xyz: list[np.ndarray]
+    detections: list[np.ndarray]
+    box_lo: np.ndarray
+    box_hi: np.ndarray
+    noise: list[dict]
+
+    @classmethod
+    def load(cls, study, paths: VariantPaths) -> VariantData:
+        from lfsim.io import read_json
+
+        n = study.experiment.frames
+        tids, txyz, dets, noise = [], [], [], []
+        record = read_json(paths.dataset / "dataset.json")
+        recs = {r["frame"]: r for r in record.get("frame_records", [])}
+        for k in range(n):
+            t = _read_csv_table(paths.dataset / "truth" / f"{k:06d}.csv")
+            tids.append(t["id"].astype(int))
+            txyz.append(np.column_stack([t["x_um"], t["y_um"], t["z_um"]]))
+            d = _read_csv_table(paths.track / "particles" / f"{k:06d}.csv")
+            dets.append(np.column_stack([d["x_um"], d["y_um"], d["z_um"]]))
+            spec = study.experiment.noise_for_frame(k)
+            nrec = dict(recs.get(k, {}).get("noise", {}))
+            noise.append({"snr": nrec.get("snr", spec.snr), "fps": getattr(spec, "fps", None)})
+        meta = read_json(paths.volumes / "recon.json")
+        g = meta["grid"]
+        lo = np.array([g["origin_um"][0], g["origin_um"][1], min(g["depths_um"])], float)
+        size = g["lenslet_object_um"] * np.asarray(g["n_lenslets"], float)
+        hi = np.array([lo[0] + size[0], lo[1] + size[1], max(g["depths_um"])], float)
+        return cls(study, paths, tids, txyz, dets, lo, hi, noise)
+
+    def in_volume(self, xyz: np.ndarray) -> np.ndarray:
+        """Mask of points inside the reconstructed volume."""
+        return np.all((xyz >= self.box_lo) & (xyz <= self.box_hi), axis=1)
+
+    def truth_by_id(self, k: int) -> dict[int, np.ndarray]:
+        return dict(zip(self.truth_ids[k].tolist(), self.truth_xyz[k], strict=True))
+
+    def associate(self, k: int, points: np.ndarray) -> np.ndarray:
+        """Truth id of each point of frame ``k`` (−1: no true particle within the radius)."""
+        ids = np.full(len(points), -1, dtype=int)
+        i_p, i_t = associate(points, self.truth_xyz[k], self.study.study.match_radius_um)
+        ids[i_p] = self.truth_ids[k][i_t]
+        return ids
+
+    def n_in_volume(self, k: int) -> int:
+        return int(self.in_volume(self.truth_xyz[k]).sum())
+
+
+def _pooled(errors: list[np.ndarray], prefix: str) -> dict:
+    e = np.concatenate([x.reshape(-1, 3) for x in errors]) if errors else np.zeros((0, 3))
+    return vector_stats(e, prefix)
+
+
+# -- localization (Fig. 4a) ----------------------------------------------------------------------
+def analyse_localization(data: VariantData) -> Analysis:
+    """Detected centres of every frame against the true ones.
+
+    Row keys: ``frame, snr, fps, n_truth`` (true particles inside the reconstructed volume),
+    ``n_detected, n_matched, recall, precision`` and ``mean_/rmsd_/maxabs_{x,y,z}`` of
+    ``detected − true`` (µm). Summary: the same pooled over frames, plus the worst frame's RMSD.
+    """
+    rows, errs = [], []
+    for k, det in enumerate(data.detections):
+        ids = data.associate(k, det)
+        truth = data.truth_by_id(k)
+        ok = ids >= 0
+        err = det[ok] - np.array([truth[i] for i in ids[ok]]).reshape(-1, 3)
+        errs.append(err)
+        n_truth = data.n_in_volume(k)
+        rows.append(
+            {
+                "frame": k,
+                **data.noise[k],
+                "n_truth": n_truth,
+                "n_detected": len(det),
+                "n_matched": int(ok.sum()),
+                "recall": ok.sum() / n_truth if n_truth else math.nan,
+                "precision": ok.sum() / len(det) if len(det) else math.nan,
+                **vector_stats(err),
+            }
+        )
+    summary = _pooled(errs, "pooled_")
+    for ax in AXES:
+        summary[f"worst_rmsd_{ax}"] = float(np.nanmax([r[f"rmsd_{ax}"] for r in rows]))
+        summary[f"worst_maxabs_{ax}"] = float(np.nanmax([r[f"maxabs_{ax}"] for r in rows]))
+        summary[f"worst_abs_mean_{ax}"] = float(np.nanmax([abs(r[f"mean_{ax}"]) for r in rows]))
+    summary["mean_recall"] = float(np.nanmean([r["recall"] for r in rows]))
+    return Analysis(rows, summary)
+
+
+# -- zero-displacement pairs (Figs. 4b, 4c) ------------------------------------------------------
+def _pairs(n_frames: int, group: int) -> list[tuple[int, int]]:
+    """``(first, other)`` frame pairs of consecutive groups of ``group`` shots."""
+    return [(g, g + j) for g in range(0, n_frames - group + 1, group) for j in range(1, group)]
+
+
+def analyse_pairs(data: VariantData) -> Analysis:
+    """Link the first frame of each group of shots to the others (pairs ``(0, 1), (2, 3), …``
+    for groups of 2) and compare the displacements with the truth.
+
+    Row keys: ``pair, frame_a, frame_b, snr, fps`` (of the pair's first frame), ``n_a, n_b,
+    n_links, n_correct, n_wrong, tracking_ratio`` (correct links / particles detected in both
+    frames) and ``u_mean_/u_rmsd_/u_maxabs_{x,y,z}`` of ``measured − true`` displacement (µm).
+    """
+    from track.matching import LinkSettings, link_pair
+
+    rows, errs, hist = [], [], []
+    group = data.study.study.group_size
+    for p, (a, b) in enumerate(_pairs(len(data.detections), group)):
+        ca, cb = data.detections[a], data.detections[b]
+        ida, idb = data.associate(a, ca), data.associate(b, cb)
+        trackable = len(np.intersect1d(ida[ida >= 0], idb[idb >= 0]))
+        row = {"pair": p, "frame_a": a, "frame_b": b, **data.noise[a], "n_a": len(ca)}
+        row["n_b"] = len(cb)
+        err = np.zeros((0, 3))
+        if min(len(ca), len(cb)) >= 4:
+            res = link_pair(ca, cb, LinkSettings())
+            m = res.matches if res.ok else np.zeros((0, 2), int)
+        else:
+            m = np.zeros((0, 2), int)
+        ta, tb = data.truth_by_id(a), data.truth_by_id(b)
+        known = ida[m[:, 0]] >= 0 if len(m) else np.zeros(0, bool)
+        mk = m[known]
+        if len(mk):
+            true_u = np.array([tb[i] - ta[i] for i in ida[mk[:, 0]]])
+            err = (cb[mk[:, 1]] - ca[mk[:, 0]]) - true_u
+        correct = int(np.sum(ida[m[:, 0]] == idb[m[:, 1]]) if len(m) else 0)
+        correct -= int(np.sum((ida[m[:, 0]] < 0) & (idb[m[:, 1]] < 0)) if len(m) else 0)
+        row.update(
+            {
+                "n_links": len(m),
+                "n_correct": correct,
+                "n_wrong": len(m) - correct,
+                "tracking_ratio": correct / trackable if trackable else math.nan,
+                **vector_stats(err, "u_"),
+            }
+        )
+        rows.append(row)
+        errs.append(err)
+        hist.append(err)
+    summary = _pooled(errs, "pooled_u_")
+    for ax in AXES:
+        summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
+    summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
+    summary["wrong_links"] = int(sum(r["n_wrong"] for r in rows))
+    return Analysis(rows, summary, {"errors": hist})
+
+
+# -- tracked series (Figs. 5-7) ------------------------------------------------------------------
+def imposed_amplitude(motion, k: int) -> tuple[str, float]:
+    """Name and value of the imposed motion at frame ``k`` for the plots' abscissa."""
+    name = getattr(motion, "type_name", "")
+    if name == "translation":
+        return "translation (µm)", float(np.linalg.norm(motion.amplitude(k)))
+    if name == "rotation":
+        return "rotation (°)", float(motion.amplitude(k))
+    if name == "uniaxial_tension":
+        return "engineering strain (%)", 100.0 * float(motion.amplitude(k))
+    if name == "simple_shear":
+        return "shear γ (%)", 100.0 * float(motion.amplitude(k))
+    return "frame", float(k)
+
+
+def imposed_F(motion, k: int, X_um: np.ndarray) -> np.ndarray:
+    """Deformation gradient of the prescribed motion from frame 0 to frame ``k``: (3, 3) for a
+    homogeneous motion, else (K, 3, 3) at the reference points ``X_um``."""
+    if motion is None:
+        return np.eye(3)
+    if getattr(motion, "homogeneous", False):
+        return np.asarray(motion.deformation_gradient(k), float)
+    return numerical_deformation_gradient(lambda X: motion.displacement(X, k), X_um)
+
+
+def analyse_series(data: VariantData) -> Analysis:
+    """Cumulative displacements of the tracked particles and the gridded strain fields.
+
+    Row keys (frame ``k`` against frame 0): ``frame, time_s, amplitude`` (imposed, see
+    :func:`imposed_amplitude`), ``n_detected, n_tracked`` (tracks present in frames 0 and
+    ``k`` whose start is a true particle), ``n_correct, tracking_ratio`` (correct tracks /
+    particles detected in both frames), ``u_true_{x,y,z}`` (mean imposed displacement),
+    ``u_meas_{x,y,z}``, ``u_mean_/u_rmsd_/u_maxabs_{x,y,z}`` (µm) and for the strain field
+    (nodes supported by particles) ``E_true_c, E_meas_c, E_se_c, E_err_c, E_rmsd_c`` for
+    ``c`` in xx, yy, zz, xy, xz, yz (``E_se`` with n = tracked particles).
+    """
+    from track.io import read_field_npz, read_tracks_csv
+
+    st = data.study
+    motion = st.experiment.motion
+    n = st.experiment.frames
+    tr_path = data.paths.track / "tracks.csv"
+    if not tr_path.is_file():
+        raise StageError(f"missing {tr_path}")
+    tracks = read_tracks_csv(tr_path)
+    xyz = np.column_stack([tracks["x_um"], tracks["y_um"], tracks["z_um"]])
+    fr, tid = tracks["frame"], tracks["track_id"]
+    at0 = fr == 0
+    ids0 = tid[at0]
+    x0 = xyz[at0]
+    truth0 = data.truth_by_id(0)
+    tid0_truth = data.associate(0, x0)
+    det_ids0 = data.associate(0, data.detections[0])
+    rows, errs, strain_err = [], [], {c: [] for c in TENSOR_COMPONENTS}
+    arrays: dict = {"amplitude_label": imposed_amplitude(motion, 1)[0] if motion else "frame"}
+    dt = st.study.time_step_s
+    vectors: dict[int, dict] = {}
+    peak_field, peak_amp = None, -math.inf
+    for k in range(1, n):
+        amp = imposed_amplitude(motion, k)[1] if motion else float(k)
+        atk = fr == k
+        _, i0, ik = np.intersect1d(ids0, tid[atk], return_indices=True)
+        xk = xyz[atk][ik]
+        start = tid0_truth[i0]
+        end = data.associate(k, xk)
+        known = start >= 0
+        truthk = data.truth_by_id(k)
+        true_u = np.array([truthk[i] - truth0[i] for i in start[known]]).reshape(-1, 3)
+        meas_u = (xk - x0[i0])[known]
+        err = meas_u - true_u
+        errs.append(err)
+        correct = int(np.sum((start == end) & known))
+        det_idsk = data.associate(k, data.detections[k])
+        trackable = len(np.intersect1d(det_ids0[det_ids0 >= 0], det_idsk[det_idsk >= 0]))
+        row = {
+            "frame": k,
+            "time_s": k * dt if dt else math.nan,
+            "amplitude": amp,
+            "n_detected": len(data.detections[k]),
+            "n_tracked": int(known.sum()),
+            "n_correct": correct,
+            "tracking_ratio": correct / trackable if trackable else math.nan,
+        }
+        for j, ax in enumerate(AXES):
+            row[f"u_true_{ax}"] = float(true_u[:, j].mean()) if len(true_u) else math.nan
+            row[f"u_meas_{ax}"] = float(meas_u[:, j].mean()) if len(meas_u) else math.nan
+        row.update(vector_stats(err, "u_"))
+        fpath = data.paths.track / "fields" / f"{k:06d}.npz"
+        if fpath.is_file():
+            fld = read_field_npz(fpath)
+            Z, Y, X = np.meshgrid(fld.z_um, fld.y_um, fld.x_um, indexing="ij")
+            nodes = np.column_stack([X[fld.mask], Y[fld.mask], Z[fld.mask]])
+            F_true = imposed_F(motion, k, nodes)
+            E_true = green_lagrange(F_true)
+            E_meas = fld.E[fld.mask]
+            ts = tensor_stats(E_meas, E_true, "E_", n_independent=max(int(known.sum()), 1))
+            row.update(ts)
+            for c in TENSOR_COMPONENTS:
+                i, j = TENSOR_COMPONENTS[c]
+                t = np.broadcast_to(E_true, E_meas.shape)[:, i, j]
+                strain_err[c].append(E_meas[:, i, j] - t)
+            if abs(amp) >= peak_amp:
+                peak_amp = abs(amp)
+                peak_field = {"frame": k, "field": fld, "E_true": E_true}
+        else:
+            row.update(tensor_stats(np.zeros((0, 3, 3)), np.eye(3), "E_"))
+        rows.append(row)
+        vectors[k] = {"X_um": x0[i0][known], "true_u": true_u, "meas_u": meas_u}
+    # The plots show the peak frame (largest imposed amplitude; the last one on ties).
+    peak = max(range(1, n), key=lambda k: (abs(rows[k - 1]["amplitude"]), k))
+    arrays["peak_frame"] = peak
+    arrays["motion"] = motion
+    arrays["vectors"] = vectors[peak]
+    if peak_field is not None:
+        arrays["field"] = peak_field
+    summary = _pooled(errs, "pooled_u_")
+    for ax in AXES:
+        summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
+    for c, chunks in strain_err.items():
+        e = np.concatenate(chunks) if chunks else np.zeros(0)
+        summary[f"pooled_E_rmsd_{c}"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
+        summary[f"pooled_E_err_{c}"] = float(e.mean()) if len(e) else math.nan
+        vals = [abs(r[f"E_err_{c}"]) for r in rows if not math.isnan(r[f"E_err_{c}"])]
+        summary[f"worst_E_abs_mean_err_{c}"] = float(max(vals)) if vals else math.nan
+    summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
+    summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
+    return Analysis(rows, summary, arrays)
+
+
+ANALYSES = {
+    "localization": analyse_localization,
+    "pairs": analyse_pairs,
+    "series": analyse_series,
+}
+
+
+def analyse(study, paths: VariantPaths) -> Analysis:
+    """Run the analysis of ``study.study.kind`` on one variant's files."""
+    return ANALYSES[study.study.kind](VariantData.load(study, paths))

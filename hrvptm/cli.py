@@ -1,0 +1,218 @@
+"""The ``hrvptm`` command line: validation studies end to end.
+
+Commands::
+
+    hrvptm study EXPERIMENT.toml -o REPORT [--until STAGE] [--overwrite] [-q | -v]
+    hrvptm demo -o DIR [--overwrite] [-q | -v]
+    hrvptm collect REPORT [REPORT ...] -o validation.md [--preamble INTRO.md]
+
+``study`` simulates the experiment with lfsim, reconstructs it with recon, tracks it with
+track and compares every frame with the truth (:mod:`hrvptm.study`); a rerun resumes.
+``demo`` runs the built-in small study (simple shear at test size, a few minutes on 2 cores)
+and prints its summary. ``collect`` gathers finished reports into one Markdown page (the
+project's ``docs/validation.md``).
+
+Errors a user can cause print one line ``hrvptm: error: <message>`` and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from .errors import StudyConfigError, StudyError
+
+log = logging.getLogger("hrvptm")
+
+#: The demo study (repository file, see scenes/experiments/README.md).
+DEMO = Path(__file__).resolve().parent.parent / "scenes" / "experiments" / "demo_simple_shear.toml"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``hrvptm`` argument parser."""
+    from . import __version__
+
+    p = _Parser(prog="hrvptm", description="Validation studies of the HR-VPTM toolkit.")
+    p.add_argument("--version", action="version", version=f"hrvptm {__version__}")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+
+    def common(q: argparse.ArgumentParser) -> None:
+        q.add_argument("-v", "--verbose", action="count", default=0, help="more messages")
+        q.add_argument("-q", "--quiet", action="store_true", help="errors only, no progress")
+        q.add_argument(
+            "--overwrite", action="store_true", help="reuse a report folder of another study"
+        )
+
+    st = sub.add_parser(
+        "study",
+        help="run a validation study end to end",
+        description="Simulate → reconstruct → track → compare with the truth; writes CSV "
+        "tables, plots, summary.md and summary.json into REPORT. A rerun resumes.",
+    )
+    st.add_argument("experiment", type=Path, metavar="EXPERIMENT.toml")
+    st.add_argument("-o", "--output", required=True, type=Path, metavar="REPORT")
+    st.add_argument(
+        "--until",
+        choices=("simulate", "reconstruct", "track", "analyse"),
+        default="analyse",
+        help="last stage to run (default: all, with the report)",
+    )
+    common(st)
+    st.set_defaults(func=cmd_study)
+
+    de = sub.add_parser(
+        "demo",
+        help="the built-in small study (simple shear, test size)",
+        description=f"Run {DEMO.name} end to end and print its summary.",
+    )
+    de.add_argument("-o", "--output", required=True, type=Path, metavar="DIR")
+    common(de)
+    de.set_defaults(func=cmd_demo)
+
+    co = sub.add_parser(
+        "collect",
+        help="gather study reports into one Markdown page",
+        description="Gather the summary.md of finished reports into one page with their plots.",
+    )
+    co.add_argument("reports", type=Path, nargs="+", metavar="REPORT")
+    co.add_argument("-o", "--output", required=True, type=Path, metavar="PAGE.md")
+    co.add_argument(
+        "--preamble", type=Path, default=None, metavar="INTRO.md", help="page header to use"
+    )
+    co.add_argument("-q", "--quiet", action="store_true")
+    co.add_argument("-v", "--verbose", action="count", default=0)
+    co.set_defaults(func=cmd_collect)
+    return p
+
+
+def _run(path: Path, args, command: str) -> dict:
+    from .config import load_study
+    from .study import run_study
+
+    study = load_study(path)
+    return run_study(
+        study,
+        args.output,
+        until=getattr(args, "until", "analyse"),
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        command=command,
+    )
+
+
+def cmd_study(args) -> int:
+    t0 = time.perf_counter()
+    _run(args.experiment, args, "hrvptm " + shlex.join(args.argv))
+    if not args.quiet:
+        sys.stdout.write(f"{args.output}: done in {time.perf_counter() - t0:.0f} s\n")
+    return 0
+
+
+def _fmt(v, pct: bool = False) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    return f"{100 * v:.2f} %" if pct else f"{v:.2f}"
+
+
+def summary_table(result: dict) -> str:
+    """Plain-text table of a series study: per variant and frame, displacement RMSD (µm),
+    shear strain measured/imposed and tracking ratio."""
+    lines = []
+    for variant, v in result["variants"].items():
+        lines.append(f"{variant}:")
+        lines.append(
+            f"{'frame':>5} {'γ imposed':>10} {'2E_xz meas':>10} {'RMSD x':>7} {'RMSD y':>7} "
+            f"{'RMSD z':>7} {'tracked':>8}"
+        )
+        for r in v["rows"]:
+            lines.append(
+                f"{r['frame']:>5} {_fmt(2 * r.get('E_true_xz', math.nan), True):>10} "
+                f"{_fmt(2 * r.get('E_meas_xz', math.nan), True):>10} "
+                f"{_fmt(r['u_rmsd_x']):>7} {_fmt(r['u_rmsd_y']):>7} {_fmt(r['u_rmsd_z']):>7} "
+                f"{_fmt(r['tracking_ratio'], True):>8}"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def cmd_demo(args) -> int:
+    if not DEMO.is_file():
+        raise StudyConfigError(
+            f"the demo study {DEMO} is missing: run hrvptm from a clone of the repository "
+            "(installed with ./setup.sh)"
+        )
+    t0 = time.perf_counter()
+    result = _run(DEMO, args, "hrvptm " + shlex.join(args.argv))
+    if not args.quiet:
+        sys.stdout.write(summary_table(result))
+        sys.stdout.write(
+            f"report: {args.output / 'summary.md'} ({time.perf_counter() - t0:.0f} s)\n"
+        )
+    return 0
+
+
+def cmd_collect(args) -> int:
+    from .collect import collect
+
+    collect(args.reports, args.output, preamble=args.preamble)
+    if not args.quiet:
+        sys.stdout.write(f"{args.output}: {len(args.reports)} report(s)\n")
+    return 0
+
+
+class _Formatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return f"hrvptm: {record.levelname.lower()}: {record.getMessage()}"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``hrvptm``; returns the exit status (0 success, 2 user error)."""
+    from lfsim.errors import LfsimError
+    from recon.errors import ReconError
+    from track.errors import TrackError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    args.argv = argv
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Formatter())
+    level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1 else logging.INFO)
+    if args.verbose == 0 and not args.quiet:
+        level = logging.WARNING
+    loggers = [logging.getLogger(n) for n in ("hrvptm", "lfsim", "recon", "track")]
+    saved = [(lg, lg.level) for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(level)
+        lg.addHandler(handler)
+    try:
+        return int(args.func(args))
+    except (StudyError, LfsimError, ReconError, TrackError) as exc:
+        sys.stderr.write(f"hrvptm: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("hrvptm: interrupted; run the same command again to resume\n")
+        return 130
+    finally:
+        for lg, old in saved:
+            lg.removeHandler(handler)
+            lg.setLevel(old)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,68 @@
+"""Gather finished study reports into one Markdown page (``docs/validation.md``).
+
+Each report's ``summary.md`` becomes a section (its headings moved one level down); its
+plots are copied next to the page, under ``<page stem>/<study name>/``, so the page stands
+on its own. Nothing is written unless every report is complete.
+"""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime
+from pathlib import Path
+
+from .errors import StudyError
+
+
+def _read_summary(report: Path) -> tuple[str, dict]:
+    from lfsim.errors import LfsimError
+    from lfsim.io import read_json
+
+    md, js = report / "summary.md", report / "summary.json"
+    if not md.is_file() or not js.is_file():
+        raise StudyError(
+            f"{report} holds no finished study (summary.md and summary.json are missing); "
+            f"run `hrvptm study EXPERIMENT.toml -o {report}` first"
+        )
+    try:
+        data = read_json(js)
+    except LfsimError as exc:
+        raise StudyError(f"{js}: {exc}") from None
+    return md.read_text(encoding="utf-8"), data
+
+
+def collect(reports, page, preamble=None) -> Path:
+    """Write the page ``page`` from the report folders ``reports``; returns its path.
+
+    ``preamble``: optional Markdown file whose text replaces the generated page header.
+    """
+    from lfsim.io import atomic_write_bytes, atomic_write_text
+
+    page = Path(page)
+    sections = []
+    assets = page.parent / page.stem
+    loaded = [(Path(r), *_read_summary(Path(r))) for r in reports]
+    lines = [
+        "# Validation: the paper's studies on synthetic light fields",
+        "",
+        f"Collected {datetime.now(UTC).date().isoformat()} from {len(loaded)} study reports "
+        "(`hrvptm collect`). Each section is one report's `summary.md`.",
+        "",
+    ]
+    if preamble is not None:
+        pre = Path(preamble)
+        if not pre.is_file():
+            raise StudyError(f"preamble {pre} does not exist")
+        lines = [pre.read_text(encoding="utf-8").rstrip("\n"), ""]
+    for report, md, data in loaded:
+        name = data["study"]["experiment"]["experiment"]["name"]
+        for plot in data.get("plots", []):
+            src = report / plot
+            if src.is_file():
+                atomic_write_bytes(assets / name / Path(plot).name, src.read_bytes())
+        rel = f"{page.stem}/{name}"
+        md = re.sub(r"\]\(plots/([^)]+)\)", lambda m, r=rel: f"]({r}/{m.group(1)})", md)
+        md = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", md, flags=re.M)
+        sections.append(md)
+    atomic_write_text(page, "\n".join(lines + sections))
+    return page

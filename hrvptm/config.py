@@ -1,0 +1,353 @@
+"""Study files: an lfsim experiment TOML plus the sections that say how to validate it.
+
+``hrvptm study EXPERIMENT.toml`` reads the experiment sections with :mod:`lfsim.experiment`
+(which skips the three sections below) and these three here. Every key is checked; an
+unknown one is an error naming the file, the section and the allowed keys. Relative paths
+are relative to the TOML file's folder. Lengths in µm::
+
+    [study]
+    kind = "series"                # localization | pairs | series (default: series when the
+                                   #   experiment has a [motion], localization otherwise)
+    figure = "6c"                  # paper figure it rebuilds (its numbers go in the report)
+    recon_scene = "../paper_4x.xml"  # forward model of the reconstruction: the one a user
+                                   #   has for real data (default: the experiment's scene)
+    matched = true                 # also run the matched model: render with recon_scene
+    match_radius_um = 30           # largest distance of a detection from its true particle
+    time_step_s = 0.002            # frame interval, for time axes (Fig. 7); default: none
+    group_size = 2                 # pairs: frames per group of identical shots (Fig. 4c: 3)
+
+    [recon]                        # recon.pipeline.ReconSettings
+    z_range_um = [40, 460]
+    z_step_um = 5
+    s = 5
+    iterations = 3
+    lanczos_a = 2                  # 0 = no anti-aliasing filter
+    rays_per_pattern = 200000
+
+    [track]                        # track.detect.DetectSettings / track.series.SeriesSettings
+    mode = "incremental"           # incremental | cumulative
+    target_nodes = 50000           # nodes of the gridded displacement and strain fields
+    threshold = 0.25               # fraction of the intensity range (paper), or "auto"
+    deconvolution_iterations = 5
+    edge_margin_um = 0
+    method = "radial"              # radial | centroid
+
+Kinds of study (what the truth is compared with):
+
+``localization``
+    every frame on its own: detected particle centres against the true ones (Fig. 4a);
+``pairs``
+    frames come in groups of ``group_size`` shots (``(0, 1), (2, 3), …`` for 2); the first of
+    each group is linked to each other one; measured displacements against the true ones
+    (zero-displacement pairs, Figs. 4b–c);
+``series``
+    the whole sequence is tracked from frame 0; cumulative displacements of the tracked
+    particles and the gridded strain fields against the prescribed motion (Figs. 5–7).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import StudyConfigError
+
+KINDS = ("localization", "pairs", "series")
+#: Paper figures a study may name (their numbers: :mod:`hrvptm.paper`).
+FIGURES = ("4a", "4b", "4c", "5a", "5b", "6a", "6b", "6c", "7")
+
+
+def _num(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_keys(where: str, section: str, table: Any, allowed) -> Mapping:
+    if not isinstance(table, Mapping):
+        raise StudyConfigError(f"{where}: [{section}] must be a table, got {table!r}")
+    for key in table:
+        if key not in allowed:
+            hint = difflib.get_close_matches(str(key), allowed, n=1)
+            did = f" (did you mean {hint[0]!r}?)" if hint else ""
+            raise StudyConfigError(
+                f"{where}: [{section}] unknown key {key!r}{did}; allowed: {', '.join(allowed)}"
+            )
+    return table
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """The ``[study]`` section (see the module docstring)."""
+
+    kind: str = "series"
+    figure: str = ""
+    recon_scene: Path | None = None
+    matched: bool = False
+    match_radius_um: float = 30.0
+    time_step_s: float | None = None
+    group_size: int = 2
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise StudyConfigError(f"kind must be one of {KINDS}, got {self.kind!r}")
+        if self.figure and self.figure not in FIGURES:
+            raise StudyConfigError(f"figure must be one of {FIGURES} or empty, got {self.figure!r}")
+        if not isinstance(self.matched, bool):
+            raise StudyConfigError(f"matched must be true or false, got {self.matched!r}")
+        if not _num(self.match_radius_um) or self.match_radius_um <= 0:
+            raise StudyConfigError(
+                f"match_radius_um must be a number > 0 (µm), got {self.match_radius_um!r}"
+            )
+        if self.time_step_s is not None and (not _num(self.time_step_s) or self.time_step_s <= 0):
+            raise StudyConfigError(
+                f"time_step_s must be a number > 0 (s), got {self.time_step_s!r}"
+            )
+        if not _int(self.group_size) or self.group_size < 2:
+            raise StudyConfigError(f"group_size must be an integer >= 2, got {self.group_size!r}")
+        if self.recon_scene is not None:
+            object.__setattr__(self, "recon_scene", Path(self.recon_scene))
+
+
+@dataclass(frozen=True)
+class ReconSpec:
+    """The ``[recon]`` section: :class:`recon.pipeline.ReconSettings` of the study."""
+
+    z_range_um: tuple[float, float] = (-80.0, 720.0)
+    z_step_um: float = 5.0
+    s: int = 5
+    iterations: int = 3
+    lanczos_a: float = 2.0
+    rays_per_pattern: int = 200_000
+
+    def __post_init__(self) -> None:
+        zr = self.z_range_um
+        if (
+            not isinstance(zr, list | tuple)
+            or len(zr) != 2
+            or not all(_num(v) for v in zr)
+            or zr[0] >= zr[1]
+        ):
+            raise StudyConfigError(
+                f"z_range_um must be [z_min, z_max] µm with z_min < z_max: {zr!r}"
+            )
+        object.__setattr__(self, "z_range_um", (float(zr[0]), float(zr[1])))
+        if not _num(self.z_step_um) or self.z_step_um <= 0:
+            raise StudyConfigError(f"z_step_um must be a number > 0 (µm), got {self.z_step_um!r}")
+        if not _int(self.s) or not 1 <= self.s <= 64:
+            raise StudyConfigError(f"s must be an integer in 1..64, got {self.s!r}")
+        if not _int(self.iterations) or self.iterations < 1:
+            raise StudyConfigError(f"iterations must be an integer >= 1, got {self.iterations!r}")
+        if not _num(self.lanczos_a) or self.lanczos_a < 0:
+            raise StudyConfigError(f"lanczos_a must be a number >= 0, got {self.lanczos_a!r}")
+        if not _int(self.rays_per_pattern) or self.rays_per_pattern < 1000:
+            raise StudyConfigError(
+                f"rays_per_pattern must be an integer >= 1000, got {self.rays_per_pattern!r}"
+            )
+
+    def settings(self):
+        """The :class:`recon.pipeline.ReconSettings`."""
+        from recon.pipeline import ReconSettings
+
+        return ReconSettings(
+            z_min_um=self.z_range_um[0],
+            z_max_um=self.z_range_um[1],
+            z_step_um=float(self.z_step_um),
+            s=int(self.s),
+            iterations=int(self.iterations),
+            lanczos_a=float(self.lanczos_a) if self.lanczos_a > 0 else None,
+            rays_per_pattern=int(self.rays_per_pattern),
+        )
+
+
+@dataclass(frozen=True)
+class TrackSpec:
+    """The ``[track]`` section: detection, linking and gridding of the study."""
+
+    mode: str = "incremental"
+    target_nodes: int = 50_000
+    threshold: float | str = 0.25
+    deconvolution_iterations: int = 5
+    edge_margin_um: float = 0.0
+    method: str = "radial"
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("incremental", "cumulative"):
+            raise StudyConfigError(f"mode must be 'incremental' or 'cumulative', got {self.mode!r}")
+        if not _int(self.target_nodes) or self.target_nodes < 8:
+            raise StudyConfigError(
+                f"target_nodes must be an integer >= 8, got {self.target_nodes!r}"
+            )
+        if not (self.threshold == "auto" or (_num(self.threshold) and 0 < self.threshold < 1)):
+            raise StudyConfigError(
+                f"threshold must be 'auto' or a fraction in (0, 1), got {self.threshold!r}"
+            )
+        if not _int(self.deconvolution_iterations) or self.deconvolution_iterations < 0:
+            raise StudyConfigError(
+                "deconvolution_iterations must be an integer >= 0, got "
+                f"{self.deconvolution_iterations!r}"
+            )
+        if not _num(self.edge_margin_um) or self.edge_margin_um < 0:
+            raise StudyConfigError(
+                f"edge_margin_um must be a number >= 0 (µm), got {self.edge_margin_um!r}"
+            )
+        if self.method not in ("radial", "centroid"):
+            raise StudyConfigError(f"method must be 'radial' or 'centroid', got {self.method!r}")
+
+    def detect_argv(self) -> list[str]:
+        """The detection options of the ``track`` command line."""
+        argv = ["--threshold", str(self.threshold), "--method", self.method]
+        argv += ["--edge-margin-um", repr(float(self.edge_margin_um))]
+        if self.deconvolution_iterations == 0:
+            argv.append("--no-deconvolution")
+        else:
+            argv += ["--deconvolution-iterations", str(self.deconvolution_iterations)]
+        return argv
+
+    def link_argv(self) -> list[str]:
+        """The linking and gridding options of ``track run``."""
+        return ["--mode", self.mode, "--target-nodes", str(self.target_nodes)]
+
+
+@dataclass(frozen=True)
+class Study:
+    """A validated study: the lfsim experiment and how to reconstruct, track and compare it.
+
+    Attributes
+    ----------
+    experiment : lfsim.experiment.Experiment
+        Rendered as given (the no-inverse-crime dataset when its scene has glass lenslets).
+    study, recon, track : StudySpec, ReconSpec, TrackSpec
+    source : Path or None
+        The TOML file.
+    """
+
+    experiment: Any
+    study: StudySpec = field(default_factory=StudySpec)
+    recon: ReconSpec = field(default_factory=ReconSpec)
+    track: TrackSpec = field(default_factory=TrackSpec)
+    source: Path | None = None
+
+    @property
+    def name(self) -> str:
+        return self.experiment.name
+
+    @property
+    def recon_scene(self) -> Path:
+        """Scene whose optics the reconstruction uses."""
+        return self.study.recon_scene or self.experiment.scene
+
+    def variants(self) -> dict[str, Any]:
+        """Datasets to run, by variant name.
+
+        ``"mismatched"``: the experiment as given, rendered with another model than the
+        reconstruction's (``"matched"`` when its scene is ``recon_scene`` itself); with
+        ``matched = true`` also ``"matched"``: the same experiment rendered through
+        ``recon_scene``, the forward model of the reconstruction."""
+        out = {"mismatched" if self.is_crime_free else "matched": self.experiment}
+        if self.study.matched and self.is_crime_free:
+            out["matched"] = dataclasses.replace(
+                self.experiment, scene=self.recon_scene, optics=None
+            )
+        return out
+
+    @property
+    def is_crime_free(self) -> bool:
+        """True when the images are rendered with another model than the reconstruction's."""
+        a = Path(self.experiment.scene).resolve()
+        b = Path(self.recon_scene).resolve()
+        return a != b
+
+    def to_dict(self) -> dict:
+        """Plain-JSON form (for the report and the stage fingerprints)."""
+
+        def clean(d):
+            return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
+
+        return {
+            "experiment": self.experiment.to_dict(),
+            "study": clean(dataclasses.asdict(self.study)) | {"recon_scene": str(self.recon_scene)},
+            "recon": {**dataclasses.asdict(self.recon), "z_range_um": list(self.recon.z_range_um)},
+            "track": dataclasses.asdict(self.track),
+        }
+
+
+def _section(cls, where: str, name: str, table: Mapping | None, base: Path):
+    if table is None:
+        return cls()
+    allowed = tuple(f.name for f in dataclasses.fields(cls))
+    tab = dict(_check_keys(where, name, table, allowed))
+    if "recon_scene" in tab:
+        p = Path(tab["recon_scene"])
+        tab["recon_scene"] = p if p.is_absolute() else (base / p).resolve()
+        if not tab["recon_scene"].is_file():
+            raise StudyConfigError(
+                f"{where}: [study] recon_scene {str(tab['recon_scene'])!r} does not exist"
+            )
+    try:
+        return cls(**tab)
+    except StudyConfigError as exc:
+        raise StudyConfigError(f"{where}: [{name}] {exc}") from None
+    except TypeError as exc:  # wrong value types the dataclass cannot take
+        raise StudyConfigError(f"{where}: [{name}] {exc}") from None
+
+
+def study_from_dict(
+    data: Mapping, base_dir: str | os.PathLike | None = None, source: str | None = None
+) -> Study:
+    """Build a :class:`Study` from a parsed TOML table (see the module docstring)."""
+    from lfsim.errors import LfsimError
+    from lfsim.experiment import Experiment
+
+    where = source or "study"
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    if not isinstance(data, Mapping):
+        raise StudyConfigError(f"{where}: expected a table of sections")
+    try:
+        exp = Experiment.from_dict(data, base_dir=base, source=source)
+    except LfsimError as exc:
+        raise StudyConfigError(str(exc)) from None
+    spec = data.get("study")
+    if spec is not None and "kind" not in spec:
+        spec = {**spec, "kind": "series" if exp.motion is not None else "localization"}
+    if spec is None:
+        spec = {"kind": "series" if exp.motion is not None else "localization"}
+    st = _section(StudySpec, where, "study", spec, base)
+    rc = _section(ReconSpec, where, "recon", data.get("recon"), base)
+    tr = _section(TrackSpec, where, "track", data.get("track"), base)
+    if st.kind == "pairs" and exp.frames % st.group_size:
+        raise StudyConfigError(
+            f"{where}: a 'pairs' study needs a multiple of group_size = {st.group_size} frames "
+            f"(groups of identical shots), got frames = {exp.frames}"
+        )
+    if st.kind == "series" and exp.frames < 2:
+        raise StudyConfigError(f"{where}: a 'series' study needs frames >= 2, got {exp.frames}")
+    return Study(exp, st, rc, tr, Path(source) if source else None)
+
+
+def load_study(path: str | os.PathLike) -> Study:
+    """Read and validate a study (experiment) TOML file.
+
+    Raises
+    ------
+    StudyConfigError
+        Missing or invalid file, unknown section or key, or an invalid value (the message names
+        the file, the section and what was expected).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise StudyConfigError(f"study file {str(path)!r} does not exist")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise StudyConfigError(f"{path}: not valid TOML: {exc}") from None
+    return study_from_dict(data, base_dir=path.parent.resolve(), source=str(path))

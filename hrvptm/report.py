@@ -1,0 +1,175 @@
+"""Report files of a study: CSV tables, ``summary.json`` and ``summary.md``.
+
+Layout (all written atomically)::
+
+    REPORT/tables/<variant>.csv      one row per frame (or pair), see hrvptm.analysis
+    REPORT/plots/*.png               hrvptm.plots
+    REPORT/summary.json              study, stage times, pooled numbers, paper comparison
+    REPORT/summary.md                the same as tables, with the plots
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+from lfsim.io import atomic_write_text
+
+from .paper import references
+
+#: Columns shown in summary.md's per-frame table, per kind (all columns are in the CSV).
+SHOWN = {
+    "localization": ["frame", "snr", "n_truth", "n_detected", "n_matched", "mean_x", "mean_y",
+                     "mean_z", "rmsd_x", "rmsd_y", "rmsd_z", "maxabs_x", "maxabs_y", "maxabs_z"],
+    "pairs": ["pair", "snr", "fps", "n_a", "n_links", "n_correct", "tracking_ratio", "u_mean_x",
+              "u_mean_y", "u_mean_z", "u_rmsd_x", "u_rmsd_y", "u_rmsd_z"],
+    "series": ["frame", "amplitude", "n_detected", "n_tracked", "tracking_ratio", "u_mean_x",
+               "u_mean_y", "u_mean_z", "u_rmsd_x", "u_rmsd_y", "u_rmsd_z", "E_err_xx",
+               "E_err_yy", "E_err_zz", "E_err_xy", "E_err_xz", "E_err_yz", "E_rmsd_xx",
+               "E_rmsd_yy", "E_rmsd_zz", "E_rmsd_xy", "E_rmsd_xz", "E_rmsd_yz"],
+}  # fmt: skip
+
+
+def _clean(v):
+    """JSON-safe value: NaN/inf → None, numpy scalars → Python."""
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_clean(x) for x in v]
+    if hasattr(v, "item") and getattr(v, "ndim", 1) == 0:
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (replacing a previous report file)."""
+    return atomic_write_text(path, text, overwrite=True)
+
+
+def write_table(path: Path, rows: list[dict]) -> Path:
+    """CSV of ``rows`` (the union of their keys, in first-seen order)."""
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: _fmt(r.get(k)) for k in keys})
+    return write_text(path, buf.getvalue())
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.6g}"
+    return str(v)
+
+
+def comparison(figure: str, summaries: dict[str, dict]) -> list[dict]:
+    """Rows ``{label, paper, bound, unit, note, <variant>: value, <variant>_meets: bool}``."""
+    out = []
+    for ref in references(figure):
+        row = {"label": ref.label, "key": ref.key, "paper": ref.paper, "bound": ref.bound}
+        row.update({"unit": ref.unit, "note": ref.note})
+        for variant, s in summaries.items():
+            v = s.get(ref.key)
+            row[variant] = v
+            if ref.bound is not None and v is not None and math.isfinite(v):
+                row[f"{variant}_meets"] = bool(v <= ref.bound)
+        out.append(row)
+    return out
+
+
+def _num(v, unit: str = "um") -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    if unit == "strain":
+        return f"{100 * v:.2f} %"
+    if isinstance(v, int):
+        return str(v)
+    return f"{v:.3g}"
+
+
+def markdown(study_dict: dict, result: dict) -> str:
+    """``summary.md`` text from the ``summary.json`` content."""
+    st = study_dict["study"]
+    exp = study_dict["experiment"]["experiment"]
+    lines = [
+        f"# Study `{exp['name']}`" + (f" — paper Fig. {st['figure']}" if st["figure"] else ""),
+        "",
+        f"{exp.get('description', '')}",
+        "",
+        f"- kind: {st['kind']}; frames: {exp['frames']}; rendered with "
+        f"`{Path(exp['scene']).name}`, reconstructed with `{Path(st['recon_scene']).name}`",
+        f"- reconstruction: z {study_dict['recon']['z_range_um']} µm, step "
+        f"{study_dict['recon']['z_step_um']} µm, s = {study_dict['recon']['s']}, "
+        f"{study_dict['recon']['iterations']} iterations",
+        f"- command: `{result.get('command', '')}`",
+        "",
+        "## Time per stage (s, this run; resumed stages count only new work)",
+        "",
+        "| variant | simulate | reconstruct | track | analyse |",
+        "|---|---|---|---|---|",
+    ]
+    for variant, v in result["variants"].items():
+        t = v["seconds"]
+        lines.append(
+            f"| {variant} | {t.get('simulate', 0):.0f} | {t.get('reconstruct', 0):.0f} | "
+            f"{t.get('track', 0):.0f} | {t.get('analyse', 0):.1f} |"
+        )
+    comp = result.get("comparison", [])
+    variants = list(result["variants"])
+    if comp:
+        lines += ["", "## Side by side with the paper", ""]
+        head = "| quantity | paper | " + " | ".join(variants) + " | note |"
+        lines += [head, "|" + "---|" * (3 + len(variants))]
+        for row in comp:
+            cells = []
+            for v in variants:
+                cell = _num(row.get(v), row["unit"])
+                if f"{v}_meets" in row:
+                    cell += " ✓" if row[f"{v}_meets"] else " ✗"
+                cells.append(cell)
+            lines.append(
+                f"| {row['label']} | {_num(row['paper'], row['unit'])} | "
+                + " | ".join(cells)
+                + f" | {row['note']} |"
+            )
+        lines += ["", "✓/✗: within / beyond the paper's figure (the acceptance bound)."]
+    for variant, v in result["variants"].items():
+        lines += ["", f"## {variant}: pooled numbers", ""]
+        lines += ["| quantity | value |", "|---|---|"]
+        for k, val in v["summary"].items():
+            unit = "strain" if "_E_" in k else "um"
+            lines.append(f"| {k} | {_num(val, unit)} |")
+        rows = v.get("rows", [])
+        cols = [c for c in SHOWN[st["kind"]] if rows and c in rows[0]]
+        if rows:
+            lines += ["", f"### {variant}: per frame (all columns: `tables/{variant}.csv`)", ""]
+            lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+            for r in rows:
+                vals = []
+                for c in cols:
+                    x = r.get(c)
+                    vals.append(_num(x, "strain" if c.startswith("E_") else "um"))
+                lines.append("| " + " | ".join(vals) + " |")
+    if result.get("plots"):
+        lines += ["", "## Plots", ""]
+        for p in result["plots"]:
+            lines.append(f"![{Path(p).stem}]({p})")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def write_summary(report_dir: Path, study_dict: dict, result: dict) -> None:
+    """Write ``summary.json`` and ``summary.md``."""
+    payload = _clean({"study": study_dict, **result})
+    write_text(report_dir / "summary.json", json.dumps(payload, indent=1, allow_nan=False) + "\n")
+    write_text(report_dir / "summary.md", markdown(study_dict, _clean(result)))

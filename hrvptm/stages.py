@@ -1,0 +1,130 @@
+"""The pipeline stages of a study, each run through the tool a user would run.
+
+For each variant (``mismatched``: rendered with the experiment's scene — glass lenslets —
+and reconstructed with ``recon_scene``; ``matched``: rendered with ``recon_scene`` itself)::
+
+    REPORT/<variant>/dataset/   lfsim.generate_dataset       (white.tif, frames/, truth/)
+    REPORT/<variant>/calib.json recon.calibrate_white of white.tif
+    REPORT/<variant>/volumes/   recon.pipeline.reconstruct_series
+    REPORT/<variant>/track/     ``track detect`` (localization, pairs) or ``track run`` (series)
+
+Every stage resumes by itself: lfsim and recon keep per-frame records and fingerprints, and
+``track`` skips volumes whose checksum it has seen. A stage whose inputs or settings changed
+is redone (each tool replaces only the files it wrote).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import StageError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class VariantPaths:
+    """Folders of one variant of a study inside the report folder."""
+
+    root: Path
+
+    @property
+    def dataset(self) -> Path:
+        return self.root / "dataset"
+
+    @property
+    def calib(self) -> Path:
+        return self.root / "calib.json"
+
+    @property
+    def volumes(self) -> Path:
+        return self.root / "volumes"
+
+    @property
+    def track(self) -> Path:
+        return self.root / "track"
+
+
+def simulate(experiment, paths: VariantPaths, *, progress: bool = True) -> float:
+    """Render the dataset (resumes a finished or interrupted one). Returns seconds spent."""
+    from lfsim import generate_dataset
+    from lfsim.errors import LfsimError
+    from lfsim.io import read_json
+
+    t0 = time.perf_counter()
+    record = paths.dataset / "dataset.json"
+    overwrite = False
+    if record.is_file():
+        try:
+            overwrite = read_json(record).get("fingerprint") != experiment.fingerprint()
+        except LfsimError:
+            overwrite = True
+        if overwrite:
+            log.info("%s: the experiment changed; the dataset is rendered again", paths.dataset)
+    try:
+        generate_dataset(experiment, paths.dataset, overwrite=overwrite, progress=progress)
+    except LfsimError as exc:
+        raise StageError(f"simulation into {paths.dataset}: {exc}") from None
+    return time.perf_counter() - t0
+
+
+def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
+    """Calibrate the white image and reconstruct every frame with the study's forward model
+    (``recon_scene``). Returns seconds spent."""
+    from lfsim.errors import LfsimError
+    from lfsim.scene import read_optics
+    from recon.calibration import calibrate_white
+    from recon.cli import read_white
+    from recon.errors import ReconError
+    from recon.pipeline import reconstruct_series
+
+    t0 = time.perf_counter()
+    frames = sorted((paths.dataset / "frames").glob("[0-9]*.tif"))
+    if len(frames) != study.experiment.frames:
+        raise StageError(
+            f"{paths.dataset}: expected {study.experiment.frames} frames, found {len(frames)}"
+        )
+    try:
+        optics = read_optics(study.recon_scene)
+        white = read_white(paths.dataset / "white.tif")
+        grid = calibrate_white(white, expected_pitch_px=optics.px_per_lenslet)
+        grid.save(paths.calib, overwrite=True)
+        reconstruct_series(
+            frames,
+            paths.volumes,
+            optics=optics,
+            grid=grid,
+            settings=study.recon.settings(),
+            overwrite=True,  # inside the report: replace only an outdated run of this study
+            progress=progress,
+            provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},
+        )
+    except (ReconError, LfsimError) as exc:
+        raise StageError(f"reconstruction into {paths.volumes}: {exc}") from None
+    return time.perf_counter() - t0
+
+
+def track_stage(study, paths: VariantPaths, *, progress: bool = True) -> float:
+    """Detect (and, for a series, link and grid) with the ``track`` command line.
+    Returns seconds spent."""
+    from track.cli import main as track_main
+
+    t0 = time.perf_counter()
+    command = "run" if study.study.kind == "series" else "detect"
+    argv = [command, str(paths.volumes), "-o", str(paths.track), "--overwrite"]
+    argv += study.track.detect_argv()
+    if command == "run":
+        argv += study.track.link_argv()
+    argv += [] if progress else ["--no-progress"]
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err) if not progress else contextlib.nullcontext():
+        rc = track_main([*argv, "-q"])
+    if rc != 0:
+        msg = err.getvalue().strip() or f"track {command} failed with status {rc}"
+        raise StageError(f"tracking {paths.volumes}: {msg}")
+    return time.perf_counter() - t0

@@ -1,0 +1,219 @@
+"""Run a study end to end: simulate → reconstruct → track → compare with the truth → report.
+
+:func:`run_study` drives the stages of :mod:`hrvptm.stages` for every variant of the study
+(:meth:`hrvptm.config.Study.variants`), then analyses, plots and writes the report
+(:mod:`hrvptm.report`). A rerun resumes: each tool skips the frames it has already done
+with the same inputs, so an interrupted study continues where it stopped and a finished one
+only redoes the (cheap) comparison.
+
+The report folder is refused when it holds anything that ``hrvptm`` did not write, or
+another study's outputs (unless ``overwrite``); nothing outside it is written.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from . import plots
+from .analysis import analyse
+from .config import Study
+from .errors import ReportExistsError, StageError, StudyConfigError
+from .report import comparison, write_summary, write_table
+from .stages import VariantPaths, reconstruct, simulate, track_stage
+
+log = logging.getLogger(__name__)
+
+STAGES = ("simulate", "reconstruct", "track", "analyse")
+STATE = "study.json"
+TOOL = "hrvptm"
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def _open_report(report: Path, study: Study, overwrite: bool) -> dict:
+    """Check the report folder and return its state record (new or previous)."""
+    from lfsim.errors import LfsimError
+    from lfsim.io import read_json
+
+    if report.exists() and not report.is_dir():
+        raise ReportExistsError(f"report path {str(report)!r} exists and is not a folder")
+    state_path = report / STATE
+    if report.exists() and any(report.iterdir()):
+        if not state_path.is_file():
+            raise ReportExistsError(
+                f"report folder {str(report)!r} is not empty and holds no {STATE} written by "
+                "hrvptm; choose a new folder (nothing was written)"
+            )
+        try:
+            state = read_json(state_path)
+        except LfsimError:
+            state = None
+        if not isinstance(state, dict) or state.get("tool") != TOOL:
+            raise ReportExistsError(
+                f"{state_path} was not written by hrvptm; choose a new folder (nothing was written)"
+            )
+        if state.get("name") != study.name and not overwrite:
+            raise ReportExistsError(
+                f"report folder {str(report)!r} holds the study {state.get('name')!r}, not "
+                f"{study.name!r}; use another folder or --overwrite (nothing was written)"
+            )
+        if state.get("name") != study.name:
+            state = None
+        if state is not None:
+            return state
+    return {
+        "tool": TOOL,
+        "version": _version(),
+        "name": study.name,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "runs": [],
+        "seconds_total": {},
+    }
+
+
+def _save_state(report: Path, state: dict) -> None:
+    from lfsim.io import write_json
+
+    write_json(report / STATE, state)
+
+
+def _plots(study: Study, results: dict, report: Path) -> list[str]:
+    kind = study.study.kind
+    name = study.name
+    fig = f"Fig. {study.study.figure}: " if study.study.figure else ""
+    out: list[Path] = []
+    pdir = report / "plots"
+    if kind == "localization":
+        out.append(plots.plot_localization(results, pdir / "localization.png", f"{fig}{name}"))
+    elif kind == "pairs":
+        out.append(plots.plot_pairs(results, pdir / "pairs.png", f"{fig}{name}"))
+    else:
+        out.append(plots.plot_displacement(results, pdir / "displacement.png", f"{fig}{name}"))
+        has_strain = any(
+            any(math.isfinite(r.get("E_meas_xx", math.nan)) for r in a.rows)
+            for a in results.values()
+        )
+        if has_strain:
+            out.append(plots.plot_strain(results, pdir / "strain.png", f"{fig}{name}"))
+        out.append(plots.plot_vectors(results, pdir / "vectors.png"))
+        if has_strain and (study.study.time_step_s or study.study.figure == "7"):
+            out.append(plots.plot_strain_history(results, pdir / "strain_history.png"))
+            out.append(plots.plot_slices(results, pdir / "slices.png"))
+    return [str(p.relative_to(report)) for p in out]
+
+
+def run_study(
+    study: Study,
+    report_dir,
+    *,
+    until: str = "analyse",
+    overwrite: bool = False,
+    progress: bool = True,
+    command: str = "",
+) -> dict:
+    """Run (or resume) a study and write its report.
+
+    Parameters
+    ----------
+    study : Study
+        From :func:`hrvptm.config.load_study`.
+    report_dir : path
+        Report folder (created).
+    until : {"simulate", "reconstruct", "track", "analyse"}
+        Last stage to run (``"analyse"``: the whole study with its report).
+    overwrite : bool
+        Reuse a report folder that holds another study (each tool replaces only its own files).
+    progress : bool
+        Progress bars of the stages.
+    command : str
+        Command line, recorded in the report.
+
+    Returns
+    -------
+    dict
+        The content of ``summary.json`` without the study (``{}`` when ``until`` stops before
+        the analysis).
+
+    Raises
+    ------
+    ReportExistsError, StageError, StudyConfigError
+    """
+    from lfsim import init_backend
+
+    if until not in STAGES:
+        raise StudyConfigError(f"until must be one of {STAGES}, got {until!r}")
+    last = STAGES.index(until)
+    report = Path(report_dir)
+    state = _open_report(report, study, overwrite)
+    report.mkdir(parents=True, exist_ok=True)
+    run = {"started": datetime.now(UTC).isoformat(timespec="seconds"), "until": until}
+    state["runs"].append(run)
+    state["source"] = str(study.source) if study.source else None
+    _save_state(report, state)
+    if last >= 0:
+        init_backend()
+    variants = study.variants()
+    seconds: dict[str, dict[str, float]] = {v: {} for v in variants}
+    for variant, experiment in variants.items():
+        paths = VariantPaths(report / variant)
+        totals = state["seconds_total"].setdefault(variant, {})
+        steps = (
+            ("simulate", lambda e=experiment, p=paths: simulate(e, p, progress=progress)),
+            ("reconstruct", lambda p=paths: reconstruct(study, p, progress=progress)),
+            ("track", lambda p=paths: track_stage(study, p, progress=progress)),
+        )
+        for i, (stage, fn) in enumerate(steps):
+            if i > last:
+                break
+            log.info("%s / %s: %s", study.name, variant, stage)
+            dt = fn()
+            seconds[variant][stage] = dt
+            totals[stage] = totals.get(stage, 0.0) + dt
+            _save_state(report, state)
+    if last < STAGES.index("analyse"):
+        run["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
+        _save_state(report, state)
+        return {}
+
+    results = {}
+    out_variants = {}
+    for variant in variants:
+        t0 = time.perf_counter()
+        paths = VariantPaths(report / variant)
+        try:
+            a = analyse(study, paths)
+        except (OSError, KeyError, ValueError) as exc:
+            raise StageError(f"analysis of {paths.root}: {exc}") from exc
+        write_table(report / "tables" / f"{variant}.csv", a.rows)
+        results[variant] = a
+        seconds[variant]["analyse"] = time.perf_counter() - t0
+        out_variants[variant] = {
+            "seconds": seconds[variant],
+            "seconds_total": state["seconds_total"].get(variant, {}),
+            "summary": a.summary,
+            "rows": a.rows,
+        }
+    plot_files = _plots(study, results, report)
+    result = {
+        "tool": TOOL,
+        "version": _version(),
+        "command": command,
+        "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+        "variants": out_variants,
+        "comparison": comparison(
+            study.study.figure, {v: r["summary"] for v, r in out_variants.items()}
+        ),
+        "plots": plot_files,
+    }
+    write_summary(report, study.to_dict(), result)
+    run["finished"] = result["finished"]
+    _save_state(report, state)
+    return result

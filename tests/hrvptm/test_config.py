@@ -1,0 +1,102 @@
+"""Study files (hrvptm.config) and lfsim's handling of the downstream sections."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from hrvptm.config import load_study
+from hrvptm.errors import StudyConfigError
+from lfsim.errors import ConfigError
+from lfsim.experiment import load_experiment
+
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "scenes" / "experiments"
+STUDIES = sorted(EXPERIMENTS.glob("*.toml"))
+
+BASE = """
+[experiment]
+name = "x"
+scene = "{scene}"
+frames = 4
+
+[particles]
+kind = "box"
+count = 10
+box_um = [[-100, 100], [-100, 100], [150, 300]]
+"""
+
+
+def _write(tmp_path: Path, extra: str) -> Path:
+    p = tmp_path / "study.toml"
+    scene = (EXPERIMENTS.parent / "medium.xml").as_posix()
+    p.write_text(BASE.format(scene=scene) + extra, encoding="utf-8")
+    return p
+
+
+@pytest.mark.parametrize("path", STUDIES, ids=lambda p: p.stem)
+def test_every_example_is_a_valid_study_and_experiment(path):
+    study = load_study(path)
+    assert study.study.figure or path.stem.startswith("demo")
+    exp = load_experiment(path)  # lfsim reads the same file, skipping the study sections
+    assert exp == study.experiment
+    if "glass" in study.experiment.scene.name:
+        assert study.is_crime_free  # rendered with glass lenslets, reconstructed with ideal ones
+        assert study.recon_scene.name == study.experiment.scene.name.replace("_glass", "")
+        names = list(study.variants())
+        assert names[0] == "mismatched"
+        assert ("matched" in names) == study.study.matched
+
+
+def test_matched_variant_renders_through_the_reconstruction_model():
+    study = load_study(EXPERIMENTS / "fig6c_simple_shear_test.toml")
+    v = study.variants()
+    assert v["mismatched"].optics.mla_kind == "glass"
+    assert v["matched"].optics.mla_kind == "ideal"
+    assert v["matched"].scene == study.recon_scene
+    assert v["matched"].fingerprint() != v["mismatched"].fingerprint()
+
+
+def test_defaults_when_no_study_sections(tmp_path):
+    s = load_study(_write(tmp_path, ""))
+    assert s.study.kind == "localization"  # no motion
+    assert not s.is_crime_free and list(s.variants()) == ["matched"]
+    assert s.recon.z_range_um == (-80.0, 720.0)
+    assert s.track.threshold == 0.25
+
+
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        ("[study]\nkindd = 'series'\n", r"\[study\] unknown key 'kindd' \(did you mean 'kind'\?\)"),
+        ("[study]\nkind = 'movie'\n", "kind must be one of"),
+        ("[study]\nkind = 'pairs'\ngroup_size = 3\n", "multiple of group_size = 3"),
+        ("[study]\nrecon_scene = 'nope.xml'\n", "recon_scene .*nope.xml.* does not exist"),
+        ("[recon]\nz_range_um = [400, 100]\n", "z_min < z_max"),
+        ("[recon]\ns = 0\n", "s must be an integer"),
+        ("[track]\nthreshold = 1.5\n", "threshold must be 'auto' or a fraction"),
+        ("[track]\nmode = 'batch'\n", "mode must be"),
+        (
+            "[stdy]\nkind = 'series'\n",
+            r"unknown section or key \[stdy\] \(did you mean \[study\]\?\)",
+        ),
+    ],
+)
+def test_bad_study_values_name_the_file_section_and_expectation(tmp_path, extra, match):
+    with pytest.raises(StudyConfigError, match=match) as info:
+        load_study(_write(tmp_path, extra))
+    assert "study.toml" in str(info.value)
+
+
+def test_lfsim_still_rejects_misspelt_sections(tmp_path):
+    with pytest.raises(ConfigError, match=r"did you mean \[study\]"):
+        load_experiment(_write(tmp_path, "[stdy]\nkind = 'series'\n"))
+
+
+def test_missing_and_invalid_files(tmp_path):
+    with pytest.raises(StudyConfigError, match="does not exist"):
+        load_study(tmp_path / "none.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[experiment\n", encoding="utf-8")
+    with pytest.raises(StudyConfigError, match="not valid TOML"):
+        load_study(bad)
