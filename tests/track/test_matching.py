@@ -237,3 +237,23 @@ def test_neighbour_count_shrinks():
     s = LinkSettings(n_neighbors_max=16, n_neighbors_min=5)
     ks = [s.n_neighbors(i) for i in range(1, 8)]
     assert ks[0] == 16 and ks[-1] == 5 and all(a >= b for a, b in itertools.pairwise(ks))
+
+
+def test_sparse_noisy_zero_motion_pairs_link_by_the_small_motion_bootstrap():
+    """16 particles, light-field-like noise (0.3 µm lateral, 4 µm axial), two lost and two
+    spurious per frame: the topology descriptors disagree, the nearest-neighbour bootstrap
+    (small-motion hypothesis) links them (before it, every seed failed)."""
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        lo, hi = [-400, -300, 120], [400, 300, 400]
+        X = rng.uniform(lo, hi, (16, 3))
+        noise = np.array([0.3, 0.3, 4.0])
+        a = X + rng.normal(0, 1, X.shape) * noise
+        b = X + rng.normal(0, 1, X.shape) * noise
+        a = np.vstack([a[:14], rng.uniform(lo, hi, (2, 3))])
+        b = np.vstack([b[2:], rng.uniform(lo, hi, (2, 3))])
+        res = link_pair(a, b, LinkSettings())
+        assert res.ok, res.reason
+        good = [(i, j) for i, j in res.matches if i < 14 and j < 14]
+        assert all(i == j + 2 for i, j in good)  # a[i] is b[i - 2]
+        assert len(good) >= 10
