@@ -31,6 +31,53 @@ def _read_summary(report: Path) -> tuple[str, dict]:
     return md.read_text(encoding="utf-8"), data
 
 
+def _fmt(v, unit: str) -> str:
+    if v is None:
+        return "–"
+    return f"{100 * v:.2f} %" if unit == "strain" else f"{v:.3g}"
+
+
+def _overview(loaded) -> list[str]:
+    """One table of every report's comparison with the paper, and the time each took."""
+    lines = [
+        "## Overview",
+        "",
+        "| study | quantity | paper | ours (no inverse crime) | ours (matched model) |",
+        "|---|---|---|---|---|",
+    ]
+    times = [
+        "",
+        "| study | frames | simulate (s) | reconstruct (s) | track (s) |",
+        "|---|---|---|---|---|",
+    ]
+    for _report, _md, data in loaded:
+        name = data["study"]["experiment"]["experiment"]["name"]
+        for row in data.get("comparison", []):
+            cells = []
+            for variant in ("mismatched", "matched"):
+                if variant not in row:
+                    cells.append("")
+                    continue
+                cell = _fmt(row[variant], row["unit"])
+                ok = row.get(f"{variant}_meets")
+                cells.append(cell + ("" if ok is None else (" ✓" if ok else " ✗")))
+            lines.append(
+                f"| {name} | {row['label']} | {_fmt(row['paper'], row['unit'])} | "
+                + " | ".join(cells)
+                + " |"
+            )
+        frames = data["study"]["experiment"]["experiment"]["frames"]
+        for variant, v in data["variants"].items():
+            t = v.get("seconds_total") or {}
+            times.append(
+                f"| {name} ({variant}) | {frames} | {t.get('simulate', 0):.0f} | "
+                f"{t.get('reconstruct', 0):.0f} | {t.get('track', 0):.0f} |"
+            )
+    lines += ["", "✓/✗: within / beyond the paper's figure.", ""]
+    lines += ["### Time on this machine (all runs of the stage, resumed ones included)"]
+    return lines + times + [""]
+
+
 def collect(reports, page, preamble=None) -> Path:
     """Write the page ``page`` from the report folders ``reports``; returns its path.
 
@@ -54,6 +101,7 @@ def collect(reports, page, preamble=None) -> Path:
         if not pre.is_file():
             raise StudyError(f"preamble {pre} does not exist")
         lines = [pre.read_text(encoding="utf-8").rstrip("\n"), ""]
+    lines += _overview(loaded)
     for report, md, data in loaded:
         name = data["study"]["experiment"]["experiment"]["name"]
         for plot in data.get("plots", []):

@@ -82,6 +82,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
     from recon.cli import read_white
     from recon.errors import ReconError
     from recon.pipeline import reconstruct_series
+    from recon.preprocess import Preprocess
 
     t0 = time.perf_counter()
     frames = sorted((paths.dataset / "frames").glob("[0-9]*.tif"))
@@ -100,6 +101,8 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
             optics=optics,
             grid=grid,
             settings=study.recon.settings(),
+            # The black level is estimated (median) and modelled, as `recon run` does.
+            preprocess=Preprocess(background="auto"),
             overwrite=True,  # inside the report: replace only an outdated run of this study
             progress=progress,
             provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},

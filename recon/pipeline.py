@@ -323,8 +323,10 @@ def reconstruct_series(
                     f"frame {str(frames[k])!r} is {raw.shape} px, the series started with "
                     f"{first.shape}"
                 )
-            img, pinfo = prepare_image(raw, pp)
-            rect, _ = _rectify_roi(rectify, img, grid, n, st.roi_px)
+            # The black level stays in the data and in the model (y ≈ Hx + b): subtracting it
+            # and clipping the noise at zero would leave a positive bias for RL to explain.
+            img, pinfo = prepare_image(raw, pp, subtract_background=False)
+            rect, rgeom = _rectify_roi(rectify, img, grid, n, st.roi_px)
             res = richardson_lucy(
                 rect,
                 projector,
@@ -332,6 +334,7 @@ def reconstruct_series(
                 depth_filter=filt,
                 stop_rel_change=st.stop_rel_change,
                 track_kl=False,
+                background=max(pinfo["background"], 0.0) * rgeom.flux_scale,
             )
             write_tiff(
                 volume_path(out, k),

@@ -124,14 +124,25 @@ class Preprocess:
         }
 
 
-def prepare_image(image: np.ndarray, settings: Preprocess | None = None) -> tuple[np.ndarray, dict]:
-    """Background-subtracted, hot-pixel-free, non-negative float32 image.
+def prepare_image(
+    image: np.ndarray, settings: Preprocess | None = None, *, subtract_background: bool = True
+) -> tuple[np.ndarray, dict]:
+    """Dark-subtracted, hot-pixel-free, non-negative float32 image.
+
+    Parameters
+    ----------
+    image : ndarray, shape (height, width)
+    settings : Preprocess, optional
+    subtract_background : bool
+        Subtract the background level (and clip at zero); with False the level is only
+        estimated (``info["background"]``) and left in the image, for a deconvolution that
+        models it (:func:`recon.deconvolve.richardson_lucy` ``background``).
 
     Returns
     -------
     image : ndarray, float32, same shape
     info : dict
-        ``background`` subtracted, ``hot_pixels`` replaced.
+        ``background`` (level estimated or given), ``hot_pixels`` replaced.
     """
     st = settings or Preprocess()
     img = np.asarray(image, dtype=np.float32)
@@ -150,5 +161,7 @@ def prepare_image(image: np.ndarray, settings: Preprocess | None = None) -> tupl
         info["background"] = float(np.median(img))
     elif st.background is not None:
         info["background"] = float(st.background)
-    img = np.maximum(img - info["background"], 0.0).astype(np.float32)
+    if subtract_background:
+        img = img - info["background"]
+    img = np.maximum(img, 0.0).astype(np.float32)
     return img, info
