@@ -161,6 +161,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="projector implementation (auto: fastest for the backend)",
     )
+    run.add_argument(
+        "--background-model",
+        choices=("subtract", "model"),
+        default="subtract",
+        help="subtract the black level and clip at zero (default), or keep it in the forward "
+        "model y = Hx + b",
+    )
     run.add_argument("-o", "--output", type=Path, required=True, metavar="VOLDIR")
     run.add_argument("--overwrite", action="store_true", help="replace another run's volumes")
     run.set_defaults(func=_cmd_run)
@@ -323,6 +330,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         rays_per_pattern=args.rays_per_pattern,
         roi_px=_parse_roi(args.roi),
         projector=args.projector,
+        background_model=args.background_model,
     )
     background = None if args.background == "none" else args.background
     if background not in (None, "auto"):

@@ -36,6 +36,10 @@ RECON_JSON = "recon.json"
 MAX_DEPTHS = 4096
 
 
+#: How the black level enters the reconstruction (:class:`ReconSettings`).
+BACKGROUND_MODELS = ("subtract", "model")
+
+
 class OutputExistsError(ReconError):
     """The output folder holds something this run must not overwrite."""
 
@@ -66,6 +70,11 @@ class ReconSettings:
         ``(x0, x1, y0, y1)``: reconstruct only lenslets whose images lie inside these pixels.
     projector : {"auto", "gather", "sparse"}
         ``"auto"``: the fastest for the backend (:func:`recon.projector.make_projector`).
+    background_model : {"subtract", "model"}
+        ``"subtract"`` (default): subtract the black level and clip at zero; ``"model"``: keep
+        it in the data and in the forward model, ``y ≈ Hx + b`` (no clipping bias, but RL
+        clears the background slowly: on a paper-size frame after 3 iterations the particles
+        were localised less well, 0.53/0.45/5.2 µm RMS against 0.25/0.25/3.8 µm).
     """
 
     z_min_um: float = -80.0
@@ -78,8 +87,14 @@ class ReconSettings:
     rays_per_pattern: int = 200_000
     roi_px: tuple | None = None
     projector: str = "auto"
+    background_model: str = "subtract"
 
     def __post_init__(self) -> None:
+        if self.background_model not in BACKGROUND_MODELS:
+            raise InputError(
+                f"background_model must be one of {BACKGROUND_MODELS}, "
+                f"got {self.background_model!r}"
+            )
         if self.projector not in PROJECTORS:
             raise InputError(f"projector must be one of {PROJECTORS}, got {self.projector!r}")
         for name in ("z_min_um", "z_max_um", "z_step_um"):
@@ -323,9 +338,8 @@ def reconstruct_series(
                     f"frame {str(frames[k])!r} is {raw.shape} px, the series started with "
                     f"{first.shape}"
                 )
-            # The black level stays in the data and in the model (y ≈ Hx + b): subtracting it
-            # and clipping the noise at zero would leave a positive bias for RL to explain.
-            img, pinfo = prepare_image(raw, pp, subtract_background=False)
+            modelled = st.background_model == "model"
+            img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
             rect, rgeom = _rectify_roi(rectify, img, grid, n, st.roi_px)
             res = richardson_lucy(
                 rect,
@@ -334,7 +348,7 @@ def reconstruct_series(
                 depth_filter=filt,
                 stop_rel_change=st.stop_rel_change,
                 track_kl=False,
-                background=max(pinfo["background"], 0.0) * rgeom.flux_scale,
+                background=max(pinfo["background"], 0.0) * rgeom.flux_scale if modelled else 0.0,
             )
             write_tiff(
                 volume_path(out, k),

@@ -208,3 +208,25 @@ def test_roi_reconstructs_a_sub_field(dataset, tmp_path, capsys):
     # inside the region's pixel centres (the border lenslets may drop out).
     assert 12 <= nx <= 14 and 12 <= ny <= 14
     shutil.rmtree(vol_dir)
+
+
+def test_background_model_is_a_setting_of_its_own(dataset, tmp_path, capsys):
+    """Both ways of handling the black level run; they are different settings (a folder made
+    with one is not resumed with the other) and both find the same bright voxels."""
+    import tifffile
+
+    vols = {}
+    for mode in ("subtract", "model"):
+        out = tmp_path / mode
+        args = ["run", dataset, *FAST, "--iterations", "2", "--background-model", mode, "-o", out]
+        assert run(capsys, *args)[0] == 0
+        vols[mode] = tifffile.imread(out / "000000.tif")
+    top = {m: set(np.argsort(v.ravel())[-30:]) for m, v in vols.items()}
+    assert len(top["subtract"] & top["model"]) >= 10
+    rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "2", "-o", tmp_path / "model")
+    assert rc == 2 and "other inputs or settings" in err
+    from recon.errors import InputError
+    from recon.pipeline import ReconSettings
+
+    with pytest.raises(InputError, match="background_model"):
+        ReconSettings(background_model="clip")
