@@ -75,7 +75,7 @@ def test_fig4a_localization_against_snr(reports):
         assert r["recall"] >= 0.8 and r["precision"] >= 0.95
         assert r["rmsd_x"] < 0.3 and r["rmsd_y"] < 0.3 and r["rmsd_z"] < 6.0
     low = rows[3]  # SNR 5: fewer particles, larger errors, still localised
-    assert 0.3 <= low["recall"] and low["rmsd_x"] < 1.5 and low["rmsd_z"] < 15.0
+    assert 0.6 <= low["recall"] and low["rmsd_x"] < 0.7 and low["rmsd_z"] < 9.0
     assert low["rmsd_x"] > rows[0]["rmsd_x"]  # the noise dependence is there
 
 
@@ -90,7 +90,7 @@ def test_fig4b_zero_displacement_pairs(reports):
         assert abs(r["u_mean_x"]) < 0.2 and abs(r["u_mean_y"]) < 0.2  # no spurious motion
     for r in rows[:2]:
         assert r["u_rmsd_x"] < 0.4 and r["u_rmsd_y"] < 0.4 and r["u_rmsd_z"] < 2.5
-    assert rows[2]["u_rmsd_x"] < 1.0 and rows[2]["u_rmsd_z"] < 8.0
+    assert rows[2]["u_rmsd_x"] < 0.7 and rows[2]["u_rmsd_z"] < 6.0
     assert (run["out"] / "plots" / "pairs.png").is_file()
 
 
@@ -99,11 +99,14 @@ def test_fig4c_noise_floor_against_frame_rate(reports):
     assert [r["fps"] for r in rows] == [100, 4000, 25000]
     snr = [r["snr"] for r in rows]
     assert snr[0] > 40 and snr[0] > snr[1] > snr[2]  # the camera model: light starved at speed
-    slow = rows[0]
-    assert slow["tracking_ratio"] == 1.0
-    assert slow["u_rmsd_x"] < 0.3 and slow["u_rmsd_z"] < 1.5
-    # At 25 000 fps (SNR ≈ 4) the particles are lost in the camera noise: the floor is gone.
-    assert rows[2]["n_a"] < 0.5 * slow["n_a"]
+    slow, fast = rows[0], rows[2]
+    for r in rows:
+        assert r["tracking_ratio"] >= 0.9
+    assert slow["u_rmsd_x"] < 0.15 and slow["u_rmsd_z"] < 1.0
+    assert rows[1]["u_rmsd_x"] < 0.3 and rows[1]["u_rmsd_z"] < 2.0  # 4000 fps: still low
+    # At 25 000 fps (SNR ≈ 3.6) the light-starved frames raise the noise floor (measured ×8).
+    assert fast["u_rmsd_x"] > 3 * slow["u_rmsd_x"] and fast["u_rmsd_z"] > 3 * slow["u_rmsd_z"]
+    assert fast["u_rmsd_x"] < 0.8 and fast["u_rmsd_z"] < 6.0
 
 
 @pytest.mark.parametrize("axis", ["x", "y"])
