@@ -299,13 +299,23 @@ def plot_slices(results: dict, path: Path, title: str = "") -> Path:
             ux_true = np.where(mask, ux_true, np.nan)
         else:
             ux_true = np.zeros_like(ux)
-        for ax, img, name in (
-            (axs[0, 0], ux, "measured u_x (µm)"),
-            (axs[0, 1], ux_true, "imposed u_x (µm)"),
-            (axs[1, 0], exz, "measured E_xz (%)"),
-            (axs[1, 1], exz_true, "imposed E_xz (%)"),
+        lim_u = (np.nanmin([ux, ux_true]), np.nanmax([ux, ux_true]))
+        lim_e = (np.nanmin([exz, exz_true]), np.nanmax([exz, exz_true]))
+        for ax, img, name, lim in (
+            (axs[0, 0], ux, "measured u_x (µm)", lim_u),
+            (axs[0, 1], ux_true, "imposed u_x (µm)", lim_u),
+            (axs[1, 0], exz, "measured E_xz (%)", lim_e),
+            (axs[1, 1], exz_true, "imposed E_xz (%)", lim_e),
         ):
-            im = ax.imshow(img, origin="lower", extent=ext, aspect="auto", cmap="viridis")
+            im = ax.imshow(
+                img,
+                origin="lower",
+                extent=ext,
+                aspect="auto",
+                cmap="viridis",
+                vmin=lim[0],
+                vmax=lim[1],
+            )
             fig.colorbar(im, ax=ax)
             ax.set_title(name, fontsize=9)
             ax.set_xlabel("x (µm)")
@@ -314,4 +324,5 @@ def plot_slices(results: dict, path: Path, title: str = "") -> Path:
     else:
         peak = "?"
     fig.suptitle(title or f"x–z slices at y = middle, frame {peak} ({LABEL.get(variant, variant)})")
+    fig.tight_layout()
     return _save(fig, path)
