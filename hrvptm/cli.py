@@ -134,14 +134,14 @@ def summary_table(result: dict) -> str:
     for variant, v in result["variants"].items():
         lines.append(f"{variant}:")
         lines.append(
-            f"{'frame':>5} {'γ imposed':>10} {'2E_xz meas':>10} {'RMSD x':>7} {'RMSD y':>7} "
-            f"{'RMSD z':>7} {'tracked':>8}"
+            f"{'frame':>5} {'γ imposed':>10} {'2E_xz meas':>10} {'RMSD x µm':>10} "
+            f"{'RMSD y µm':>10} {'RMSD z µm':>10} {'tracked':>8}"
         )
         for r in v["rows"]:
             lines.append(
                 f"{r['frame']:>5} {_fmt(2 * r.get('E_true_xz', math.nan), True):>10} "
                 f"{_fmt(2 * r.get('E_meas_xz', math.nan), True):>10} "
-                f"{_fmt(r['u_rmsd_x']):>7} {_fmt(r['u_rmsd_y']):>7} {_fmt(r['u_rmsd_z']):>7} "
+                f"{_fmt(r['u_rmsd_x']):>10} {_fmt(r['u_rmsd_y']):>10} {_fmt(r['u_rmsd_z']):>10} "
                 f"{_fmt(r['tracking_ratio'], True):>8}"
             )
     return "\n".join(lines) + "\n"
