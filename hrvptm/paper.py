@@ -68,9 +68,9 @@ REFERENCES: dict[str, list[Reference]] = {
         Reference("localization RMSD x (pooled)", "pooled_rmsd_x", 5.2),
         Reference("localization RMSD y (pooled)", "pooled_rmsd_y", 3.2),
         Reference("localization RMSD z (pooled)", "pooled_rmsd_z", 9.5),
-        Reference("|mean error| x, worst SNR", "worst_abs_mean_x", 0.35),
-        Reference("|mean error| y, worst SNR", "worst_abs_mean_y", 0.34),
-        Reference("|mean error| z, worst SNR", "worst_abs_mean_z", 3.5),
+        Reference("abs. mean error x, worst SNR", "worst_abs_mean_x", 0.35),
+        Reference("abs. mean error y, worst SNR", "worst_abs_mean_y", 0.34),
+        Reference("abs. mean error z, worst SNR", "worst_abs_mean_z", 3.5),
     ],
     "4b": [
         Reference(
