@@ -76,6 +76,7 @@ def test_defaults_when_no_study_sections(tmp_path):
         ("[recon]\ns = 0\n", "s must be an integer"),
         ("[track]\nthreshold = 1.5\n", "threshold must be 'auto' or a fraction"),
         ("[track]\nmode = 'batch'\n", "mode must be"),
+        ("[track]\nsmoothing = -1\n", "smoothing must be a number >= 0"),
         (
             "[stdy]\nkind = 'series'\n",
             r"unknown section or key \[stdy\] \(did you mean \[study\]\?\)",
@@ -100,3 +101,14 @@ def test_missing_and_invalid_files(tmp_path):
     bad.write_text("[experiment\n", encoding="utf-8")
     with pytest.raises(StudyConfigError, match="not valid TOML"):
         load_study(bad)
+
+
+def test_track_options_reach_the_track_command_line(tmp_path):
+    s = load_study(_write(tmp_path, "[track]\nsmoothing = 1e4\ntarget_nodes = 900\n"))
+    argv = s.track.link_argv()
+    assert argv[argv.index("--smoothing") + 1] == "10000.0"
+    assert argv[argv.index("--target-nodes") + 1] == "900"
+    from track.cli import build_parser
+
+    args = build_parser().parse_args(["run", "v", "-o", "r", *s.track.detect_argv(), *argv])
+    assert args.smoothing == 1e4 and args.target_nodes == 900 and args.threshold == 0.25
