@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -48,17 +47,6 @@ class Analysis:
 
 
 # -- inputs ------------------------------------------------------------------------------------
-def _read_csv_table(path: Path) -> dict[str, np.ndarray]:
-    if not path.is_file():
-        raise StageError(f"missing {path}")
-    with path.open(encoding="utf-8") as fh:
-        header = fh.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if data.size == 0:
-        data = np.zeros((0, len(header)))
-    return {h: data[:, j] for j, h in enumerate(header)}
-
-
 @dataclass
 class VariantData:
     """The files of one variant, read once: truth, detections and the volume's extent."""
@@ -75,17 +63,18 @@ class VariantData:
     @classmethod
     def load(cls, study, paths: VariantPaths) -> VariantData:
         from lfsim.io import read_json
+        from lfsim.particles import Particles
+        from track.io import read_points_csv
 
         n = study.experiment.frames
         tids, txyz, dets, noise = [], [], [], []
         record = read_json(paths.dataset / "dataset.json")
         recs = {r["frame"]: r for r in record.get("frame_records", [])}
         for k in range(n):
-            t = _read_csv_table(paths.dataset / "truth" / f"{k:06d}.csv")
-            tids.append(t["id"].astype(int))
-            txyz.append(np.column_stack([t["x_um"], t["y_um"], t["z_um"]]))
-            d = _read_csv_table(paths.track / "particles" / f"{k:06d}.csv")
-            dets.append(np.column_stack([d["x_um"], d["y_um"], d["z_um"]]))
+            truth = Particles.from_csv(paths.dataset / "truth" / f"{k:06d}.csv")
+            tids.append(np.asarray(truth.ids, dtype=int))
+            txyz.append(np.asarray(truth.positions_um, dtype=float))
+            dets.append(read_points_csv(paths.track / "particles" / f"{k:06d}.csv"))
             spec = study.experiment.noise_for_frame(k)
             nrec = dict(recs.get(k, {}).get("noise", {}))
             noise.append({"snr": nrec.get("snr", spec.snr), "fps": getattr(spec, "fps", None)})

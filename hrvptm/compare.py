@@ -14,6 +14,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from track.strain import green_lagrange  # E = (FᵀF − I)/2, the one definition (re-exported)
+
 #: Components of a symmetric 3 × 3 tensor, in report order, with their (row, column).
 TENSOR_COMPONENTS = {
     "xx": (0, 0),
@@ -24,6 +26,16 @@ TENSOR_COMPONENTS = {
     "yz": (1, 2),
 }
 AXES = ("x", "y", "z")
+
+__all__ = [
+    "AXES",
+    "TENSOR_COMPONENTS",
+    "associate",
+    "green_lagrange",
+    "numerical_deformation_gradient",
+    "tensor_stats",
+    "vector_stats",
+]
 
 
 def associate(detected_um, truth_um, radius_um: float) -> tuple[np.ndarray, np.ndarray]:
@@ -83,12 +95,6 @@ def vector_stats(err, prefix: str = "") -> dict[str, float]:
             out[f"{prefix}rmsd_{ax}"] = math.nan
             out[f"{prefix}maxabs_{ax}"] = math.nan
     return out
-
-
-def green_lagrange(F) -> np.ndarray:
-    """``E = (FᵀF − I) / 2`` of ``F`` (..., 3, 3)."""
-    F = np.asarray(F, dtype=float)
-    return 0.5 * (np.swapaxes(F, -1, -2) @ F - np.eye(3))
 
 
 def numerical_deformation_gradient(displacement, X_um, h_um: float = 0.5) -> np.ndarray:

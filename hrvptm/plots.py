@@ -62,33 +62,20 @@ def plot_localization(results: dict, path: Path, title: str = "") -> Path:
         snr = _col(a.rows, "snr")
         for ax, c in zip(axs, AXES, strict=True):
             ls = STYLE.get(variant, "-")
-            ax.plot(
-                snr,
-                _col(a.rows, f"rmsd_{c}"),
-                ls,
-                color="k",
-                marker="o",
-                ms=3,
-                label=f"RMSD, {LABEL.get(variant, variant)}",
-            )
-            ax.plot(
-                snr,
-                _col(a.rows, f"maxabs_{c}"),
-                ls,
-                color="tab:red",
-                marker="s",
-                ms=3,
-                label=f"max |error|, {LABEL.get(variant, variant)}",
-            )
-            ax.plot(
-                snr,
-                _col(a.rows, f"mean_{c}"),
-                ls,
-                color="tab:blue",
-                marker="^",
-                ms=3,
-                label=f"mean error, {LABEL.get(variant, variant)}",
-            )
+            for key, color, marker, what in (
+                ("rmsd", "k", "o", "RMSD"),
+                ("maxabs", "tab:red", "s", "max |error|"),
+                ("mean", "tab:blue", "^", "mean error"),
+            ):
+                ax.plot(
+                    snr,
+                    _col(a.rows, f"{key}_{c}"),
+                    ls,
+                    color=color,
+                    marker=marker,
+                    ms=3,
+                    label=f"{what}, {LABEL.get(variant, variant)}",
+                )
     for ax, c in zip(axs, AXES, strict=True):
         ax.axvline(PAPER_SNR, color="grey", ls="--", lw=0.8)
         ax.axhline(0, color="grey", lw=0.5)
