@@ -158,8 +158,7 @@ def run_study(
     state["runs"].append(run)
     state["source"] = str(study.source) if study.source else None
     _save_state(report, state)
-    if last >= 0:
-        init_backend()
+    init_backend()
     variants = study.variants()
     seconds: dict[str, dict[str, float]] = {v: {} for v in variants}
     for variant, experiment in variants.items():
