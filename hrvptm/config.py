@@ -31,7 +31,7 @@ are relative to the TOML file's folder. Lengths in µm::
     deconvolution_iterations = 5
     edge_margin_um = 0
     method = "radial"              # radial | centroid
-    smoothing = 0                  # RBF smoothing of the gridded fields (0: exact interpolant)
+    smoothing = "gcv"              # RBF smoothing of the gridded fields: "gcv" or λ (0: exact)
 
 Kinds of study (what the truth is compared with):
 
@@ -180,11 +180,13 @@ class TrackSpec:
     deconvolution_iterations: int = 5
     edge_margin_um: float = 0.0
     method: str = "radial"
-    smoothing: float = 0.0
+    smoothing: float | str = "gcv"
 
     def __post_init__(self) -> None:
-        if not _num(self.smoothing) or self.smoothing < 0:
-            raise StudyConfigError(f"smoothing must be a number >= 0, got {self.smoothing!r}")
+        if not (self.smoothing == "gcv" or (_num(self.smoothing) and self.smoothing >= 0)):
+            raise StudyConfigError(
+                f"smoothing must be 'gcv' or a number >= 0, got {self.smoothing!r}"
+            )
         if self.mode not in ("incremental", "cumulative"):
             raise StudyConfigError(f"mode must be 'incremental' or 'cumulative', got {self.mode!r}")
         if not _int(self.target_nodes) or self.target_nodes < 8:
@@ -225,7 +227,7 @@ class TrackSpec:
             "--target-nodes",
             str(self.target_nodes),
             "--smoothing",
-            repr(float(self.smoothing)),
+            self.smoothing if self.smoothing == "gcv" else repr(float(self.smoothing)),
         ]
 
 

@@ -84,6 +84,18 @@ def _count(text: str) -> int:
     return v
 
 
+def _smoothing(text: str) -> float | str:
+    if text == "gcv":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}")
+    return v
+
+
 def _threshold(text: str) -> float | str:
     if text == "auto":
         return text
@@ -149,7 +161,14 @@ def _link_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--interpolation", choices=("rbf", "linear"), default="rbf", help="gridding method"
     )
-    g.add_argument("--smoothing", type=float, default=0.0, help="RBF smoothing (default 0)")
+    g.add_argument(
+        "--smoothing",
+        type=_smoothing,
+        default="gcv",
+        metavar="gcv|LAMBDA",
+        help="RBF smoothing of the gridded fields: 'gcv' (default: chosen per displacement "
+        "component by generalised cross-validation) or a number >= 0 (0: exact interpolation)",
+    )
     g.add_argument("--no-fields", action="store_true", help="only link; no gridded fields")
     g.add_argument("--vti-encoding", choices=("binary", "ascii"), default="binary")
     g.add_argument("--seed", type=_count, default=0, help="seed of the linker's RANSAC")
@@ -340,7 +359,7 @@ def _series_settings(args) -> SeriesSettings:
         spacing_um=args.grid_spacing_um,
         target_nodes=max(int(args.target_nodes), 8),
         method=args.interpolation,
-        smoothing=float(args.smoothing),
+        smoothing=args.smoothing,
     )
     return SeriesSettings(
         mode=args.mode,
@@ -391,6 +410,7 @@ def _link_and_write(args, out: Path, summary: dict, clouds, frame_ids) -> None:
             "matches": mfile.name,
             "field_status": res.field_status[k],
             "field": None,
+            "smoothing_xyz": None if res.smoothing[k] is None else list(res.smoothing[k]),
         }
         if not pair.ok:
             log.warning("frames %d → %d %s", ref_id, def_id, pair.status)

@@ -11,7 +11,11 @@ polynomial** (:class:`scipy.interpolate.RBFInterpolator`, ``kernel="thin_plate_s
 - it is smooth (C¹), so finite-difference gradients are meaningful everywhere;
 - it extends linearly outside the particles' convex hull instead of inventing structure; the
   grid's :attr:`GridField.mask` marks which nodes are actually supported by data;
-- ``smoothing > 0`` turns it into a regularised fit for noisy displacements;
+- ``smoothing > 0`` turns it into a regularised (smoothing-spline) fit for noisy
+  displacements, and the default ``smoothing="gcv"`` chooses the amount **from the data**, for
+  each displacement component separately, by generalised cross-validation (see
+  :func:`gcv_smoothing`). The smoothing penalty vanishes on affine fields, so smoothing never
+  biases a homogeneous deformation; it only removes the part of the noise that is not affine;
 - above ``rbf_max_points`` particles it uses the nearest ``rbf_neighbours`` particles only
   (local RBF), keeping the cost linear.
 
@@ -57,10 +61,15 @@ class GridSettings:
         Approximate node count of the default grid (50 000).
     method : {"rbf", "linear"}
         Interpolant (see the module docstring).
-    smoothing : float
-        RBF smoothing parameter (0 = interpolate exactly; larger = smoother fit).
+    smoothing : float or "gcv"
+        RBF smoothing parameter λ of ``min Σ|u_i - f(x_i)|² + λ J(f)`` (µm⁻¹ for the
+        thin-plate kernel; 0 = interpolate exactly, larger = smoother), or ``"gcv"`` (default)
+        to choose λ for each displacement component by generalised cross-validation
+        (:func:`gcv_smoothing`).
     rbf_max_points : int
-        Above this many particles the RBF uses only the nearest ``rbf_neighbours``.
+        Above this many particles the RBF uses only the nearest ``rbf_neighbours``, and
+        ``"gcv"`` chooses λ on a random subset of this many particles (λ rescaled to the full
+        particle density).
     rbf_neighbours : int
         Neighbours of the local RBF.
     support_radius_um : float, optional
@@ -73,7 +82,7 @@ class GridSettings:
     spacing_um: float | None = None
     target_nodes: int = 50_000
     method: str = "rbf"
-    smoothing: float = 0.0
+    smoothing: float | str = "gcv"
     rbf_max_points: int = 2000
     rbf_neighbours: int = 64
     support_radius_um: float | None = None
@@ -87,8 +96,18 @@ class GridSettings:
             raise InputError(f"target_nodes must be at least 8, got {self.target_nodes!r}")
         if self.method not in _METHODS:
             raise InputError(f"method must be one of {_METHODS}, got {self.method!r}")
-        if not (math.isfinite(self.smoothing) and self.smoothing >= 0):
-            raise InputError(f"smoothing must be finite and >= 0, got {self.smoothing!r}")
+        if isinstance(self.smoothing, str):
+            if self.smoothing != "gcv":
+                raise InputError(
+                    f"smoothing must be a number >= 0 or 'gcv', got {self.smoothing!r}"
+                )
+        elif not (
+            isinstance(self.smoothing, (int, float))
+            and not isinstance(self.smoothing, bool)
+            and math.isfinite(self.smoothing)
+            and self.smoothing >= 0
+        ):
+            raise InputError(f"smoothing must be a number >= 0 or 'gcv', got {self.smoothing!r}")
         if self.rbf_neighbours < 5 or self.rbf_max_points < 5:
             raise InputError("rbf_neighbours and rbf_max_points must be at least 5")
         if self.support_radius_um is not None and not (
@@ -256,6 +275,104 @@ def grid_axes(
     return GridAxes(*axes)
 
 
+#: Fewest particles for which :func:`gcv_smoothing` chooses λ (below it: exact interpolation).
+GCV_MIN_POINTS = 10
+
+
+def _tps_kernel(r: np.ndarray) -> np.ndarray:
+    """``r² log r`` (0 at ``r = 0``): the kernel and sign scipy's ``thin_plate_spline`` uses."""
+    from scipy.special import xlogy
+
+    return xlogy(r * r, r)
+
+
+def gcv_smoothing(
+    positions_um: np.ndarray,
+    values: np.ndarray,
+    *,
+    max_points: int = 2000,
+    seed: int = 0,
+) -> np.ndarray:
+    """Smoothing parameter of a thin-plate-spline fit chosen by generalised cross-validation.
+
+    For each column ``y`` of ``values`` the smoothing thin-plate spline with a degree-1
+    polynomial, ``f_λ = argmin Σ (y_i − f(x_i))² + λ J(f)`` (exactly what
+    :class:`scipy.interpolate.RBFInterpolator` fits with ``kernel="thin_plate_spline"``,
+    ``degree=1``, ``smoothing=λ``), has the influence matrix ``A(λ)`` with ``f_λ(x) = A y``.
+    GCV (Craven & Wahba 1979, *Numer. Math.* 31:377) picks the λ minimising
+
+    ``V(λ) = n ‖(I − A(λ)) y‖² / tr(I − A(λ))²``,
+
+    an estimate of the prediction error that needs neither the truth nor the noise level.
+    With ``Q₂`` an orthonormal basis of the null space of the polynomial block ``Pᵀ`` and
+    ``Q₂ᵀ K Q₂ = U diag(γ) Uᵀ`` (Wahba 1990, *Spline Models for Observational Data*, §4.3),
+
+    ``(I − A) y = Q₂ U diag(λ / (γ + λ)) Uᵀ Q₂ᵀ y``,  ``tr(I − A) = Σ λ / (γ_k + λ)``,
+
+    so one eigen-decomposition gives ``V`` for every λ of a log-spaced scan (16 decades, 10 per
+    decade). A column of exactly affine data (no residual) gets the smallest λ of the scan.
+
+    Parameters
+    ----------
+    positions_um : ndarray, shape (N, 3)
+        Particle positions (µm).
+    values : ndarray, shape (N,) or (N, C)
+        Data at the particles, e.g. the three displacement components (µm).
+    max_points : int
+        Above this many particles λ is chosen on a random subset of ``max_points`` particles
+        and multiplied by ``N / max_points`` (the data term of the criterion grows with the
+        particle density, the penalty does not).
+    seed : int
+        Seed of that subset.
+
+    Returns
+    -------
+    ndarray, shape (C,)
+        λ for each column (µm⁻¹ for data in µm: the units of ``J`` are µm² / µm³).
+
+    Raises
+    ------
+    InputError
+        Bad shapes, non-finite values or fewer than :data:`GCV_MIN_POINTS` particles.
+    """
+    from scipy.spatial.distance import cdist
+
+    X = _points(positions_um, "positions_um")
+    Y = np.asarray(values, dtype=float)
+    if Y.ndim == 1:
+        Y = Y[:, None]
+    if Y.ndim != 2 or Y.shape[0] != X.shape[0]:
+        raise InputError(
+            f"values must have shape (N,) or (N, C) with N = {X.shape[0]}, got {Y.shape}"
+        )
+    if not np.all(np.isfinite(Y)):
+        raise InputError("values holds NaN or infinite values")
+    n = X.shape[0]
+    if n < GCV_MIN_POINTS:
+        raise InputError(f"GCV needs at least {GCV_MIN_POINTS} particles, got {n}")
+    scale = 1.0
+    if n > max_points:
+        keep = np.random.default_rng(seed).choice(n, size=int(max_points), replace=False)
+        X, Y = X[keep], Y[keep]
+        scale = n / float(max_points)
+    m = X.shape[0]
+    P = np.c_[np.ones(m), X - X.mean(axis=0)]
+    Q, _ = np.linalg.qr(P, mode="complete")
+    Q2 = Q[:, P.shape[1] :]
+    K = _tps_kernel(cdist(X, X))
+    gam, V = np.linalg.eigh(Q2.T @ K @ Q2)
+    gam = np.maximum(gam, 0.0)
+    z2 = (V.T @ (Q2.T @ Y)) ** 2  # (m - 4, C)
+    top = max(float(gam.max()), np.finfo(float).tiny)
+    lams = top * np.logspace(-12.0, 4.0, 161)
+    f = lams[None, :] / (gam[:, None] + lams[None, :])  # (m - 4, L)
+    rss = (f * f).T @ z2  # (L, C)
+    tr = f.sum(axis=0)  # (L,)
+    score = m * rss / (tr * tr)[:, None]
+    best = np.argmin(score, axis=0)
+    return lams[best] * scale
+
+
 @dataclass(frozen=True)
 class DisplacementInterpolant:
     """Continuous displacement field fitted to scattered particle displacements.
@@ -263,12 +380,14 @@ class DisplacementInterpolant:
     Call it with positions ``(P, 3)`` (µm) to get displacements ``(P, 3)`` (µm);
     :meth:`gradient` gives ``∂u_i/∂x_j`` by central differences and :meth:`supported` tells
     which positions are backed by data. Build it with :func:`fit_displacement`.
+    ``smoothing`` holds the λ used for ``u_x``, ``u_y``, ``u_z`` (chosen by GCV or given).
     """
 
     positions_um: np.ndarray
     displacement_um: np.ndarray
     settings: GridSettings
     support_radius_um: float
+    smoothing: tuple[float, float, float] = (0.0, 0.0, 0.0)
     _fn: object = field(repr=False, default=None)
     _hull: object = field(repr=False, default=None)
     _tree: object = field(repr=False, default=None)
@@ -365,14 +484,34 @@ def fit_displacement(
     except QhullError:
         hull = None
         log.warning("particles are (nearly) coplanar; no convex hull for the support mask")
+    lam = np.zeros(3)
     if settings.method == "rbf":
         kw = {}
         if X.shape[0] > settings.rbf_max_points:
             kw["neighbors"] = settings.rbf_neighbours
+        if settings.smoothing != "gcv":
+            lam[:] = float(settings.smoothing)
+        elif X.shape[0] >= GCV_MIN_POINTS:
+            lam = gcv_smoothing(X, U, max_points=settings.rbf_max_points)
+            log.debug("GCV smoothing of u_x, u_y, u_z: %.3g, %.3g, %.3g", *lam)
+        else:
+            log.info("only %d particles: too few to choose the smoothing; interpolating", len(X))
         try:
-            fn = RBFInterpolator(
-                X, U, kernel="thin_plate_spline", degree=1, smoothing=settings.smoothing, **kw
-            )
+            if np.all(lam == lam[0]):
+                fn = RBFInterpolator(
+                    X, U, kernel="thin_plate_spline", degree=1, smoothing=lam[0], **kw
+                )
+            else:
+                parts = [
+                    RBFInterpolator(
+                        X, U[:, c], kernel="thin_plate_spline", degree=1, smoothing=lam[c], **kw
+                    )
+                    for c in range(3)
+                ]
+
+                def fn(q):
+                    return np.stack([p(q) for p in parts], axis=1)
+
         except (np.linalg.LinAlgError, ValueError) as exc:
             raise InputError(
                 f"cannot fit a displacement field to {X.shape[0]} particles: {exc}"
@@ -407,6 +546,7 @@ def fit_displacement(
         displacement_um=U,
         settings=settings,
         support_radius_um=radius,
+        smoothing=tuple(float(v) for v in lam),
         _fn=fn,
         _hull=hull,
         _tree=tree,
@@ -493,6 +633,7 @@ __all__ = [
     "GridSettings",
     "field_on_grid",
     "fit_displacement",
+    "gcv_smoothing",
     "grid_axes",
     "gridded_field",
     "strain_from_displacement",

@@ -176,6 +176,9 @@ class SeriesResult:
         cumulation in incremental mode; direct in cumulative mode).
     field_status : tuple of str
         ``"ok"`` or ``"skipped: <reason>"`` for each entry of ``total_fields``.
+    smoothing : tuple of ((float, float, float) or None)
+        RBF smoothing λ of ``u_x, u_y, u_z`` used for each pair's field (chosen by GCV by
+        default, see :func:`track.fields.gcv_smoothing`); ``None`` where no field was fitted.
     """
 
     mode: str
@@ -185,6 +188,7 @@ class SeriesResult:
     increment_fields: tuple[GridField | None, ...]
     total_fields: tuple[GridField | None, ...]
     field_status: tuple[str, ...]
+    smoothing: tuple[tuple[float, float, float] | None, ...] = ()
 
 
 def _check_matches(m, n_ref: int, n_def: int, where: str) -> np.ndarray:
@@ -526,6 +530,7 @@ def track_series(
     inc_fields: list[GridField | None] = [None] * n
     totals: list[GridField | None] = [None] * n
     status = ["skipped: fields not requested"] * n
+    lams: list[tuple[float, float, float] | None] = [None] * n
     axes = None
     if settings.compute_fields:
         try:
@@ -536,7 +541,7 @@ def track_series(
         except InputError as exc:
             status = [f"skipped: no reference grid ({exc})"] * n
         if axes is not None:
-            _fields(pts, pairs, settings, axes, inc_fields, totals, status)
+            _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams)
     return SeriesResult(
         mode=settings.mode,
         pairs=pairs,
@@ -545,6 +550,7 @@ def track_series(
         increment_fields=tuple(inc_fields),
         total_fields=tuple(totals),
         field_status=tuple(status),
+        smoothing=tuple(lams),
     )
 
 
@@ -560,14 +566,16 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
     return fit_displacement(ref, pair.displacement_um, settings.grid)
 
 
-def _fields(pts, pairs, settings, axes, inc_fields, totals, status) -> None:
+def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams) -> None:
     step = axes.spacing_um
     X = axes.points()
     shape = axes.shape
     if settings.mode == "cumulative":
         for k, pair in enumerate(pairs):
             try:
-                totals[k] = field_on_grid(_fit(pts, pair, settings), axes)
+                interp = _fit(pts, pair, settings)
+                lams[k] = interp.smoothing
+                totals[k] = field_on_grid(interp, axes)
                 status[k] = OK
             except InputError as exc:
                 status[k] = f"skipped: {exc}"
@@ -583,6 +591,7 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status) -> None:
             status[k] = f"skipped: {exc}"
             broken = broken or f"skipped: increment {pair.ref_frame} → {pair.def_frame} missing"
             continue
+        lams[k] = interp.smoothing
         inc_fields[k] = field_on_grid(interp, axes)
         if broken is not None:
             status[k] = broken

@@ -76,7 +76,7 @@ def test_defaults_when_no_study_sections(tmp_path):
         ("[recon]\ns = 0\n", "s must be an integer"),
         ("[track]\nthreshold = 1.5\n", "threshold must be 'auto' or a fraction"),
         ("[track]\nmode = 'batch'\n", "mode must be"),
-        ("[track]\nsmoothing = -1\n", "smoothing must be a number >= 0"),
+        ("[track]\nsmoothing = -1\n", "smoothing must be .gcv. or a number >= 0"),
         (
             "[stdy]\nkind = 'series'\n",
             r"unknown section or key \[stdy\] \(did you mean \[study\]\?\)",
@@ -112,3 +112,7 @@ def test_track_options_reach_the_track_command_line(tmp_path):
 
     args = build_parser().parse_args(["run", "v", "-o", "r", *s.track.detect_argv(), *argv])
     assert args.smoothing == 1e4 and args.target_nodes == 900 and args.threshold == 0.25
+    default = load_study(_write(tmp_path, "")).track.link_argv()  # default: GCV, as track's
+    assert default[default.index("--smoothing") + 1] == "gcv"
+    args = build_parser().parse_args(["run", "v", "-o", "r", *default])
+    assert args.smoothing == "gcv" == build_parser().parse_args(["run", "v", "-o", "r"]).smoothing

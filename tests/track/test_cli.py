@@ -88,6 +88,8 @@ def test_link_writes_all_outputs(clouds, linked):
     assert s["status"] == "complete" and s["command"] == "link"
     assert [i["status"] for i in s["increments"]] == ["ok", "ok"]
     assert all(i["tracking_ratio"] > 0.95 for i in s["increments"])
+    assert all(len(i["smoothing_xyz"]) == 3 for i in s["increments"])  # GCV's λ, recorded
+    assert s["parameters"]["series"]["grid"]["smoothing"] == "gcv"
     assert {"link_s", "fields_s", "total_s"} <= set(s["timings"])
     g = tio.read_field_npz(out / "fields" / "000002.npz")
     gamma = 2 * g.e[..., 0, 2][g.mask]
@@ -157,6 +159,8 @@ def test_usage_errors_are_one_line(tmp_path, capsys):
     assert rc == 2 and "does not exist" in err
     rc, err = _run(["link", tmp_path / "a.csv", "-o", tmp_path / "x", "--mode", "x"], capsys)
     assert rc == 2 and "invalid choice" in err
+    rc, err = _run(["link", tmp_path / "a.csv", "-o", tmp_path / "x", "--smoothing", "-1"], capsys)
+    assert rc == 2 and "expected 'gcv' or a number >= 0, got '-1'" in err
 
 
 # -- volumes ---------------------------------------------------------------------------------

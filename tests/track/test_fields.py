@@ -5,12 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy import ndimage
+from scipy.interpolate import RBFInterpolator
 
 from track.errors import InputError
 from track.fields import (
     GridField,
     GridSettings,
     fit_displacement,
+    gcv_smoothing,
     grid_axes,
     gridded_field,
     strain_from_displacement,
@@ -102,7 +104,100 @@ def test_bad_inputs_and_settings():
         GridSettings(method="cubic")
     with pytest.raises(InputError, match="spacing_um"):
         GridSettings(spacing_um=-1.0)
+    for bad in ("auto", -1.0, float("nan"), True):
+        with pytest.raises(InputError, match="smoothing must be a number >= 0 or 'gcv'"):
+            GridSettings(smoothing=bad)
+    with pytest.raises(InputError, match="at least 10"):
+        gcv_smoothing(X[:9], X[:9])
+    with pytest.raises(InputError, match="values must have shape"):
+        gcv_smoothing(X, X[:-1])
     Y = X.copy()
     Y[0, 0] = np.nan
     with pytest.raises(InputError, match="NaN"):
         gridded_field(Y, X)
+
+
+# -- smoothing chosen by generalised cross-validation ------------------------------------------
+def _noisy_field(seed=3, n=80, sigma=(0.3, 0.3, 3.0)):
+    """A smooth non-affine field sampled at ``n`` particles with per-component noise (µm)."""
+    rng = np.random.default_rng(seed)
+    box = np.array([[0, 0, 0], [1000, 800, 300]], float)
+    X = rng.uniform(*box, (n, 3))
+
+    def truth(P):
+        return np.c_[
+            0.1 * P[:, 2] + 20 * np.sin(P[:, 0] / 300), 0.02 * P[:, 1], 5 * np.cos(P[:, 1] / 200)
+        ]
+
+    Y = truth(X) + rng.normal(0, sigma, (n, 3))
+    Xt = rng.uniform(box[0] + 100, box[1] - [100, 100, 50], (3000, 3))  # interior test points
+    return X, Y, truth, Xt
+
+
+def _rmse(X, y, lam, Xt, yt):
+    f = RBFInterpolator(X, y, kernel="thin_plate_spline", degree=1, smoothing=lam)
+    return float(np.sqrt(np.mean((f(Xt) - yt) ** 2)))
+
+
+def test_gcv_residual_formula_matches_scipy_smoothing_fit():
+    """The eigen-form of (I − A(λ))y equals y − f_λ(x) of RBFInterpolator: same λ, same fit."""
+    from scipy.spatial.distance import cdist
+
+    from track.fields import _tps_kernel
+
+    X, Y, _, _ = _noisy_field()
+    n = X.shape[0]
+    P = np.c_[np.ones(n), X]
+    Q2 = np.linalg.qr(P, mode="complete")[0][:, 4:]
+    gam, V = np.linalg.eigh(Q2.T @ _tps_kernel(cdist(X, X)) @ Q2)
+    for lam in (1.0, 1e3, 1e6):
+        r = Q2 @ V @ np.diag(lam / (gam + lam)) @ V.T @ Q2.T @ Y
+        fit = RBFInterpolator(X, Y, kernel="thin_plate_spline", degree=1, smoothing=lam)
+        assert np.allclose(r, Y - fit(X), atol=1e-8 * np.abs(Y).max())
+
+
+def test_gcv_is_close_to_the_oracle_smoothing_per_component():
+    """Without the truth, GCV's λ gives within 15 % of the best error any λ gives (oracle
+    scan against the truth), and far less than exact interpolation of the noise."""
+    X, Y, truth, Xt = _noisy_field()
+    yt = truth(Xt)
+    lam = gcv_smoothing(X, Y)
+    assert lam.shape == (3,)
+    assert lam[2] > 10 * lam[0]  # u_z is 10× noisier than u_x: smoothed much more
+    for c in range(3):
+        e_gcv = _rmse(X, Y[:, c], lam[c], Xt, yt[:, c])
+        e_exact = _rmse(X, Y[:, c], 0.0, Xt, yt[:, c])
+        e_oracle = min(_rmse(X, Y[:, c], v, Xt, yt[:, c]) for v in np.logspace(-2, 8, 41))
+        assert e_gcv <= 1.15 * e_oracle, (c, e_gcv, e_oracle)
+        # u_x: strongly curved, little noise: little to gain; u_y, u_z: noise dominates
+        assert e_gcv < (0.95 if c == 0 else 0.6) * e_exact, (c, e_gcv, e_exact)
+
+
+def test_gcv_does_not_smooth_exact_data_or_bias_affine_fields():
+    X, _, truth, Xt = _noisy_field()
+    lam = gcv_smoothing(X, truth(X))  # noise-free, non-affine: (almost) interpolate
+    fit = fit_displacement(X, truth(X))
+    assert fit.smoothing == pytest.approx(tuple(lam))
+    for c in range(3):
+        assert _rmse(X, truth(X)[:, c], lam[c], Xt, truth(Xt)[:, c]) <= 1.05 * _rmse(
+            X, truth(X)[:, c], 0.0, Xt, truth(Xt)[:, c]
+        )
+    # noisy affine field: smoothing removes the non-affine noise, the mean F is unbiased
+    rng = np.random.default_rng(8)
+    F0 = CASES["combined"]
+    u = X @ (F0 - np.eye(3)).T + rng.normal(0, [0.3, 0.3, 3.0], X.shape)
+    g_gcv = gridded_field(X, u, GridSettings(target_nodes=3000))
+    g_0 = gridded_field(X, u, GridSettings(target_nodes=3000, smoothing=0.0))
+    m = g_gcv.mask
+    err_gcv = np.sqrt(np.mean((g_gcv.E[m] - green_lagrange(F0)) ** 2, axis=0))
+    err_0 = np.sqrt(np.mean((g_0.E[m] - green_lagrange(F0)) ** 2, axis=0))
+    assert np.all(err_gcv < 0.5 * err_0)
+    assert np.abs(g_gcv.E[m].mean(axis=0) - green_lagrange(F0)).max() < 2e-3
+
+
+def test_gcv_on_a_subset_rescales_lambda_to_the_full_density():
+    X, Y, _, _ = _noisy_field(n=600)
+    full = gcv_smoothing(X, Y, max_points=600)
+    sub = gcv_smoothing(X, Y, max_points=200, seed=1)
+    ratio = sub / full
+    assert np.all((ratio > 1 / 4) & (ratio < 4)), ratio
