@@ -9,6 +9,7 @@ deformation gradient (``lfsim.motion``), or from central differences of a user f
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -25,6 +26,8 @@ from .compare import (
 )
 from .errors import StageError
 from .stages import VariantPaths
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -228,6 +231,20 @@ def imposed_F(motion, k: int, X_um: np.ndarray) -> np.ndarray:
     return numerical_deformation_gradient(lambda X: motion.displacement(X, k), X_um)
 
 
+def is_layer(points_um: np.ndarray, ratio: float = 0.05) -> bool:
+    """``True`` when particles lie in (nearly) one plane, where a 3-D strain is undefined.
+
+    The cloud is a layer when its smallest principal standard deviation is below ``ratio``
+    times the middle one (e.g. the single layer of Fig. 5b: a few µm of localisation noise
+    over a millimetre-wide plane). Fewer than 4 points also count as a layer.
+    """
+    p = np.asarray(points_um, dtype=float).reshape(-1, 3)
+    if p.shape[0] < 4:
+        return True
+    sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
+    return bool(sv[2] < ratio * sv[1])
+
+
 def analyse_series(data: VariantData) -> Analysis:
     """Cumulative displacements of the tracked particles and the gridded strain fields.
 
@@ -261,6 +278,9 @@ def analyse_series(data: VariantData) -> Analysis:
     dt = st.study.time_step_s
     vectors: dict[int, dict] = {}
     peak_field, peak_amp = None, -math.inf
+    flat = is_layer(x0)
+    if flat:
+        log.info("the tracked particles form a layer: no 3-D strain is compared")
     for k in range(1, n):
         amp = imposed_amplitude(motion, k)[1] if motion else float(k)
         atk = fr == k
@@ -291,7 +311,7 @@ def analyse_series(data: VariantData) -> Analysis:
             row[f"u_meas_{ax}"] = float(meas_u[:, j].mean()) if len(meas_u) else math.nan
         row.update(vector_stats(err, "u_"))
         fpath = data.paths.track / "fields" / f"{k:06d}.npz"
-        if fpath.is_file():
+        if fpath.is_file() and not flat:
             fld = read_field_npz(fpath)
             Z, Y, X = np.meshgrid(fld.z_um, fld.y_um, fld.x_um, indexing="ij")
             nodes = np.column_stack([X[fld.mask], Y[fld.mask], Z[fld.mask]])

@@ -13,7 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hrvptm.analysis import VariantData, analyse_localization, analyse_pairs, analyse_series
+from hrvptm.analysis import (
+    VariantData,
+    analyse_localization,
+    analyse_pairs,
+    analyse_series,
+    is_layer,
+)
 from hrvptm.config import study_from_dict
 from hrvptm.stages import VariantPaths
 
@@ -130,3 +136,17 @@ def test_series_shear_displacements_strains_and_tracking(tmp_path):
     assert a.summary["wrong_tracks"] == 0
     assert a.arrays["peak_frame"] == 3
     assert a.arrays["field"]["frame"] == 3
+
+
+def test_a_layer_of_particles_has_no_3d_strain():
+    """Fig. 5b's single layer: ±3 µm of axial noise over a 1.9 × 1.1 mm plane (tilted, so that
+    the test does not depend on the axes) is a layer; the paper-size volumes are not."""
+    rng = np.random.default_rng(2)
+    p = np.c_[rng.uniform(-950, 950, 60), rng.uniform(-550, 550, 60), rng.normal(160, 3, 60)]
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    tilt = np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]])
+    assert is_layer(p) and is_layer(p @ tilt.T) and is_layer(p[:3])
+    box = np.c_[p[:, :2], rng.uniform(100, 400, 60)]  # the 300 µm tall seeded volume
+    assert not is_layer(box)
+    test_size = np.c_[rng.uniform(-220, 220, (18, 2)), rng.uniform(120, 400, 18)]
+    assert not is_layer(test_size)

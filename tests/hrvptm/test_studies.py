@@ -54,15 +54,16 @@ def _series_ok(v: dict, min_ratio: float = 0.95) -> None:
 
 
 def _strain_ok(v: dict) -> None:
-    """Strain against the imposed one. In-plane components (xx, yy, xy): the paper's figures,
-    RMSD < 1 % and mean error < 3 % (measured at test size: ≤ 0.25 % and ≤ 0.15 %). Components
-    that differentiate the axial displacement (zz, xz, yz; the paper also excludes zz and zy)
-    rest on 15–24 particles with ≈ 2–3 µm axial noise: measured up to 3 % RMSD and 3 % mean
-    error (rotation), bounded here by 4.5 %."""
+    """Strain against the imposed one (fields smoothed by GCV, track's default). In-plane
+    components (xx, yy, xy): measured at test size ≤ 0.19 % RMSD and ≤ 0.10 % mean error,
+    bounded by 0.4 % and 0.25 % (the paper: < 1 % and < 3 %). Components that differentiate
+    the axial displacement (zz, xz, yz; the paper also excludes zz and zy) rest on 15–24
+    particles with ≈ 2–3 µm axial noise: measured up to 2.2 % RMSD and 2.6 % mean error,
+    bounded here by 4.5 %."""
     s = v["summary"]
     for c in ("xx", "yy", "xy"):
-        assert s[f"pooled_E_rmsd_{c}"] < 0.01, c
-        assert s[f"worst_E_abs_mean_err_{c}"] < 0.03, c
+        assert s[f"pooled_E_rmsd_{c}"] < 0.004, c
+        assert s[f"worst_E_abs_mean_err_{c}"] < 0.0025, c
     for c in ("zz", "xz", "yz"):
         assert s[f"pooled_E_rmsd_{c}"] < 0.045, c
         assert s[f"worst_E_abs_mean_err_{c}"] < 0.045, c
