@@ -18,7 +18,8 @@ Strain (:mod:`track.strain`)
     :func:`green_lagrange`, :func:`infinitesimal`, :func:`engineering_shear`.
 Fields (:mod:`track.fields`)
     :class:`GridSettings`, :class:`GridField`, :func:`gridded_field`,
-    :func:`fit_displacement`, :func:`grid_axes`.
+    :func:`fit_displacement`, :func:`grid_axes`, :func:`gcv_smoothing` (the default smoothing,
+    chosen by generalised cross-validation).
 Series (:mod:`track.series`)
     :class:`SeriesSettings`, :func:`track_series` (incremental / cumulative modes,
     trajectories, Eulerian cumulation), :func:`link_tracks`, :func:`cumulate_eulerian`.
@@ -37,7 +38,14 @@ import importlib
 from typing import Any
 
 from .errors import InputError, TrackError, TrackingError
-from .fields import GridField, GridSettings, fit_displacement, grid_axes, gridded_field
+from .fields import (
+    GridField,
+    GridSettings,
+    fit_displacement,
+    gcv_smoothing,
+    grid_axes,
+    gridded_field,
+)
 from .series import SeriesResult, SeriesSettings, cumulate_eulerian, link_tracks, track_series
 from .strain import (
     LocalFitSettings,
@@ -91,6 +99,7 @@ __all__ = [
     "engineering_shear",
     "estimate_psf",
     "fit_displacement",
+    "gcv_smoothing",
     "green_lagrange",
     "grid_axes",
     "gridded_field",
