@@ -2,16 +2,20 @@
 
 Each report's ``summary.md`` becomes a section (its headings moved one level down); its
 plots are copied next to the page, under ``<page stem>/<study name>/``, so the page stands
-on its own. Nothing is written unless every report is complete.
+on its own; plots of an earlier collection of the same page that it no longer shows are
+removed from there. Nothing is written unless every report is complete.
 """
 
 from __future__ import annotations
 
+import logging
 import re
 from datetime import UTC, datetime
 from pathlib import Path
 
 from .errors import StudyError
+
+log = logging.getLogger(__name__)
 
 
 def _read_summary(report: Path) -> tuple[str, dict]:
@@ -102,15 +106,33 @@ def collect(reports, page, preamble=None) -> Path:
             raise StudyError(f"preamble {pre} does not exist")
         lines = [pre.read_text(encoding="utf-8").rstrip("\n"), ""]
     lines += _overview(loaded)
+    written: set[Path] = set()
     for report, md, data in loaded:
         name = data["study"]["experiment"]["experiment"]["name"]
         for plot in data.get("plots", []):
             src = report / plot
             if src.is_file():
-                atomic_write_bytes(assets / name / Path(plot).name, src.read_bytes())
+                dst = assets / name / Path(plot).name
+                atomic_write_bytes(dst, src.read_bytes())
+                written.add(dst)
         rel = f"{page.stem}/{name}"
         md = re.sub(r"\]\(plots/([^)]+)\)", lambda m, r=rel: f"]({r}/{m.group(1)})", md)
         md = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", md, flags=re.M)
         sections.append(md)
     atomic_write_text(page, "\n".join(lines + sections))
+    _prune(assets, written)
     return page
+
+
+def _prune(assets: Path, keep: set[Path]) -> None:
+    """Remove the plots (``*.png`` one folder down) that an earlier collection of this page
+    wrote and this one does not reference, and folders left empty; nothing else is touched."""
+    if not assets.is_dir():
+        return
+    for png in sorted(assets.glob("*/*.png")):
+        if png not in keep:
+            log.info("removing %s (no longer on the page)", png)
+            png.unlink()
+    for folder in assets.iterdir():
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()

@@ -218,7 +218,17 @@ def test_demo_prints_the_summary_table(tmp_path, capsys):
 def test_collect_gathers_reports_with_their_plots(reports, tmp_path):
     runs = [reports("fig6b_rotation_test"), reports("fig4a_localization_snr_test")]
     page = tmp_path / "docs" / "validation.md"
+    stale = [
+        page.parent / "validation" / d / "old.png" for d in ("gone_study", "fig6b_rotation_test")
+    ]
+    for p in stale:  # plots of an earlier collection that this one no longer shows
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"png")
+    notes = page.parent / "validation" / "notes.txt"
+    notes.write_text("kept", encoding="utf-8")
     assert main(["collect", *[str(r["out"]) for r in runs], "-o", str(page), "-q"]) == 0
+    assert not any(p.exists() for p in stale) and not stale[0].parent.exists()
+    assert notes.read_text(encoding="utf-8") == "kept"
     text = page.read_text(encoding="utf-8")
     assert "## Study `fig6b_rotation_test`" in text
     assert "(validation/fig6b_rotation_test/strain.png)" in text
