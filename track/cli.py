@@ -84,30 +84,26 @@ def _count(text: str) -> int:
     return v
 
 
-def _smoothing(text: str) -> float | str:
-    if text == "gcv":
-        return text
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}")
-    return v
+def _keyword_or_number(keyword: str, ok, expected: str):
+    """argparse type: ``keyword`` itself, or a finite number for which ``ok(v)`` holds."""
+    message = f"expected '{keyword}' or {expected}, got {{!r}}"
+
+    def parse(text: str) -> float | str:
+        if text == keyword:
+            return text
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(message.format(text)) from None
+        if not (math.isfinite(v) and ok(v)):
+            raise argparse.ArgumentTypeError(message.format(text))
+        return v
+
+    return parse
 
 
-def _threshold(text: str) -> float | str:
-    if text == "auto":
-        return text
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected 'auto' or a fraction in (0, 1), got {text!r}"
-        ) from None
-    if not 0 < v < 1:
-        raise argparse.ArgumentTypeError(f"expected 'auto' or a fraction in (0, 1), got {text!r}")
-    return v
+_smoothing = _keyword_or_number("gcv", lambda v: v >= 0, "a number >= 0")
+_threshold = _keyword_or_number("auto", lambda v: 0 < v < 1, "a fraction in (0, 1)")
 
 
 def _common(p: argparse.ArgumentParser) -> None:

@@ -73,6 +73,17 @@ def _fake_variant(tmp: Path, study, bias, noise_um, seed=0, drop=()):
     return paths
 
 
+def _link(tmp: Path, paths, frames: int) -> None:
+    """Link the (already detected) clouds with the track command line, as a study would."""
+    from track.cli import main as track_main
+
+    clouds = [str(paths.track / "particles" / f"{k:06d}.csv") for k in range(frames)]
+    link_dir = tmp / "linked"
+    assert track_main(["link", *clouds, "-o", str(link_dir), "--target-nodes", "4000", "-q"]) == 0
+    for name in ("tracks.csv", "fields"):
+        (link_dir / name).rename(paths.track / name)
+
+
 def test_localization_reports_the_injected_bias_and_noise(tmp_path):
     study = _study(3, None, "localization")
     paths = _fake_variant(tmp_path, study, bias=(0.5, -0.2, 3.0), noise_um=(0.3, 0.3, 2.0))
@@ -110,19 +121,12 @@ def test_pairs_of_three_shots(tmp_path):
 
 
 def test_series_shear_displacements_strains_and_tracking(tmp_path):
-    from track.cli import main as track_main
-
     motion = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.05, "center_um": [0, 0, 250]}
     study = _study(4, motion, "series")
     paths = _fake_variant(
         tmp_path, study, bias=(1.0, 1.0, 4.0), noise_um=(0.05, 0.05, 0.2), drop=(3, 7)
     )
-    clouds = [str(paths.track / "particles" / f"{k:06d}.csv") for k in range(4)]
-    # Link the (already detected) clouds with the track command line, as the study would.
-    link_dir = tmp_path / "linked"
-    assert track_main(["link", *clouds, "-o", str(link_dir), "--target-nodes", "4000", "-q"]) == 0
-    for name in ("tracks.csv", "fields"):
-        (link_dir / name).rename(paths.track / name)
+    _link(tmp_path, paths, 4)
     a = analyse_series(VariantData.load(study, paths))
     assert [r["frame"] for r in a.rows] == [1, 2, 3]
     assert [r["amplitude"] for r in a.rows] == pytest.approx([5.0, 10.0, 15.0])  # γ in %
@@ -158,8 +162,6 @@ def test_series_of_a_non_affine_field_reports_the_sampling_floor(tmp_path):
     """A user field (the non-uniform shear study's) with almost noise-free detections: the
     strain error is the floor of sampling the field at 60 particles, which is reported, and
     the measured error sits on it (GCV does not add to it)."""
-    from track.cli import main as track_main
-
     fn = SCENES / "experiments" / "fields" / "nonuniform_shear.py"
     motion = {
         "type": "user_field",
@@ -168,11 +170,7 @@ def test_series_of_a_non_affine_field_reports_the_sampling_floor(tmp_path):
     }
     study = _study(3, motion, "series")
     paths = _fake_variant(tmp_path, study, bias=(0, 0, 0), noise_um=(0.02, 0.02, 0.05))
-    clouds = [str(paths.track / "particles" / f"{k:06d}.csv") for k in range(3)]
-    link_dir = tmp_path / "linked"
-    assert track_main(["link", *clouds, "-o", str(link_dir), "--target-nodes", "4000", "-q"]) == 0
-    for name in ("tracks.csv", "fields"):
-        (link_dir / name).rename(paths.track / name)
+    _link(tmp_path, paths, 3)
     a = analyse_series(VariantData.load(study, paths))
     last = a.rows[-1]
     for c in ("xz", "xy"):
