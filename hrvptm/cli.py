@@ -25,9 +25,8 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
 
-from .errors import StudyConfigError, StudyError
+from .errors import StudyConfigError
 
 log = logging.getLogger("hrvptm")
 
@@ -35,29 +34,31 @@ log = logging.getLogger("hrvptm")
 DEMO = Path(__file__).resolve().parent.parent / "scenes" / "experiments" / "demo_simple_shear.toml"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        self.print_usage(sys.stderr)
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The ``hrvptm`` argument parser."""
+    from hrvbase.cli import Parser, common_options
+
     from . import __version__
 
-    p = _Parser(prog="hrvptm", description="Validation studies of the HR-VPTM toolkit.")
+    p = Parser(
+        prog="hrvptm",
+        description="Validation studies of the HR-VPTM toolkit.",
+        parents=[common_options(suppress=False)],
+    )
     p.add_argument("--version", action="version", version=f"hrvptm {__version__}")
-    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", parser_class=Parser)
+    shared = common_options(suppress=True)
 
     def common(q: argparse.ArgumentParser) -> None:
-        q.add_argument("-v", "--verbose", action="count", default=0, help="more messages")
-        q.add_argument("-q", "--quiet", action="store_true", help="errors only, no progress")
         q.add_argument(
-            "--overwrite", action="store_true", help="reuse a report folder of another study"
+            "--overwrite",
+            action="store_true",
+            help="reuse a report folder of another study (default: refuse)",
         )
 
     st = sub.add_parser(
         "study",
+        parents=[shared],
         help="run a validation study end to end",
         description="Simulate → reconstruct → track → compare with the truth; writes CSV "
         "tables, plots, summary.md and summary.json into REPORT. A rerun resumes.",
@@ -75,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     de = sub.add_parser(
         "demo",
+        parents=[shared],
         help="the built-in small study (simple shear, test size)",
         description=f"Run {DEMO.name} end to end and print its summary.",
     )
@@ -84,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     co = sub.add_parser(
         "collect",
+        parents=[shared],
         help="gather study reports into one Markdown page",
         description="Gather the summary.md of finished reports into one page with their plots.",
     )
@@ -92,16 +95,22 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument(
         "--preamble", type=Path, default=None, metavar="INTRO.md", help="page header to use"
     )
-    co.add_argument("-q", "--quiet", action="store_true")
-    co.add_argument("-v", "--verbose", action="count", default=0)
+    co.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a page an earlier collect wrote (default: refuse an existing page)",
+    )
     co.set_defaults(func=cmd_collect)
     return p
 
 
 def _run(path: Path, args, command: str) -> dict:
+    from hrvbase.io import guard_output
+
     from .config import load_study
     from .study import run_study
 
+    guard_output(args.output, [path])
     study = load_study(path)
     return run_study(
         study,
@@ -166,52 +175,23 @@ def cmd_demo(args) -> int:
 def cmd_collect(args) -> int:
     from .collect import collect
 
-    collect(args.reports, args.output, preamble=args.preamble)
+    collect(args.reports, args.output, preamble=args.preamble, overwrite=args.overwrite)
     if not args.quiet:
         sys.stdout.write(f"{args.output}: {len(args.reports)} report(s)\n")
     return 0
 
 
-class _Formatter(logging.Formatter):
-    def format(self, record: logging.LogRecord) -> str:
-        return f"hrvptm: {record.levelname.lower()}: {record.getMessage()}"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``hrvptm``; returns the exit status (0 success, 2 user error)."""
-    from lfsim.errors import LfsimError
-    from recon.errors import ReconError
-    from track.errors import TrackError
+    from hrvbase.cli import run_main
 
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if getattr(args, "func", None) is None:
-        parser.print_help(sys.stderr)
-        return 2
-    args.argv = argv
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(_Formatter())
-    level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1 else logging.INFO)
-    if args.verbose == 0 and not args.quiet:
-        level = logging.WARNING
-    loggers = [logging.getLogger(n) for n in ("hrvptm", "lfsim", "recon", "track")]
-    saved = [(lg, lg.level) for lg in loggers]
-    for lg in loggers:
-        lg.setLevel(level)
-        lg.addHandler(handler)
-    try:
-        return int(args.func(args))
-    except (StudyError, LfsimError, ReconError, TrackError) as exc:
-        sys.stderr.write(f"hrvptm: error: {exc}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write("hrvptm: interrupted; run the same command again to resume\n")
-        return 130
-    finally:
-        for lg, old in saved:
-            lg.removeHandler(handler)
-            lg.setLevel(old)
+    return run_main(
+        "hrvptm",
+        build_parser(),
+        argv,
+        loggers=("hrvptm", "lfsim", "recon", "track"),
+        interrupted="interrupted; run the same command again to resume",
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

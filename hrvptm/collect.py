@@ -19,8 +19,8 @@ log = logging.getLogger(__name__)
 
 
 def _read_summary(report: Path) -> tuple[str, dict]:
-    from lfsim.errors import LfsimError
-    from lfsim.io import read_json
+    from hrvbase.errors import HrvError
+    from hrvbase.io import read_json
 
     md, js = report / "summary.md", report / "summary.json"
     if not md.is_file() or not js.is_file():
@@ -30,7 +30,7 @@ def _read_summary(report: Path) -> tuple[str, dict]:
         )
     try:
         data = read_json(js)
-    except LfsimError as exc:
+    except HrvError as exc:
         raise StudyError(f"{js}: {exc}") from None
     return md.read_text(encoding="utf-8"), data
 
@@ -82,14 +82,46 @@ def _overview(loaded) -> list[str]:
     return lines + times + [""]
 
 
-def collect(reports, page, preamble=None) -> Path:
+#: First line of every page :func:`collect` writes; only such a page is ever replaced.
+MARKER = "<!-- written by hrvptm collect; regenerate it with the same command -->"
+
+
+def _check_page(page: Path, reports, preamble, overwrite: bool) -> None:
+    """Refuse a page that lands on or in an input, or replaces a file ``collect`` did not write."""
+    from hrvbase.io import check_output_file, guard_output
+
+    inputs = [*reports, *([preamble] if preamble is not None else [])]
+    check_output_file(page, inputs=inputs, overwrite=overwrite)
+    guard_output(page.parent / page.stem, inputs, option="the page's plot folder")
+    if page.exists():
+        first = page.read_text(encoding="utf-8", errors="replace").split("\n", 1)[0]
+        if first.strip() != MARKER:
+            raise StudyError(
+                f"{page} was not written by hrvptm collect; refusing to replace it even with "
+                "--overwrite (choose another page)"
+            )
+
+
+def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
     """Write the page ``page`` from the report folders ``reports``; returns its path.
 
-    ``preamble``: optional Markdown file whose text replaces the generated page header.
+    Parameters
+    ----------
+    reports : sequence of path
+        Finished study reports (``summary.md`` and ``summary.json``).
+    page : path
+        Markdown page; its plots go to the folder ``PAGE_STEM/`` beside it.
+    preamble : path, optional
+        Markdown file whose text replaces the generated page header.
+    overwrite : bool
+        Replace a page that an earlier ``collect`` wrote (a file it did not write, an input,
+        or a path inside a report is always refused).
     """
-    from lfsim.io import atomic_write_bytes, atomic_write_text
+    from hrvbase.io import atomic_write_bytes, atomic_write_text
 
     page = Path(page)
+    _check_page(page, reports, preamble, overwrite)
+    replacing = page.exists()
     sections = []
     assets = page.parent / page.stem
     loaded = [(Path(r), *_read_summary(Path(r))) for r in reports]
@@ -113,14 +145,15 @@ def collect(reports, page, preamble=None) -> Path:
             src = report / plot
             if src.is_file():
                 dst = assets / name / Path(plot).name
-                atomic_write_bytes(dst, src.read_bytes())
+                atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
                 written.add(dst)
         rel = f"{page.stem}/{name}"
         md = re.sub(r"\]\(plots/([^)]+)\)", lambda m, r=rel: f"]({r}/{m.group(1)})", md)
         md = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", md, flags=re.M)
         sections.append(md)
-    atomic_write_text(page, "\n".join(lines + sections))
-    _prune(assets, written)
+    atomic_write_text(page, "\n".join([MARKER, *lines, *sections]), overwrite=overwrite)
+    if replacing:  # only a page collect wrote before; a new page touches no older files
+        _prune(assets, written)
     return page
 
 

@@ -318,7 +318,7 @@ def study_from_dict(
     data: Mapping, base_dir: str | os.PathLike | None = None, source: str | None = None
 ) -> Study:
     """Build a :class:`Study` from a parsed TOML table (see the module docstring)."""
-    from lfsim.errors import LfsimError
+    from hrvbase.errors import HrvError
     from lfsim.experiment import Experiment
 
     where = source or "study"
@@ -327,7 +327,7 @@ def study_from_dict(
         raise StudyConfigError(f"{where}: expected a table of sections")
     try:
         exp = Experiment.from_dict(data, base_dir=base, source=source)
-    except LfsimError as exc:
+    except HrvError as exc:
         raise StudyConfigError(str(exc)) from None
     spec = data.get("study")
     if spec is not None and "kind" not in spec:

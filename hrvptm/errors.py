@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from hrvbase import errors as base
 
-class StudyError(Exception):
+
+class StudyError(base.HrvError):
     """Base class of the errors ``hrvptm`` raises on purpose."""
 
 

@@ -52,9 +52,9 @@ class VariantPaths:
 
 def simulate(experiment, paths: VariantPaths, *, progress: bool = True) -> float:
     """Render the dataset (resumes a finished or interrupted one). Returns seconds spent."""
+    from hrvbase.errors import HrvError
+    from hrvbase.io import read_json
     from lfsim import generate_dataset
-    from lfsim.errors import LfsimError
-    from lfsim.io import read_json
 
     t0 = time.perf_counter()
     record = paths.dataset / "dataset.json"
@@ -62,13 +62,13 @@ def simulate(experiment, paths: VariantPaths, *, progress: bool = True) -> float
     if record.is_file():
         try:
             overwrite = read_json(record).get("fingerprint") != experiment.fingerprint()
-        except LfsimError:
+        except HrvError:
             overwrite = True
         if overwrite:
             log.info("%s: the experiment changed; the dataset is rendered again", paths.dataset)
     try:
         generate_dataset(experiment, paths.dataset, overwrite=overwrite, progress=progress)
-    except LfsimError as exc:
+    except HrvError as exc:
         raise StageError(f"simulation into {paths.dataset}: {exc}") from None
     return time.perf_counter() - t0
 
@@ -76,11 +76,10 @@ def simulate(experiment, paths: VariantPaths, *, progress: bool = True) -> float
 def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
     """Calibrate the white image and reconstruct every frame with the study's forward model
     (``recon_scene``). Returns seconds spent."""
-    from lfsim.errors import LfsimError
+    from hrvbase.errors import HrvError
     from lfsim.scene import read_optics
     from recon.calibration import calibrate_white
     from recon.cli import read_white
-    from recon.errors import ReconError
     from recon.pipeline import reconstruct_series
     from recon.preprocess import Preprocess
 
@@ -107,7 +106,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
             progress=progress,
             provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},
         )
-    except (ReconError, LfsimError) as exc:
+    except HrvError as exc:
         raise StageError(f"reconstruction into {paths.volumes}: {exc}") from None
     return time.perf_counter() - t0
 

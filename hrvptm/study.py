@@ -40,8 +40,8 @@ def _version() -> str:
 
 def _open_report(report: Path, study: Study, overwrite: bool) -> dict:
     """Check the report folder and return its state record (new or previous)."""
-    from lfsim.errors import LfsimError
-    from lfsim.io import read_json
+    from hrvbase.errors import HrvError
+    from hrvbase.io import read_json
 
     if report.exists() and not report.is_dir():
         raise ReportExistsError(f"report path {str(report)!r} exists and is not a folder")
@@ -54,7 +54,7 @@ def _open_report(report: Path, study: Study, overwrite: bool) -> dict:
             )
         try:
             state = read_json(state_path)
-        except LfsimError:
+        except HrvError:
             state = None
         if not isinstance(state, dict) or state.get("tool") != TOOL:
             raise ReportExistsError(
@@ -82,7 +82,7 @@ def _open_report(report: Path, study: Study, overwrite: bool) -> dict:
 def _save_state(report: Path, state: dict) -> None:
     from lfsim.io import write_json
 
-    write_json(report / STATE, state)
+    write_json(report / STATE, state, overwrite=True)
 
 
 def _plots(study: Study, results: dict, report: Path) -> list[str]:

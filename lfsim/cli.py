@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, LfsimError, OutputError
+from .errors import ConfigError
 
 log = logging.getLogger("lfsim")
 
@@ -39,12 +39,12 @@ PRESETS = ("paper_4x", "small")
 
 
 # -- helpers ----------------------------------------------------------------------------------
-def _check_output(path: Path, overwrite: bool) -> None:
-    """Fail early (before any work) if ``path`` exists and may not be replaced."""
-    if path.exists() and not overwrite:
-        raise OutputError(f"{path} already exists; pass --overwrite to replace it")
-    if path.is_dir():
-        raise OutputError(f"{path} is a folder; expected a file name")
+def _check_output(args, *inputs) -> Path:
+    """Fail early (before any work) if ``args.output`` may not be written (see
+    :func:`hrvbase.io.check_output_file`: never onto or into an input)."""
+    from hrvbase.io import check_output_file
+
+    return check_output_file(args.output, inputs=inputs, overwrite=args.overwrite)
 
 
 def _parse_set(items: list[str]) -> dict:
@@ -108,8 +108,7 @@ def cmd_scene(args) -> int:
     from .optics import paper_optics, small_optics
     from .scene import write_scene
 
-    out = Path(args.output)
-    _check_output(out, args.overwrite)
+    out = _check_output(args)
     overrides = _parse_set(args.set or [])
     if args.mla is not None:
         if "mla_kind" in overrides and overrides["mla_kind"] != args.mla:
@@ -169,8 +168,7 @@ def cmd_render(args) -> int:
     from .render import render_particles
     from .tracer import RenderSettings
 
-    out = Path(args.output)
-    _check_output(out, args.overwrite)
+    out = _check_output(args, args.scene, args.particles)
     particles = Particles.from_csv(args.particles)
     if args.float and (args.snr is not None or args.bit_depth is not None or args.noise):
         raise ConfigError(
@@ -219,8 +217,7 @@ def cmd_render(args) -> int:
 def cmd_white(args) -> int:
     from .render import render_white
 
-    out = Path(args.output)
-    _check_output(out, args.overwrite)
+    out = _check_output(args, args.scene)
     scene = _read_scene(args.scene)
     clean = render_white(
         scene, args.rays_per_lenslet, seed=args.seed, tracer=args.tracer, progress=not args.quiet
@@ -233,8 +230,7 @@ def cmd_white(args) -> int:
 def cmd_micrometer(args) -> int:
     from .render import render_micrometer
 
-    out = Path(args.output)
-    _check_output(out, args.overwrite)
+    out = _check_output(args, args.scene)
     scene = _read_scene(args.scene)
     clean = render_micrometer(
         scene,
@@ -260,40 +256,47 @@ def cmd_micrometer(args) -> int:
 
 
 def cmd_dataset(args) -> int:
+    from hrvbase.io import guard_output
+
     from .dataset import generate_dataset
     from .experiment import load_experiment
 
     exp = load_experiment(args.experiment)
+    guard_output(args.output, [args.experiment, exp.scene])
     generate_dataset(exp, args.output, overwrite=args.overwrite, progress=not args.quiet)
     return 0
 
 
 # -- parser -----------------------------------------------------------------------------------
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line plus usage, exit 2 (argparse's convention)
-        self.print_usage(sys.stderr)
-        self.exit(2, f"lfsim: error: {message}\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    from hrvbase.cli import Parser, common_options
+
+    from . import __version__
+
+    p = Parser(
         prog="lfsim",
         description="Physically based light-field microscope simulator (lengths in µm).",
+        parents=[common_options(suppress=False)],
     )
-    p.add_argument("--threads", type=int, default=None, help="CPU threads of the Dr.Jit backend")
+    p.add_argument("--version", action="version", version=f"lfsim (hrvptm) {__version__}")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="CPU threads of the Dr.Jit backend (default: all cores)",
+    )
     p.add_argument(
         "--device",
         choices=("auto", "llvm", "cuda"),
         default="auto",
-        help="Dr.Jit backend (default: CUDA if present, else LLVM)",
+        help="Dr.Jit backend (default: auto, CUDA if present, else LLVM)",
     )
-    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
-    p.add_argument(
-        "-q", "--quiet", action="store_true", help="only warnings and errors; no progress bars"
-    )
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=Parser)
+    common = common_options(suppress=True)
 
-    s = sub.add_parser("scene", help="write a Mitsuba scene file of the microscope")
+    s = sub.add_parser(
+        "scene", parents=[common], help="write a Mitsuba scene file of the microscope"
+    )
     s.add_argument(
         "--preset",
         choices=PRESETS,
@@ -316,7 +319,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true")
     s.set_defaults(func=cmd_scene, needs_backend=False)
 
-    r = sub.add_parser("render", help="render particles from a CSV into a light-field image")
+    r = sub.add_parser(
+        "render", parents=[common], help="render particles from a CSV into a light-field image"
+    )
     r.add_argument("scene", metavar="SCENE.xml")
     r.add_argument(
         "--particles",
@@ -356,7 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--overwrite", action="store_true")
     r.set_defaults(func=cmd_render, needs_backend=True)
 
-    w = sub.add_parser("white", help="flat-field image of a uniformly fluorescent slide")
+    w = sub.add_parser(
+        "white", parents=[common], help="flat-field image of a uniformly fluorescent slide"
+    )
     w.add_argument("scene", metavar="SCENE.xml")
     w.add_argument("-o", "--output", required=True, metavar="WHITE.tif")
     w.add_argument("--rays-per-lenslet", type=int, default=20_000)
@@ -367,7 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--overwrite", action="store_true")
     w.set_defaults(func=cmd_white, needs_backend=True)
 
-    m = sub.add_parser("micrometer", help="stage-micrometer image for pixel-size calibration")
+    m = sub.add_parser(
+        "micrometer", parents=[common], help="stage-micrometer image for pixel-size calibration"
+    )
     m.add_argument("scene", metavar="SCENE.xml")
     m.add_argument("-o", "--output", required=True, metavar="M.tif")
     m.add_argument("--division-um", type=float, default=10.0, help="line spacing (default 10)")
@@ -386,7 +395,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--overwrite", action="store_true")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)
 
-    d = sub.add_parser("dataset", help="generate (or resume) a dataset from an experiment TOML")
+    d = sub.add_parser(
+        "dataset", parents=[common], help="generate (or resume) a dataset from an experiment TOML"
+    )
     d.add_argument("experiment", metavar="EXPERIMENT.toml")
     d.add_argument("-o", "--output", required=True, metavar="DIR")
     d.add_argument(
@@ -394,54 +405,24 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace a dataset of another experiment (removes only lfsim's files)",
     )
-    d.add_argument("--quiet", dest="sub_quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_dataset, needs_backend=True)
     return p
 
 
-def _setup_logging(verbose: int, quiet: bool):
-    """Attach a stderr handler to the ``lfsim`` logger; returns a function undoing it."""
-    level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
-    logger = logging.getLogger("lfsim")
-    old_level = logger.level
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("lfsim: %(message)s"))
-    logger.addHandler(handler)
-    logger.setLevel(level)
+def _prepare(args) -> None:
+    if args.threads is not None and args.threads < 1:
+        raise ConfigError(f"--threads must be >= 1, got {args.threads}")
+    if args.needs_backend:
+        from .backend import init_backend
 
-    def restore() -> None:
-        logger.removeHandler(handler)
-        logger.setLevel(old_level)
-
-    return restore
+        init_backend(args.device, args.threads)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``lfsim`` command line; returns the exit status (0 ok, 2 error)."""
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help (0) or a usage error (2)
-        return int(exc.code or 0) if not isinstance(exc.code, str) else 2
-    args.quiet = bool(args.quiet or getattr(args, "sub_quiet", False))
-    restore_logging = _setup_logging(args.verbose, args.quiet)
-    try:
-        if args.threads is not None and args.threads < 1:
-            raise ConfigError(f"--threads must be >= 1, got {args.threads}")
-        if args.needs_backend:
-            from .backend import init_backend
+    from hrvbase.cli import run_main
 
-            init_backend(args.device, args.threads)
-        return int(args.func(args) or 0)
-    except (LfsimError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
-        msg = str(exc).replace("\n", " ").strip() or type(exc).__name__
-        print(f"lfsim: error: {msg}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("lfsim: interrupted", file=sys.stderr)
-        return 130
-    finally:
-        restore_logging()
+    return run_main("lfsim", build_parser(), argv, loggers=("lfsim",), prepare=_prepare)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -39,10 +39,13 @@ from typing import Any
 
 import numpy as np
 
+from hrvbase.errors import HrvError
+from hrvbase.io import read_json, sha256_file, write_json
+
 from .camera import add_gaussian_noise, apply_noise
-from .errors import ConfigError, LfsimError, OutputError
+from .errors import ConfigError, OutputError
 from .experiment import Experiment
-from .io import read_json, read_tiff, sha256_file, write_json, write_tiff
+from .io import read_tiff, write_tiff
 from .particles import Particles
 
 log = logging.getLogger(__name__)
@@ -324,7 +327,7 @@ def generate_dataset(
     run = {"started": started, "finished": None, "frames_rendered": 0, "frames_skipped": 0}
     record["runs"].append(run)
     rec_path = out / RECORD
-    write_json(rec_path, record)
+    write_json(rec_path, record, overwrite=True)
 
     common_meta = {
         "experiment": experiment.name,
@@ -361,7 +364,7 @@ def generate_dataset(
             out / WHITE, img, metadata=meta, pixel_size_um=optics.object_pixel_um, overwrite=True
         )
         record["white"] = {"file": WHITE, "seconds": time.perf_counter() - t0, "noise": info}
-        write_json(rec_path, record)
+        write_json(rec_path, record, overwrite=True)
         log.info("wrote %s", out / WHITE)
 
     if white_on and record["white"] is None:
@@ -440,19 +443,19 @@ def generate_dataset(
                 "noise": info,
             }
             run["frames_rendered"] += 1
-            write_json(rec_path, record)
+            write_json(rec_path, record, overwrite=True)
             bar.update(1)
             log.debug("frame %d: %.2f s", k, seconds)
-    except (LfsimError, KeyboardInterrupt):
+    except (HrvError, KeyboardInterrupt):
         run["finished"] = _now()
-        write_json(rec_path, record)
+        write_json(rec_path, record, overwrite=True)
         raise
     finally:
         bar.close()
 
     run["finished"] = record["finished"] = _now()
     record["status"] = "complete"
-    write_json(rec_path, record)
+    write_json(rec_path, record, overwrite=True)
     log.info(
         "%s: dataset %r complete (%d frames rendered, %d skipped)",
         out,

@@ -6,8 +6,11 @@ key or parameter at fault and what was expected.
 
 from __future__ import annotations
 
+from hrvbase.errors import HrvError, InputError
+from hrvbase.errors import OutputError as OutputError
 
-class LfsimError(Exception):
+
+class LfsimError(HrvError):
     """Base class of every error :mod:`lfsim` raises on purpose."""
 
 
@@ -15,7 +18,7 @@ class BackendError(LfsimError):
     """The Dr.Jit/Mitsuba backend cannot be initialised (no libLLVM >= 16, bad variant...)."""
 
 
-class ConfigError(LfsimError, ValueError):
+class ConfigError(LfsimError, InputError):
     """A parameter, scene file or experiment file holds a missing, unknown or invalid value."""
 
 
@@ -23,5 +26,4 @@ class SceneError(ConfigError):
     """A Mitsuba scene file is missing, malformed, or does not describe a light-field microscope."""
 
 
-class OutputError(LfsimError, OSError):
-    """An output path cannot be written, or writing it would overwrite user data."""
+__all__ = ["BackendError", "ConfigError", "LfsimError", "OutputError", "SceneError"]

@@ -1,10 +1,7 @@
-"""Files: atomic writes, JSON, checksums and TIFF images/volumes with JSON metadata.
+"""Files of :mod:`lfsim`: TIFF images/volumes with JSON metadata.
 
-Every writer here is **atomic**: the data go to a temporary file in the destination folder
-(``.NAME.XXXX.tmp``), are flushed to disk, and only then take the destination's name
-(``os.replace``, or a hard link when an existing file must not be replaced). A reader therefore
-sees either the old file, no file, or the complete new file — never a partial one — and an
-interrupted program leaves at most a hidden ``*.tmp`` file behind.
+Atomic writes, JSON and checksums come from the shared base (:mod:`hrvbase.io`) and are
+re-exported here: every writer is atomic and refuses to replace a file without ``overwrite``.
 
 TIFF layout (:func:`write_tiff`, :func:`read_tiff`; DESIGN.md §2):
 
@@ -18,20 +15,27 @@ TIFF layout (:func:`write_tiff`, :func:`read_tiff`; DESIGN.md §2):
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import json
 import logging
 import math
 import os
-import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import ConfigError, OutputError
+from hrvbase.io import (
+    atomic_path,
+    atomic_write_bytes,
+    atomic_write_text,
+    read_json,
+    sha256_file,
+    to_json,
+    write_json,
+)
+
+from .errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -40,176 +44,6 @@ SHAPE_TAG = 65000
 
 #: Metadata key under which 3-D float32 volumes store their voxel size ``[dz, dy, dx]`` (µm).
 VOXEL_SIZE_KEY = "voxel_size_um"
-
-
-# -- atomic writes -------------------------------------------------------------------------
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def _publish(tmp: str, path: Path, overwrite: bool) -> None:
-    """Give the finished temporary file ``tmp`` the name ``path``."""
-    if overwrite:
-        os.replace(tmp, path)
-        return
-    try:
-        # A hard link fails if ``path`` exists: no window in which another file is clobbered.
-        os.link(tmp, path)
-    except FileExistsError:
-        raise OutputError(
-            f"{path} already exists; refusing to overwrite it (pass overwrite=True / --overwrite)"
-        ) from None
-    except OSError:
-        # File systems without hard links: check, then rename.
-        if os.path.lexists(path):
-            raise OutputError(
-                f"{path} already exists; refusing to overwrite it "
-                "(pass overwrite=True / --overwrite)"
-            ) from None
-        os.replace(tmp, path)
-        return
-    os.unlink(tmp)
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[Path]:
-    """Context manager yielding a temporary path that becomes ``path`` on success.
-
-    Write the complete file to the yielded path inside the ``with`` block; on normal exit it
-    is flushed to disk and renamed to ``path``; on an exception it is deleted and ``path`` is
-    left as it was. Missing parent folders are created.
-
-    Parameters
-    ----------
-    path : path
-        Destination.
-    overwrite : bool
-        Replace an existing ``path`` (default). With ``False`` an existing file raises
-        :class:`OutputError` (checked before and, race-free, at the rename).
-
-    Raises
-    ------
-    OutputError
-        When ``path`` exists (``overwrite=False``) or its folder cannot be created or written;
-        the message names ``path``.
-    """
-    path = Path(path)
-    if not overwrite and os.path.lexists(path):
-        raise OutputError(
-            f"{path} already exists; refusing to overwrite it (pass overwrite=True / --overwrite)"
-        )
-    if path.is_dir():
-        raise OutputError(f"{path} is a folder; expected a file name")
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
-    except OSError as exc:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise OutputError(
-            f"cannot write {path}: folder {path.parent} is not writable ({exc})"
-        ) from exc
-    try:
-        yield Path(tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        _publish(tmp, path, overwrite)
-        tmp = None
-        _fsync_dir(path.parent)
-    except OutputError:
-        raise
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc}") from exc
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file in the same folder + rename).
-
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    OutputError
-        When the folder is not writable, or ``path`` exists and ``overwrite`` is false.
-    """
-    path = Path(path)
-    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
-        fh.write(data)
-    return path
-
-
-def atomic_write_text(
-    path: str | os.PathLike, text: str, *, overwrite: bool = True, encoding: str = "utf-8"
-) -> Path:
-    """Write ``text`` to ``path`` atomically; see :func:`atomic_write_bytes`."""
-    return atomic_write_bytes(path, text.encode(encoding), overwrite=overwrite)
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating):
-        return float(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
-def to_json(obj: Any, *, indent: int | None = 2) -> str:
-    """``obj`` as JSON text (numpy scalars/arrays and paths converted; NaN/inf refused)."""
-    try:
-        return json.dumps(obj, indent=indent, default=_json_default, allow_nan=False)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"cannot write metadata as JSON: {exc}") from exc
-
-
-def write_json(path: str | os.PathLike, obj: Any, *, overwrite: bool = True) -> Path:
-    """Write ``obj`` as indented JSON (trailing newline), atomically."""
-    return atomic_write_text(path, to_json(obj, indent=2) + "\n", overwrite=overwrite)
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    """Read a JSON file; a missing or invalid file raises :class:`ConfigError` naming it."""
-    path = Path(path)
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"cannot read JSON file {path}: {exc}") from exc
-
-
-def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file's bytes (a missing file raises :class:`ConfigError`)."""
-    path = Path(path)
-    h = hashlib.sha256()
-    try:
-        with open(path, "rb") as fh:
-            while block := fh.read(chunk):
-                h.update(block)
-    except OSError as exc:
-        raise ConfigError(f"cannot read {path}: {exc}") from exc
-    return h.hexdigest()
 
 
 # -- TIFF ----------------------------------------------------------------------------------
@@ -358,3 +192,18 @@ def read_tiff(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
     if not isinstance(meta, dict):
         return arr, {"description": text}
     return arr, meta
+
+
+__all__ = [
+    "SHAPE_TAG",
+    "VOXEL_SIZE_KEY",
+    "atomic_path",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "read_json",
+    "read_tiff",
+    "sha256_file",
+    "to_json",
+    "write_json",
+    "write_tiff",
+]

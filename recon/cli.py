@@ -379,7 +379,7 @@ def _level(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``recon``; returns the exit status (0 success, 2 user error)."""
-    from lfsim.errors import LfsimError
+    from hrvbase.errors import HrvError
 
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -402,7 +402,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         lg.addHandler(handler)
     try:
         return int(args.func(args))
-    except (ReconError, LfsimError) as exc:
+    except HrvError as exc:
         sys.stderr.write(f"recon: error: {exc}\n")
         return 2
     except KeyboardInterrupt:

@@ -7,8 +7,10 @@ key or parameter at fault and what was expected. The command line turns them int
 
 from __future__ import annotations
 
+from hrvbase import errors as base
 
-class ReconError(Exception):
+
+class ReconError(base.HrvError):
     """Base class of every error :mod:`recon` raises on purpose."""
 
 
@@ -17,6 +19,6 @@ class CalibrationError(ReconError, ValueError):
     inconsistent lenslet positions...)."""
 
 
-class InputError(ReconError, ValueError):
+class InputError(ReconError, base.InputError):
     """An argument, array or file holds a missing, unknown or invalid value (non-finite pixels,
     wrong dimensionality, a malformed calibration file...)."""

@@ -309,7 +309,7 @@ def reconstruct_series(
             todo.append(k)
             frame_entries.append({"index": k, "input": str(f), "input_sha256": sha})
     meta["frames"] = frame_entries
-    write_json(meta_path, meta)
+    write_json(meta_path, meta, overwrite=True)
     if skipped:
         log.info("%s: %d frame(s) already reconstructed, skipped", out, len(skipped))
     if todo:
@@ -372,10 +372,10 @@ def reconstruct_series(
                     "rel_change": res.rel_change,
                 }
             )
-            write_json(meta_path, meta)
+            write_json(meta_path, meta, overwrite=True)
             done.append(k)
     meta["status"] = "complete"
-    write_json(meta_path, meta)
+    write_json(meta_path, meta, overwrite=True)
     return SeriesResult(out, done, skipped, secs)
 
 

@@ -1,5 +1,6 @@
-"""Dependency direction (DESIGN.md, README "Architecture"): track imports neither lfsim nor
-recon; recon may import lfsim; nothing below hrvptm imports hrvptm."""
+"""Dependency direction (README "Architecture"): hrvbase imports none of the packages; track
+imports neither lfsim nor recon (only hrvbase); recon may import lfsim; nothing below hrvptm
+imports hrvptm; hrvptm uses track through its library, never its command line."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FORBIDDEN = {
+    "hrvbase": {"lfsim", "recon", "track", "hrvptm", "mitsuba", "drjit", "scipy", "skimage"},
     "lfsim": {"recon", "track", "hrvptm"},
     "recon": {"track", "hrvptm"},
     "track": {"lfsim", "recon", "hrvptm"},

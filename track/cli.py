@@ -45,9 +45,11 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from hrvbase.errors import HrvError
+
 from . import __version__
 from . import io as tio
-from .errors import InputError, TrackError
+from .errors import InputError
 from .fields import GridSettings
 from .series import MODES, SeriesSettings, link_pairs, track_series
 
@@ -568,7 +570,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     root.addHandler(handler)
     try:
         return int(args.func(args))
-    except TrackError as exc:
+    except HrvError as exc:
         message = " ".join(str(exc).split())
         sys.stderr.write(f"track: error: {message}\n")
         return 2

@@ -7,12 +7,14 @@ them into ``track: error: <message>`` and exit status 2.
 
 from __future__ import annotations
 
+from hrvbase import errors as base
 
-class TrackError(Exception):
+
+class TrackError(base.HrvError):
     """Base class of every error :mod:`track` raises on purpose."""
 
 
-class InputError(TrackError, ValueError):
+class InputError(TrackError, base.InputError):
     """An argument, array or file holds a missing, unknown or invalid value."""
 
 

@@ -1,9 +1,7 @@
 """Files of :mod:`track`: point tables, matches, tracks, gridded fields, volumes, JSON.
 
-Every writer is **atomic**: data go to a hidden temporary file in the destination folder,
-are flushed to disk and only then take the destination's name, so a reader sees the old
-file, no file or the complete new file, never a partial one. Writers refuse to replace an
-existing file unless ``overwrite=True``.
+Every writer is **atomic** and refuses to replace an existing file unless ``overwrite=True``
+(the shared :mod:`hrvbase.io`, whose JSON and checksum helpers are re-exported here).
 
 Formats (lengths in µm, DESIGN.md §2):
 
@@ -30,19 +28,26 @@ from __future__ import annotations
 import base64
 import contextlib
 import csv
-import hashlib
 import json
 import logging
 import math
 import os
 import re
-import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hrvbase.io import (
+    atomic_path,
+    atomic_write_bytes,
+    atomic_write_text,
+    read_json,
+    sha256_file,
+    write_json,
+)
 
 from .errors import InputError
 from .fields import GridField
@@ -58,149 +63,6 @@ NUMBERED = re.compile(r"^(\d{6})\.(tif|tiff|csv)$")
 
 #: Name of the reconstruction metadata file next to volumes.
 RECON_JSON = "recon.json"
-
-
-# -- atomic writes -------------------------------------------------------------------------
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def _refuse(path: Path) -> InputError:
-    return InputError(f"{path} already exists; refusing to overwrite it (use --overwrite)")
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
-    """Yield a temporary path in ``path``'s folder that becomes ``path`` on success.
-
-    Parameters
-    ----------
-    path : path
-        Destination (missing parent folders are created).
-    overwrite : bool
-        Replace an existing file; otherwise an existing ``path`` raises :class:`InputError`.
-
-    Raises
-    ------
-    InputError
-        ``path`` exists (without ``overwrite``), is a folder, or cannot be written.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path} is a folder; expected a file name")
-    if not overwrite and os.path.lexists(path):
-        raise _refuse(path)
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc}") from exc
-    try:
-        yield Path(tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)  # fails if path appeared meanwhile: never clobbers
-                os.unlink(tmp)
-            except FileExistsError:
-                raise _refuse(path) from None
-            except OSError:
-                if os.path.lexists(path):
-                    raise _refuse(path) from None
-                os.replace(tmp, path)
-        tmp = None
-        _fsync_dir(path.parent)
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc}") from exc
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False) -> Path:
-    """Write ``data`` to ``path`` atomically; see :func:`atomic_path`."""
-    path = Path(path)
-    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
-        fh.write(data)
-    return path
-
-
-def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
-    """Write UTF-8 ``text`` to ``path`` atomically; see :func:`atomic_path`."""
-    return atomic_write_bytes(path, text.encode("utf-8"), overwrite=overwrite)
-
-
-# -- JSON and checksums --------------------------------------------------------------------
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating):
-        return float(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
-def _finite(obj: Any) -> Any:
-    """Replace NaN/inf floats by ``None`` (JSON has no NaN)."""
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, Mapping):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
-    return obj
-
-
-def write_json(path: str | os.PathLike, obj: Any, *, overwrite: bool = False) -> Path:
-    """Write ``obj`` as indented JSON atomically (NaN/inf written as ``null``)."""
-    try:
-        text = json.dumps(_finite(obj), indent=2, default=_json_default, allow_nan=False)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"cannot write {path} as JSON: {exc}") from exc
-    return atomic_write_text(path, text + "\n", overwrite=overwrite)
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    """Read a JSON file; a missing or invalid file raises :class:`InputError` naming it."""
-    path = Path(path)
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read JSON file {path}: {exc}") from exc
-
-
-def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    path = Path(path)
-    h = hashlib.sha256()
-    try:
-        with open(path, "rb") as fh:
-            while block := fh.read(chunk):
-                h.update(block)
-    except OSError as exc:
-        raise InputError(f"cannot read {path}: {exc}") from exc
-    return h.hexdigest()
 
 
 # -- CSV tables ----------------------------------------------------------------------------

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import pytest
-
 from hrvptm.cli import main
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / "scenes" / "experiments"
@@ -54,13 +52,49 @@ def test_report_of_another_study_needs_overwrite(tmp_path, capsys):
 
 
 def test_collect_refuses_unfinished_reports(tmp_path, capsys):
-    rc = main(["collect", str(tmp_path), "-o", str(tmp_path / "page.md")])
+    (tmp_path / "r").mkdir()
+    rc = main(["collect", str(tmp_path / "r"), "-o", str(tmp_path / "page.md")])
     assert rc == 2
     assert "holds no finished study" in capsys.readouterr().err
     assert not (tmp_path / "page.md").exists()
 
 
+def _fake_report(folder):
+    folder.mkdir(parents=True)
+    (folder / "summary.md").write_text("# study\n\nresults\n", encoding="utf-8")
+    exp = {"experiment": {"name": "s", "frames": 2}}
+    data = {"study": {"experiment": exp}, "variants": {}, "comparison": [], "plots": []}
+    (folder / "summary.json").write_text(json.dumps(data), encoding="utf-8")
+    return folder
+
+
+def test_collect_never_writes_onto_inputs_or_foreign_pages(tmp_path, capsys):
+    report = _fake_report(tmp_path / "rep")
+    summary = (report / "summary.md").read_bytes()
+    cases = [
+        (report / "summary.md", "inside the input folder"),  # the report's own page
+        (report / "page.md", "inside the input folder"),
+        (tmp_path, "contains the input"),
+    ]
+    for page, why in cases:
+        rc = main(["collect", str(report), "-o", str(page), "--overwrite", "-q"])
+        err = capsys.readouterr().err
+        assert rc == 2 and why in err and len(err.strip().splitlines()) == 1, err
+    assert (report / "summary.md").read_bytes() == summary
+    # A user's own file is never replaced, even with --overwrite.
+    mine = tmp_path / "notes.md"
+    mine.write_text("my notes\n", encoding="utf-8")
+    assert main(["collect", str(report), "-o", str(mine), "--overwrite", "-q"]) == 2
+    assert "not written by hrvptm collect" in capsys.readouterr().err
+    assert mine.read_text(encoding="utf-8") == "my notes\n"
+    # A page collect wrote: refused without --overwrite, replaced with it.
+    page = tmp_path / "page.md"
+    assert main(["collect", str(report), "-o", str(page), "-q"]) == 0
+    assert main(["collect", str(report), "-o", str(page), "-q"]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert main(["collect", str(report), "-o", str(page), "--overwrite", "-q"]) == 0
+
+
 def test_unknown_stage_is_an_argparse_error(tmp_path, capsys):
-    with pytest.raises(SystemExit) as info:
-        main(["study", "x.toml", "-o", str(tmp_path), "--until", "render"])
-    assert info.value.code == 2
+    rc = main(["study", "x.toml", "-o", str(tmp_path), "--until", "render"])
+    assert rc == 2 and "--until" in capsys.readouterr().err

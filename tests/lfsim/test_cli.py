@@ -292,3 +292,22 @@ def test_bad_input_gives_one_line_and_exit_2(backend, tmp_path, particles_csv, c
         == 2
     )
     assert "--snr" in error_line(capsys)
+
+
+def test_outputs_never_land_on_inputs_even_with_overwrite(backend, tmp_path, capsys):
+    """`lfsim render --particles p.csv -o p.csv --overwrite` once replaced the CSV by a TIFF."""
+    csv = tmp_path / "p.csv"
+    Particles(np.array([[0.0, 0.0, 150.0]])).to_csv(csv)
+    scene = tmp_path / "s.xml"
+    assert main(["-q", "scene", "--preset", "small", "-o", str(scene)]) == 0
+    saved = {p: p.read_bytes() for p in (csv, scene)}
+    for cmd in (
+        ["render", str(scene), "--particles", str(csv), "-o", str(csv)],
+        ["render", str(scene), "--particles", str(csv), "-o", str(scene)],
+        ["white", str(scene), "-o", str(scene)],
+        ["micrometer", str(scene), "-o", str(scene)],
+    ):
+        assert main(["-q", *cmd, "--overwrite"]) == 2
+        assert "is an input" in error_line(capsys)
+    assert {p: p.read_bytes() for p in saved} == saved
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.csv", "s.xml"]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from hrvbase.errors import InputError
 from lfsim.errors import ConfigError, OutputError
 from lfsim.io import (
     atomic_write_bytes,
@@ -73,11 +74,12 @@ def test_bad_pixel_size_and_arrays(tmp_path):
         write_tiff(tmp_path / "v.tif", vol, metadata={}, pixel_size_um=-1.0)
     with pytest.raises(ConfigError, match="2-D"):
         write_tiff(tmp_path / "v.tif", np.zeros(5), metadata={})
-    with pytest.raises(ConfigError, match="JSON"):
+    with pytest.raises(InputError, match="JSON"):
         write_tiff(tmp_path / "v.tif", vol, metadata={"bad": object()})
-    with pytest.raises(ConfigError, match="JSON"):
-        write_tiff(tmp_path / "v.tif", vol, metadata={"nan": float("nan")})
     assert _files(tmp_path) == []
+    # JSON has no NaN: every writer of the toolkit stores it as null (hrvbase.io.to_json).
+    write_tiff(tmp_path / "v.tif", vol, metadata={"nan": float("nan"), "x": [1.0, float("inf")]})
+    assert read_tiff(tmp_path / "v.tif")[1] == {"nan": None, "x": [1.0, None]}
 
 
 def test_refuses_to_overwrite(tmp_path):
@@ -136,10 +138,10 @@ def test_read_errors_name_the_file(tmp_path):
     bad.write_bytes(b"this is not a tiff file at all")
     with pytest.raises(ConfigError, match=r"corrupt\.tif"):
         read_tiff(bad)
-    with pytest.raises(ConfigError, match=r"nothing\.json"):
+    with pytest.raises(InputError, match=r"nothing\.json"):
         read_json(tmp_path / "nothing.json")
     (tmp_path / "bad.json").write_text("{oops")
-    with pytest.raises(ConfigError, match=r"bad\.json"):
+    with pytest.raises(InputError, match=r"bad\.json"):
         read_json(tmp_path / "bad.json")
 
 
@@ -148,5 +150,5 @@ def test_sha256_file(tmp_path):
     data = bytes(range(256)) * 5000
     p.write_bytes(data)
     assert sha256_file(p) == hashlib.sha256(data).hexdigest()
-    with pytest.raises(ConfigError, match="nope"):
+    with pytest.raises(InputError, match="nope"):
         sha256_file(tmp_path / "nope")

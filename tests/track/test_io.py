@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from hrvbase.errors import OutputError
 from track import io
 from track.errors import InputError
 from track.fields import GridSettings, gridded_field
@@ -33,7 +34,7 @@ def test_points_csv_round_trip_and_extra_columns(tmp_path):
     header_only = tmp_path / "h.csv"
     header_only.write_text("x_um,y_um,z_um\n")
     assert io.read_points_csv(header_only).shape == (0, 3)
-    with pytest.raises(InputError, match="already exists"):
+    with pytest.raises(OutputError, match="already exists"):
         io.write_points_csv(p, xyz)
     assert not list(tmp_path.glob("particles/.*.tmp"))
 

@@ -1,0 +1,20 @@
+"""hrvbase: the small shared base of the toolkit (no heavy dependencies: numpy only).
+
+What every package needs, defined once:
+
+- :mod:`hrvbase.errors`: :class:`HrvError` and the common :class:`InputError`,
+  :class:`OutputError`;
+- :mod:`hrvbase.io`: atomic writes, JSON, checksums, output records that resume verifies,
+  and the guard that keeps outputs off the user's inputs;
+- :mod:`hrvbase.validate`: number and array validators (e.g. ``(N, 3)`` point arrays);
+- :mod:`hrvbase.cli`: logging, ``-q``/``-v``/``--version`` and the error handling of every
+  command line.
+
+``lfsim``, ``recon``, ``track`` and ``hrvptm`` import it; it imports none of them.
+"""
+
+from __future__ import annotations
+
+from .errors import HrvError, InputError, OutputError
+
+__all__ = ["HrvError", "InputError", "OutputError"]

@@ -1,0 +1,173 @@
+"""What every command line of the toolkit shares: options, logging and error handling.
+
+- :func:`common_options` gives ``-v``/``--verbose`` (count), ``-q``/``--quiet`` and is added
+  both to the main parser and to every sub-command, so they work before or after the command
+  name, alike in ``lfsim``, ``recon``, ``track`` and ``hrvptm``; ``--version`` sits on the
+  main parser.
+- :class:`Parser` prints usage errors as one line ``PROG: error: ...`` (exit 2).
+- :func:`run_main` sets up logging (``PROG: level: message`` on stderr) and turns every error
+  a user can cause (:class:`~hrvbase.errors.HrvError`, and operating-system errors such as a
+  full disk) into one line ``PROG: error: <message>`` and exit status 2; ``Ctrl-C`` exits
+  with 130. An unexpected exception (a bug) also prints one line, exit 70, and its traceback
+  only with ``-vv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
+
+from .errors import HrvError
+
+#: Exit status of an unexpected internal error (BSD ``EX_SOFTWARE``).
+EXIT_INTERNAL = 70
+
+
+class Parser(argparse.ArgumentParser):
+    """Argument parser whose usage errors are one line ``PROG: error: ...`` (exit 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{self.prog.split()[0]}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def common_options(*, suppress: bool) -> argparse.ArgumentParser:
+    """Parent parser with ``-v``/``-q``.
+
+    The copy given to sub-parsers (``suppress=True``) has no defaults, so that an option given
+    before the command name is not reset by the sub-parser.
+    """
+
+    def dflt(value: Any) -> Any:
+        return argparse.SUPPRESS if suppress else value
+
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=dflt(0),
+        help="more messages (-v: progress details, -vv: debugging) (default: warnings only)",
+    )
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=dflt(False),
+        help="only errors; no progress bars or summary (default: off)",
+    )
+    return p
+
+
+def log_level(args: argparse.Namespace) -> int:
+    """Logging level from ``-q`` / ``-v`` (default: warnings)."""
+    if getattr(args, "quiet", False):
+        return logging.ERROR
+    verbose = getattr(args, "verbose", 0) or 0
+    return logging.DEBUG if verbose >= 2 else logging.INFO if verbose == 1 else logging.WARNING
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    """Whether progress bars and the closing summary are shown (not with ``-q``)."""
+    return not getattr(args, "quiet", False) and not getattr(args, "no_progress", False)
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's message folded to one line."""
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def run_main(
+    prog: str,
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+    *,
+    loggers: Sequence[str],
+    prepare: Callable[[argparse.Namespace], None] | None = None,
+    interrupted: str = "interrupted",
+) -> int:
+    """Parse ``argv``, set up logging and run ``args.func(args)``; return the exit status.
+
+    Parameters
+    ----------
+    prog : str
+        Program name for messages.
+    parser : argparse.ArgumentParser
+        Its sub-commands set ``func`` (``set_defaults(func=...)``).
+    argv : sequence of str or None
+        ``None``: ``sys.argv[1:]``.
+    loggers : sequence of str
+        Package loggers whose messages are shown (``"lfsim"``, ``"recon"``, …).
+    prepare : callable, optional
+        Called with the parsed arguments inside the error handling (e.g. to start a backend).
+    interrupted : str
+        Message after ``Ctrl-C``.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help/--version (0) or a usage error (already printed)
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    args.argv = argv
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Formatter(prog))
+    level = log_level(args)
+    saved = []
+    for name in loggers:
+        lg = logging.getLogger(name)
+        saved.append((lg, lg.level))
+        lg.setLevel(level)
+        lg.addHandler(handler)
+    try:
+        if prepare is not None:
+            prepare(args)
+        return int(args.func(args) or 0)
+    except HrvError as exc:
+        sys.stderr.write(f"{prog}: error: {one_line(exc)}\n")
+        return 2
+    except (OSError, MemoryError) as exc:
+        sys.stderr.write(f"{prog}: error: {one_line(exc)}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: {interrupted}\n")
+        return 130
+    except Exception as exc:  # a bug: one line, the traceback only on request
+        sys.stderr.write(
+            f"{prog}: internal error: {type(exc).__name__}: {one_line(exc)} (please report it; "
+            "-vv shows the traceback)\n"
+        )
+        if level <= logging.DEBUG:
+            traceback.print_exc(file=sys.stderr)
+        return EXIT_INTERNAL
+    finally:
+        for lg, old in saved:
+            lg.removeHandler(handler)
+            lg.setLevel(old)
+
+
+class _Formatter(logging.Formatter):
+    def __init__(self, prog: str) -> None:
+        super().__init__()
+        self.prog = prog
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"{self.prog}: {record.levelname.lower()}: {record.getMessage()}"
+
+
+__all__ = [
+    "EXIT_INTERNAL",
+    "Parser",
+    "common_options",
+    "log_level",
+    "one_line",
+    "run_main",
+    "show_progress",
+]

@@ -1,0 +1,110 @@
+"""Validators for numbers and arrays: one place for each check, one message style.
+
+Every validator returns the cleaned value or raises :class:`hrvbase.errors.InputError` whose
+message names the parameter (as the user typed it, e.g. ``--z-step`` or ``z_step_um``) and
+what was expected.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+
+
+def _number(value: Any, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InputError(f"{name} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    return v
+
+
+def finite_float(value: Any, name: str) -> float:
+    """``value`` as a finite float."""
+    return _number(value, name)
+
+
+def positive_float(value: Any, name: str) -> float:
+    """``value`` as a finite float > 0."""
+    v = _number(value, name)
+    if not v > 0:
+        raise InputError(f"{name} must be > 0, got {value!r}")
+    return v
+
+
+def nonnegative_float(value: Any, name: str) -> float:
+    """``value`` as a finite float ≥ 0."""
+    v = _number(value, name)
+    if v < 0:
+        raise InputError(f"{name} must be >= 0, got {value!r}")
+    return v
+
+
+def int_in_range(value: Any, name: str, lo: int, hi: int | None = None) -> int:
+    """``value`` as an integer in ``[lo, hi]`` (``hi=None``: no upper bound)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InputError(f"{name} must be an integer, got {value!r}")
+    if not math.isfinite(float(value)) or int(value) != value:
+        raise InputError(f"{name} must be an integer, got {value!r}")
+    v = int(value)
+    if v < lo or (hi is not None and v > hi):
+        bound = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise InputError(f"{name} must be an integer {bound}, got {value!r}")
+    return v
+
+
+def points_xyz(arr: Any, name: str, *, min_points: int = 0) -> np.ndarray:
+    """``arr`` as a finite float64 array of shape ``(N, 3)`` in (x, y, z) order (µm).
+
+    Parameters
+    ----------
+    arr : array_like, shape (N, 3)
+    name : str
+        Parameter name for the message.
+    min_points : int
+        Smallest accepted ``N``.
+    """
+    try:
+        a = np.asarray(arr, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a numeric (N, 3) array of x, y, z in µm") from None
+    if a.ndim == 1 and a.size == 0:
+        a = a.reshape(0, 3)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise InputError(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{name} holds NaN or infinite values")
+    if a.shape[0] < min_points:
+        raise InputError(f"{name} needs at least {min_points} points, got {a.shape[0]}")
+    return a
+
+
+def per_axis(value: Any, name: str, *, positive: bool = True) -> tuple[float, float, float]:
+    """A per-axis triple in array order ``(z, y, x)``; one number is used for all three."""
+    if isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
+        vals = (value,) * 3
+    else:
+        try:
+            vals = tuple(value)
+        except TypeError:
+            raise InputError(f"{name} must be a number or 3 numbers (z, y, x)") from None
+    if len(vals) != 3:
+        raise InputError(f"{name} must be a number or 3 numbers (z, y, x), got {value!r}")
+    check = positive_float if positive else finite_float
+    z, y, x = (check(v, name) for v in vals)
+    return (z, y, x)
+
+
+__all__ = [
+    "finite_float",
+    "int_in_range",
+    "nonnegative_float",
+    "per_axis",
+    "points_xyz",
+    "positive_float",
+]
