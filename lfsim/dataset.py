@@ -40,12 +40,12 @@ from typing import Any
 import numpy as np
 
 from hrvbase.errors import HrvError
-from hrvbase.io import read_json, sha256_file, write_json
+from hrvbase.io import file_record, read_json, sha256_file, verify_record, write_json
 
 from .camera import add_gaussian_noise, apply_noise
 from .errors import ConfigError, OutputError
 from .experiment import Experiment
-from .io import read_tiff, write_tiff
+from .io import write_tiff
 from .particles import Particles
 
 log = logging.getLogger(__name__)
@@ -186,8 +186,13 @@ def _remove_tool_files(out: Path) -> None:
     log.info("overwrite: removed %d files of the previous dataset in %s", len(files), out)
 
 
-def _frame_done(out: Path, k: int) -> bool:
-    return frame_path(out, k).is_file() and truth_path(out, k).is_file()
+def _frame_done(out: Path, k: int, rec: dict | None) -> bool:
+    """Whether frame ``k`` is finished: recorded, and its image and truth table still are the
+    files written then (size and SHA-256; a truncated or corrupt file is rendered again)."""
+    files = (rec or {}).get("files") or {}
+    return verify_record(frame_path(out, k), files.get("frame")) and verify_record(
+        truth_path(out, k), files.get("truth")
+    )
 
 
 def _software() -> dict:
@@ -250,8 +255,10 @@ def generate_dataset(
     n = experiment.frames
     white_on = experiment.white.enabled
     if action == "resume":
-        done = [_frame_done(out, k) for k in range(n)]
-        white_done = (not white_on) or (out / WHITE).is_file()
+        recs = list(previous.get("frame_records") or []) + [None] * n
+        done = [_frame_done(out, k, recs[k]) for k in range(n)]
+        white_rec = (previous.get("white") or {}).get("file_record")
+        white_done = (not white_on) or verify_record(out / WHITE, white_rec)
         if previous.get("status") == "complete" and all(done) and white_done:
             log.info("%s: dataset %r is complete; nothing to do", out, experiment.name)
             return out
@@ -318,12 +325,23 @@ def generate_dataset(
     if action == "resume" and previous is not None:
         record["created"] = previous.get("created", started)
         record["runs"] = list(previous.get("runs", []))
-        if previous.get("white") is not None and (out / WHITE).is_file():
-            record["white"] = previous["white"]
+        white_prev = previous.get("white") or {}
+        if verify_record(out / WHITE, white_prev.get("file_record")):
+            record["white"] = white_prev
         old = previous.get("frame_records") or []
+        changed = []
         for k in range(min(n, len(old))):
-            if _frame_done(out, k):
+            if _frame_done(out, k, old[k]):
                 record["frame_records"][k] = old[k]
+            elif old[k] is not None:
+                changed.append(k)
+        if changed:
+            log.warning(
+                "%s: frame(s) %s changed on disk since they were written (truncated or "
+                "corrupt); rendering them again",
+                out,
+                ", ".join(map(str, changed)),
+            )
     run = {"started": started, "finished": None, "frames_rendered": 0, "frames_skipped": 0}
     record["runs"].append(run)
     rec_path = out / RECORD
@@ -337,7 +355,8 @@ def generate_dataset(
     }
 
     # White (flat-field) image.
-    if white_on and not (out / WHITE).is_file():
+    white_rec = record.get("white") or {}
+    if white_on and not verify_record(out / WHITE, white_rec.get("file_record")):
         t0 = time.perf_counter()
         w_seed, w_rng = white_seeds(experiment.seed)
         clean = render_white(
@@ -363,24 +382,20 @@ def generate_dataset(
         write_tiff(
             out / WHITE, img, metadata=meta, pixel_size_um=optics.object_pixel_um, overwrite=True
         )
-        record["white"] = {"file": WHITE, "seconds": time.perf_counter() - t0, "noise": info}
+        record["white"] = {
+            "file": WHITE,
+            "seconds": time.perf_counter() - t0,
+            "noise": info,
+            "file_record": file_record(out / WHITE),
+        }
         write_json(rec_path, record, overwrite=True)
         log.info("wrote %s", out / WHITE)
 
-    if white_on and record["white"] is None:
-        # white.tif present but not recorded (the run stopped before updating the record).
-        _, meta = read_tiff(out / WHITE)
-        record["white"] = {"file": WHITE, "seconds": None, "noise": meta.get("noise")}
-    todo = [k for k in range(n) if not _frame_done(out, k)]
+    todo = [k for k in range(n) if not _frame_done(out, k, record["frame_records"][k])]
     skipped = n - len(todo)
     run["frames_skipped"] = skipped
     if skipped:
-        log.info("%s: %d of %d frames already present, skipped", out, skipped, n)
-    for k in range(n):
-        if record["frame_records"][k] is None and k not in todo:
-            # Files present but not recorded (the run stopped before updating the record).
-            _, meta = read_tiff(frame_path(out, k))
-            record["frame_records"][k] = {"frame": k, "seconds": None, "noise": meta.get("noise")}
+        log.info("%s: %d of %d frames already present and verified, skipped", out, skipped, n)
 
     from tqdm import tqdm
 
@@ -441,6 +456,10 @@ def generate_dataset(
                 "seconds": seconds,
                 "particles_in_field": inside,
                 "noise": info,
+                "files": {
+                    "frame": file_record(frame_path(out, k)),
+                    "truth": file_record(truth_path(out, k)),
+                },
             }
             run["frames_rendered"] += 1
             write_json(rec_path, record, overwrite=True)

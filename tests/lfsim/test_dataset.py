@@ -143,7 +143,7 @@ def test_resume_regenerates_only_missing_frames(made, tmp_path, caplog):
     before = mtimes(ds)
     with caplog.at_level(logging.INFO, logger="lfsim"):
         generate_dataset(exp, ds, progress=False)
-    assert "2 of 3 frames already present, skipped" in caplog.text
+    assert "2 of 3 frames already present and verified, skipped" in caplog.text
     after = mtimes(ds)
     changed = sorted(k for k in after if before.get(k) != after[k])
     assert changed == ["dataset.json", "frames/000001.tif", "truth/000001.csv"]
@@ -156,6 +156,28 @@ def test_resume_regenerates_only_missing_frames(made, tmp_path, caplog):
     before = mtimes(ds)
     generate_dataset(exp, ds, progress=False)
     assert mtimes(ds) == before
+
+    # Resume verifies what it keeps: a truncated frame and an edited truth table are redone,
+    # exactly those, and come back byte-identical.
+    with open(frame_path(ds, 2), "r+b") as fh:
+        fh.truncate(100)
+    t0 = truth_path(ds, 0)
+    t0.write_text(t0.read_text().replace("1", "7", 1))
+    before = mtimes(ds)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="lfsim"):
+        generate_dataset(exp, ds, progress=False)
+    assert "frame(s) 0, 2 changed on disk" in caplog.text
+    after = mtimes(ds)
+    changed = sorted(k for k in after if before.get(k) != after[k])
+    assert changed == [
+        "dataset.json",
+        "frames/000000.tif",
+        "frames/000002.tif",
+        "truth/000000.csv",
+        "truth/000002.csv",
+    ]
+    assert snapshot(ds) == reference
 
 
 def test_different_experiment_refused_then_overwritten(made, tmp_path):
