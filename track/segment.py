@@ -390,39 +390,32 @@ def segment(
 
 
 def _blob_stats(vol, labels, n, thr, spacing) -> list[dict]:
-    """Size, peak, centroid and µm² second-moment tensor of labels 1..n (weights I − thr)."""
+    """Size, peak, centroid and µm² second-moment tensor of labels 1..n (weights I − thr).
+
+    :func:`skimage.measure.regionprops` with ``spacing`` (voxel sizes ``(dz, dy, dx)`` µm):
+    the weighted central moments ``μ_pqr`` give the covariance ``C_ij = μ_(e_i+e_j) / μ_000``
+    in µm²; the weighted centroid is returned in voxels.
+    """
+    from skimage.measure import regionprops
+
     if n == 0:
         return []
-    coords = np.nonzero(labels)
-    lab = labels[coords]
-    w = (vol[coords] - thr).astype(np.float64)
-    w = np.where(w > 0, w, 1e-12)
-    nb = n + 1
-    n_vox = np.bincount(lab, minlength=nb)
-    wsum = np.bincount(lab, weights=w, minlength=nb)
-    pts = [c.astype(np.float64) for c in coords]
-    mean = [np.bincount(lab, weights=w * p, minlength=nb) / np.maximum(wsum, 1e-300) for p in pts]
-    cov = np.zeros((nb, 3, 3))
-    for i in range(3):
-        di = (pts[i] - mean[i][lab]) * spacing[i]
-        for j in range(i, 3):
-            dj = (pts[j] - mean[j][lab]) * spacing[j]
-            cov[:, i, j] = np.bincount(lab, weights=w * di * dj, minlength=nb) / np.maximum(
-                wsum, 1e-300
-            )
-            cov[:, j, i] = cov[:, i, j]
-    peak = np.full(nb, -np.inf)
-    np.maximum.at(peak, lab, vol[coords].astype(np.float64))
-    return [
-        {
-            "label": k,
-            "n_vox": int(n_vox[k]),
-            "cen": np.array([mean[0][k], mean[1][k], mean[2][k]]),
-            "peak": float(peak[k]),
-            "cov": cov[k],
-        }
-        for k in range(1, nb)
-    ]
+    weights = np.where(labels > 0, np.maximum(vol.astype(np.float64) - thr, 1e-12), 0.0)
+    unit = np.eye(3, dtype=int)
+    out = []
+    for p in regionprops(labels, intensity_image=weights, spacing=tuple(spacing)):
+        m = p.moments_weighted_central
+        cov = np.array([[m[tuple(unit[i] + unit[j])] for j in range(3)] for i in range(3)])
+        out.append(
+            {
+                "label": int(p.label),
+                "n_vox": int(p.num_pixels),
+                "cen": np.asarray(p.centroid_weighted, dtype=np.float64) / spacing,
+                "peak": float(p.intensity_max) + thr,
+                "cov": cov / m[0, 0, 0],
+            }
+        )
+    return out
 
 
 def _count_maxima(vol, labels, lab, bbox, thr, peak, prominence) -> int:
