@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hrvbase.io import atomic_write_bytes
+
 from .errors import ConfigError
 
 
@@ -109,9 +111,4 @@ def write_ply(path: str | os.PathLike, vertices: np.ndarray, normals: np.ndarray
     frec = np.empty(len(faces), dtype=fdt)
     frec["n"] = 3
     frec["idx"] = faces
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(header)
-        fh.write(vdata)
-        fh.write(frec.tobytes())
-    os.replace(tmp, path)
+    atomic_write_bytes(path, header + vdata + frec.tobytes(), overwrite=True)

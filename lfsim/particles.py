@@ -19,18 +19,14 @@ table read back is bit-identical.
 
 from __future__ import annotations
 
-import csv
-import io
 import logging
-import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, OutputError
+from .errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -263,36 +259,20 @@ class Particles:
         OutputError
             When the file cannot be written.
         """
-        path = Path(path)
-        buf = io.StringIO()
-        buf.write(",".join(CSV_COLUMNS) + "\n")
-        for i, (x, y, z), d, b in zip(
-            self.ids.tolist(),
-            self.positions_um.tolist(),
-            self.diameter_um.tolist(),
-            self.brightness.tolist(),
-            strict=True,
-        ):
-            buf.write(f"{i:d},{x:.17g},{y:.17g},{z:.17g},{d:.17g},{b:.17g}\n")
-        tmp = None
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-            with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-                fh.write(buf.getvalue())
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-            tmp = None
-        except OSError as exc:
-            raise OutputError(f"cannot write particle table {path}: {exc}") from exc
-        finally:
-            if tmp is not None:
-                try:
-                    os.unlink(tmp)
-                except OSError:
-                    pass
+        from hrvbase.tables import write_table
+
+        path = write_table(
+            path,
+            {
+                "id": self.ids,
+                "x_um": self.positions_um[:, 0],
+                "y_um": self.positions_um[:, 1],
+                "z_um": self.positions_um[:, 2],
+                "diameter_um": self.diameter_um,
+                "brightness": self.brightness,
+            },
+            overwrite=True,
+        )
         log.debug("wrote %d particles to %s", len(self), path)
         return path
 
@@ -326,51 +306,21 @@ class Particles:
             duplicated column, a row of the wrong length, a non-numeric or non-finite value,
             or values :class:`Particles` rejects.
         """
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"particle table {path} does not exist or is not a file")
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"cannot read particle table {path}: {exc}") from exc
+        from hrvbase.errors import InputError
+        from hrvbase.tables import read_table
 
-        header: list[str] | None = None
-        columns: dict[str, list] = {}
-        for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
-            if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
-                continue
-            cells = [c.strip() for c in row]
-            if header is None:
-                header = cells
-                unknown = [c for c in header if c not in CSV_COLUMNS]
-                if unknown:
-                    raise ConfigError(
-                        f"{path}, line {lineno}: unknown column(s) {unknown}; "
-                        f"expected some of {list(CSV_COLUMNS)}"
-                    )
-                dup = sorted({c for c in header if header.count(c) > 1})
-                if dup:
-                    raise ConfigError(f"{path}, line {lineno}: duplicated column(s) {dup}")
-                missing = [c for c in REQUIRED_COLUMNS if c not in header]
-                if missing:
-                    raise ConfigError(
-                        f"{path}, line {lineno}: missing required column(s) {missing}; "
-                        f"the header is {header}"
-                    )
-                columns = {c: [] for c in header}
-                continue
-            if len(cells) != len(header):
-                raise ConfigError(
-                    f"{path}, line {lineno}: expected {len(header)} values ({','.join(header)}), "
-                    f"got {len(cells)}"
-                )
-            for name, cell in zip(header, cells, strict=True):
-                columns[name].append(_parse_cell(path, lineno, name, cell))
-        if header is None:
-            raise ConfigError(
-                f"particle table {path} is empty; expected a header with columns "
-                f"{list(REQUIRED_COLUMNS)}"
+        path = Path(path)
+        try:
+            columns = read_table(
+                path,
+                required=REQUIRED_COLUMNS,
+                optional=[c for c in CSV_COLUMNS if c not in REQUIRED_COLUMNS],
+                integer=("id",),
+                unknown="refuse",
+                what="particle table",
             )
+        except InputError as exc:
+            raise ConfigError(str(exc)) from None
         n = len(columns["x_um"])
         pos = np.array(
             [columns["x_um"], columns["y_um"], columns["z_um"]], dtype=np.float64
@@ -392,25 +342,3 @@ class Particles:
             raise ConfigError(f"particle table {path}: {exc}") from exc
         log.debug("read %d particles from %s", n, path)
         return out
-
-
-def _parse_cell(path: Path, lineno: int, name: str, cell: str):
-    where = f"{path}, line {lineno}, column {name!r}"
-    if name == "id":
-        try:
-            return int(cell)
-        except ValueError:
-            try:
-                v = float(cell)
-            except ValueError:
-                v = math.nan
-            if math.isfinite(v) and v == int(v):
-                return int(v)
-            raise ConfigError(f"{where}: expected an integer id, got {cell!r}") from None
-    try:
-        v = float(cell)
-    except ValueError:
-        raise ConfigError(f"{where}: expected a number, got {cell!r}") from None
-    if not math.isfinite(v):
-        raise ConfigError(f"{where}: expected a finite number, got {cell!r}")
-    return v

@@ -32,6 +32,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from hrvbase.io import atomic_write_text
+
 from .errors import SceneError
 from .mesh import lenslet_array_mesh, write_ply
 from .optics import Optics
@@ -239,11 +241,7 @@ def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "
     )
     ET.indent(root, space="    ")
     data = ET.tostring(root, encoding="unicode") + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(data)
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, data, overwrite=True)
 
 
 # -- reader ---------------------------------------------------------------------------------

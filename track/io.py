@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import base64
 import contextlib
-import csv
 import json
 import logging
 import math
@@ -48,6 +47,7 @@ from hrvbase.io import (
     sha256_file,
     write_json,
 )
+from hrvbase.tables import read_table, write_table
 
 from .errors import InputError
 from .fields import GridField
@@ -65,64 +65,14 @@ NUMBERED = re.compile(r"^(\d{6})\.(tif|tiff|csv)$")
 RECON_JSON = "recon.json"
 
 
-# -- CSV tables ----------------------------------------------------------------------------
-def _fmt(v: float) -> str:
-    return repr(float(v)) if math.isfinite(v) else "nan"
-
-
+# -- CSV tables (hrvbase.tables) -----------------------------------------------------------
 def _write_table(path, header: Sequence[str], columns: Sequence[np.ndarray], overwrite) -> Path:
-    n = len(columns[0]) if columns else 0
-    lines = [",".join(header)]
-    cols = [
-        [str(int(v)) for v in c] if np.asarray(c).dtype.kind in "iub" else [_fmt(v) for v in c]
-        for c in columns
-    ]
-    lines.extend(",".join(c[i] for c in cols) for i in range(n))
-    return atomic_write_text(path, "\n".join(lines) + "\n", overwrite=overwrite)
+    return write_table(path, dict(zip(header, columns, strict=True)), overwrite=overwrite)
 
 
-def _read_table(path, required: Sequence[str], kinds: Mapping[str, str]) -> dict:
-    """Columns ``required`` of a CSV file; errors name the file and line."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read {path}: {exc}") from exc
-    rows = list(csv.reader(text.splitlines()))
-    if not rows or not any(cell.strip() for cell in rows[0]):
-        raise InputError(f"{path}: line 1: file is empty; expected a header {','.join(required)}")
-    header = [c.strip() for c in rows[0]]
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise InputError(
-            f"{path}: line 1: missing column(s) {', '.join(missing)} "
-            f"(header has {', '.join(header)})"
-        )
-    idx = {c: header.index(c) for c in required}
-    out = {c: [] for c in required}
-    for lineno, row in enumerate(rows[1:], start=2):
-        if not row or not any(cell.strip() for cell in row):
-            continue
-        if len(row) != len(header):
-            raise InputError(
-                f"{path}: line {lineno}: expected {len(header)} values, got {len(row)}"
-            )
-        for c in required:
-            cell = row[idx[c]].strip()
-            try:
-                v = int(cell) if kinds.get(c) == "i" else float(cell)
-            except ValueError:
-                raise InputError(
-                    f"{path}: line {lineno}: column {c}: {cell!r} is not a number"
-                ) from None
-            if not math.isfinite(v):
-                raise InputError(f"{path}: line {lineno}: column {c} is {cell!r} (not finite)")
-            out[c].append(v)
-    return {
-        c: np.asarray(v, dtype=np.int64 if kinds.get(c) == "i" else float) for c, v in out.items()
-    }
+def _read_table(path, required: Sequence[str], integer: Sequence[str] = ()) -> dict:
+    """Columns ``required`` of a CSV file (others ignored); errors name the file and line."""
+    return read_table(path, required=required, integer=integer)
 
 
 def write_points_csv(
@@ -166,7 +116,7 @@ def read_points_csv(path: str | os.PathLike) -> np.ndarray:
         Missing/empty file, missing columns, or a non-numeric/NaN coordinate (names the file
         and line).
     """
-    t = _read_table(path, POINT_COLUMNS, {})
+    t = _read_table(path, POINT_COLUMNS)
     return np.stack([t[c] for c in POINT_COLUMNS], axis=1).reshape(-1, 3)
 
 
@@ -189,7 +139,7 @@ def write_matches_csv(
 
 def read_matches_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read matches: ``(matches (K, 2) int, displacement_um (K, 3))``."""
-    t = _read_table(path, MATCH_COLUMNS, {"row_ref": "i", "row_def": "i"})
+    t = _read_table(path, MATCH_COLUMNS, ("row_ref", "row_def"))
     m = np.stack([t["row_ref"], t["row_def"]], axis=1).reshape(-1, 2)
     d = np.stack([t["ux_um"], t["uy_um"], t["uz_um"]], axis=1).reshape(-1, 3)
     return m, d
@@ -205,7 +155,7 @@ def write_tracks_csv(path: str | os.PathLike, tracks, *, overwrite: bool = False
 
 def read_tracks_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read ``tracks.csv``: dict of columns ``frame, track_id`` (int) and ``x_um, y_um, z_um``."""
-    return _read_table(path, TRACK_COLUMNS, {"frame": "i", "track_id": "i"})
+    return _read_table(path, TRACK_COLUMNS, ("frame", "track_id"))
 
 
 # -- gridded fields ------------------------------------------------------------------------

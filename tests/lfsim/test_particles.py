@@ -132,7 +132,7 @@ def test_csv_optional_columns_any_order(tmp_path):
     ("text", "match"),
     [
         ("", "empty"),
-        ("x_um,y_um\n1,2\n", r"missing required column.*z_um"),
+        ("x_um,y_um\n1,2\n", r"missing column.*z_um"),
         ("x_um,y_um,z_um,colour\n1,2,3,red\n", r"unknown column.*colour"),
         ("x_um,y_um,z_um,x_um\n1,2,3,4\n", "duplicated"),
         ("x_um,y_um,z_um\n1,2,3\n1,two,3\n", r"line 3, column 'y_um'.*'two'"),

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from hrvbase.errors import OutputError
+from hrvbase.errors import InputError, OutputError
 from track import io
-from track.errors import InputError
 from track.fields import GridSettings, gridded_field
 from track.series import link_tracks
 
@@ -42,11 +41,11 @@ def test_points_csv_round_trip_and_extra_columns(tmp_path):
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        ("", "line 1: file is empty"),
+        ("", "is empty; expected a header"),
         ("x_um,y_um\n1,2\n", "line 1: missing column"),
-        ("x_um,y_um,z_um\n1,2,3\n4,nan,6\n", "line 3: column y_um"),
+        ("x_um,y_um,z_um\n1,2,3\n4,nan,6\n", "line 3, column 'y_um': expected a finite"),
         ("x_um,y_um,z_um\n1,2,3\n4,5\n", "line 3: expected 3 values"),
-        ("x_um,y_um,z_um\n1,2,abc\n", "line 2: column z_um: 'abc' is not a number"),
+        ("x_um,y_um,z_um\n1,2,abc\n", "line 2, column 'z_um': expected a number, got 'abc'"),
     ],
 )
 def test_bad_point_csv_names_file_and_line(tmp_path, text, match):
