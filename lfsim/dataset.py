@@ -244,7 +244,7 @@ def generate_dataset(
     """
     from . import __version__
     from .backend import backend_info, init_backend
-    from .render import check_in_field, render_particles, render_white
+    from .render import check_depths, check_in_field, render_particles, render_white
     from .scene import load_scene
 
     if not isinstance(experiment, Experiment):
@@ -278,6 +278,10 @@ def generate_dataset(
         what=f"reference particles of experiment {experiment.name!r}",
     )
     positions = [experiment.positions(reference.positions_um, k) for k in range(n)]
+    for k, pos in enumerate(positions):
+        check_depths(
+            optics, pos, reference.ids, what=f"particles of frame {k} of {experiment.name!r}"
+        )
 
     if action == "replace":
         _remove_tool_files(out)

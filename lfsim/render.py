@@ -7,6 +7,7 @@ the tracers of :mod:`lfsim.tracer`; :mod:`lfsim.camera` then makes them camera-l
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
@@ -28,13 +29,48 @@ def _trace(scene, sources: Sources, settings: RenderSettings, tracer: str) -> np
     return trace_paraxial(optics, sources, settings)
 
 
+def max_depth_um(optics) -> float:
+    """Largest ``|z|`` (µm) whose light still falls mostly on the sensor.
+
+    A point at depth ``z`` from the native focal plane spreads its light over a disc of
+    object-space diameter ``2 |z| tan(asin NA)``; beyond the depth where that disc is as wide
+    as the narrower side of the field of view (``Optics.field_of_view_um``), a particle is no
+    longer imaged, only a faint uniform background.
+    """
+    x0, x1, y0, y1 = optics.field_of_view_um
+    width = min(x1 - x0, y1 - y0)
+    return width / (2.0 * math.tan(math.asin(optics.na)))
+
+
+def check_depths(optics, positions_um: np.ndarray, ids=None, what: str = "particles") -> None:
+    """Raise :class:`ConfigError` for points behind the objective or beyond
+    :func:`max_depth_um` from the focal plane (the message gives the first and the limit)."""
+    p = np.asarray(positions_um, dtype=np.float64).reshape(-1, 3)
+    limit = max_depth_um(optics)
+    behind = p[:, 2] <= -optics.f_objective_um
+    far = np.abs(p[:, 2]) > limit
+    for bad, why in (
+        (behind, f"lie behind the objective (z <= -{optics.f_objective_um:.0f} µm)"),
+        (far, f"lie outside the imaged depth range |z| <= {limit:.0f} µm"),
+    ):
+        if np.any(bad):
+            k = int(np.flatnonzero(bad)[0])
+            ident = int(ids[k]) if ids is not None else k
+            raise ConfigError(
+                f"{int(bad.sum())} {what} {why} (first: id {ident} at z={p[k, 2]:.1f} µm); "
+                "positions are in µm from the native focal plane"
+            )
+
+
 def check_in_field(optics, positions_um: np.ndarray, ids=None, what: str = "particles") -> None:
     """Raise :class:`ConfigError` if any point lies outside the object-space field of view.
 
-    The field is the sensor's footprint in object space, ``Optics.field_of_view_um``.
+    The field is the sensor's footprint in object space, ``Optics.field_of_view_um``, and the
+    depth range of :func:`check_depths`.
     """
     x0, x1, y0, y1 = optics.field_of_view_um
     p = np.asarray(positions_um)
+    check_depths(optics, p, ids, what)
     out = (p[:, 0] < x0) | (p[:, 0] > x1) | (p[:, 1] < y0) | (p[:, 1] > y1)
     if np.any(out):
         k = int(np.flatnonzero(out)[0])

@@ -270,3 +270,26 @@ def test_interrupted_run_resumes_to_the_same_files(made, tmp_path, monkeypatch):
     generate_dataset(exp, tmp_path / "ds", progress=False)
     assert snapshot(tmp_path / "ds") == snapshot(out)
     assert json.loads((tmp_path / "ds" / "dataset.json").read_text())["status"] == "complete"
+
+
+@pytest.mark.parametrize(
+    ("box", "motion", "why"),
+    [
+        # Every particle 55 mm from the focal plane: once written as a "complete" dataset.
+        ("[[-100, 100], [-100, 100], [55000, 55100]]", "", "imaged depth range"),
+        ("[[-100, 100], [-100, 100], [-60000, -59900]]", "", "behind the objective"),
+        # In range at frame 0, carried out of it by the motion at frame 2.
+        ("[[-100, 100], [-100, 100], [100, 200]]", "translation", "frame 2"),
+    ],
+)
+def test_particles_outside_the_imaged_volume_are_refused(backend, tmp_path, box, motion, why):
+    text = TINY.replace("[[-150, 150], [-150, 150], [100, 300]]", box)
+    if motion:
+        shear = 'type = "simple_shear"\nplane = "xz"\nstep_gamma = 0.05\ncenter_um = [0, 0, 200]'
+        assert shear in text
+        text = text.replace(shear, 'type = "translation"\nstep_um = [0, 0, 900]')
+    assert text != TINY
+    exp = tiny(tmp_path, text)
+    with pytest.raises(ConfigError, match=why):
+        generate_dataset(exp, tmp_path / "ds", progress=False)
+    assert not (tmp_path / "ds").exists()
