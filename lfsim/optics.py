@@ -27,15 +27,47 @@ from .errors import ConfigError
 
 MLA_KINDS = ("ideal", "glass")
 
+#: The instrument's fields, which have no default.
+REQUIRED = (
+    "na",
+    "f_objective_um",
+    "f_tube_um",
+    "mla_pitch_um",
+    "mla_focal_um",
+    "pixel_um",
+    "sensor_px",
+)
+
 
 def _positive(name: str, value: float) -> None:
     if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
         raise ConfigError(f"{name} must be a positive finite number, got {value!r}")
 
 
-@dataclass(frozen=True)
+#: Largest sensor (pixels) the tracers can index: Dr.Jit arrays hold at most 2³² entries and
+#: the film keeps several arrays of the sensor's size.
+MAX_SENSOR_PIXELS = 1 << 28
+
+#: The paper's microscope (Table 1): 4×/0.2 NA, 100 µm / f 1000 µm lenslets, 1280 × 800 px,
+#: 15 px per lenslet. Only :func:`paper_optics` and the shipped paper scenes use it.
+PAPER_OPTICS = {
+    "na": 0.2,
+    "f_objective_um": 50_000.0,
+    "f_tube_um": 200_000.0,
+    "mla_pitch_um": 100.0,
+    "mla_focal_um": 1000.0,
+    "pixel_um": 100.0 / 15.0,
+    "sensor_px": (1280, 800),
+}
+
+
+@dataclass(frozen=True, kw_only=True)
 class Optics:
     """Optical parameters of a light-field microscope (all lengths in µm).
+
+    There is no built-in microscope: the instrument's numbers (``na``, the focal lengths, the
+    lenslet pitch and focal length, the pixel size and the sensor size) must all be given;
+    :func:`paper_optics` gives the paper's.
 
     Parameters
     ----------
@@ -67,13 +99,13 @@ class Optics:
         integer number of pixels.
     """
 
-    na: float = 0.2
-    f_objective_um: float = 50_000.0
-    f_tube_um: float = 200_000.0
-    mla_pitch_um: float = 100.0
-    mla_focal_um: float = 1000.0
-    pixel_um: float = 100.0 / 15.0
-    sensor_px: tuple[int, int] = (1280, 800)
+    na: float
+    f_objective_um: float
+    f_tube_um: float
+    mla_pitch_um: float
+    mla_focal_um: float
+    pixel_um: float
+    sensor_px: tuple[int, int]
     wavelength_um: float = 0.605
     mla_kind: str = "ideal"
     mla_ior: float = 1.5
@@ -104,6 +136,11 @@ class Optics:
         if len(sp) != 2 or any(int(v) != v or v < 1 for v in sp):
             raise ConfigError(f"sensor_px must be two positive integers, got {self.sensor_px!r}")
         object.__setattr__(self, "sensor_px", (int(sp[0]), int(sp[1])))
+        if sp[0] * sp[1] > MAX_SENSOR_PIXELS:
+            raise ConfigError(
+                f"sensor_px {sp[0]} × {sp[1]} is too large: at most {MAX_SENSOR_PIXELS:,} "
+                "pixels can be simulated"
+            )
         if self.px_per_lenslet < 3:
             raise ConfigError(
                 f"mla_pitch_um / pixel_um = {self.px_per_lenslet:.3g}: fewer than 3 pixels per "
@@ -276,6 +313,9 @@ class Optics:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ConfigError(f"unknown optics keys {unknown}; expected some of {sorted(known)}")
+        missing = [f.name for f in fields(cls) if f.name in REQUIRED and f.name not in data]
+        if missing:
+            raise ConfigError(f"optics keys {missing} are missing (no built-in microscope)")
         kw = dict(data)
         for key in ("sensor_px", "axis_px"):
             if key in kw and kw[key] is not None:
@@ -286,11 +326,9 @@ class Optics:
 def paper_optics(**overrides) -> Optics:
     """The paper's optics (Table 1): 4×/0.2 NA, 100 µm / f 1000 µm lenslets, 1280 × 800 px,
     15 px per lenslet, 605 nm emission."""
-    return Optics(**overrides)
+    return Optics(**{**PAPER_OPTICS, **overrides})
 
 
 def small_optics(**overrides) -> Optics:
     """Paper optics on a 20 × 20-lenslet sensor (300 × 300 px) for fast tests."""
-    kw = {"sensor_px": (300, 300)}
-    kw.update(overrides)
-    return Optics(**kw)
+    return paper_optics(**{"sensor_px": (300, 300), **overrides})

@@ -59,7 +59,17 @@ def test_dict_round_trip():
 )
 def test_non_physical_values_rejected_by_name(key, value):
     with pytest.raises(ConfigError, match=key):
-        Optics(**{key: value})
+        paper_optics(**{key: value})
+
+
+def test_no_built_in_microscope():
+    """`Optics(na=0.5, mla_pitch_um=150)` once kept the paper's sensor and objective."""
+    with pytest.raises(TypeError, match="sensor_px"):
+        Optics(na=0.5, mla_pitch_um=150.0)
+    with pytest.raises(ConfigError, match="missing"):
+        Optics.from_dict({"na": 0.5, "mla_pitch_um": 150.0})
+    with pytest.raises(ConfigError, match="too large"):
+        paper_optics(sensor_px=(200_000, 200_000))
 
 
 def test_unknown_keys_rejected():
@@ -69,4 +79,4 @@ def test_unknown_keys_rejected():
 
 def test_too_few_pixels_per_lenslet():
     with pytest.raises(ConfigError, match="pixels per"):
-        Optics(pixel_um=50.0)
+        paper_optics(pixel_um=50.0)
