@@ -1,8 +1,18 @@
-"""Shared fixtures: one backend for the whole test session, small seeded scenes."""
+"""Shared fixtures: one backend for the whole test session, small seeded scenes, and a private
+PSF-bank cache so that no test reads or writes the user's cache."""
 
 from __future__ import annotations
 
 import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _private_psf_cache(tmp_path_factory):
+    """Point ``HRVPTM_CACHE`` (PSF banks, :func:`recon.psf.default_cache_dir`) at a fresh
+    session folder: test results and times never depend on what ``~/.cache/hrvptm`` holds."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HRVPTM_CACHE", str(tmp_path_factory.mktemp("hrvptm_cache")))
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -64,7 +64,8 @@ def test_rotation_rigid(axis):
     m = Rotation(axis=axis, step_deg=5.0, center_um=CENTER)
     for k in (1, 3, 9):
         F = m.deformation_gradient(k)
-        np.testing.assert_allclose(F.T @ F, np.eye(3), rtol=0, atol=1e-15)
+        # round-off floor: a few ulp of 1 (BLAS/LAPACK kernels differ by an ulp or two)
+        np.testing.assert_allclose(F.T @ F, np.eye(3), rtol=0, atol=1e-14)
         assert abs(np.linalg.det(F) - 1.0) < 1e-14
         x = m.positions(X, k)
         np.testing.assert_allclose(_pairwise(x), _pairwise(X), rtol=1e-13, atol=1e-11)
@@ -86,7 +87,7 @@ def test_rotation_composition():
     np.testing.assert_allclose(np.linalg.matrix_power(F1, 9), m.deformation_gradient(9), atol=1e-14)
     R = rotation_matrix((0, 0, 1), 30.0)
     np.testing.assert_allclose(
-        R, [[math.sqrt(3) / 2, -0.5, 0], [0.5, math.sqrt(3) / 2, 0], [0, 0, 1]], atol=1e-16
+        R, [[math.sqrt(3) / 2, -0.5, 0], [0.5, math.sqrt(3) / 2, 0], [0, 0, 1]], atol=1e-15
     )
 
 
@@ -103,7 +104,7 @@ def test_uniaxial_tension_isochoric(axis):
         for j in others:
             assert F[j, j] == 1.0 / math.sqrt(lam)
         assert np.count_nonzero(F - np.diag(np.diag(F))) == 0
-        assert abs(np.linalg.det(F) - 1.0) < 1e-15
+        assert abs(np.linalg.det(F) - 1.0) < 1e-14  # a few ulp of 1
         u = m.displacement(X, k)
         np.testing.assert_allclose(
             u[:, i], (lam - 1.0) * (X[:, i] - CENTER[i]), rtol=1e-12, atol=1e-12
@@ -139,7 +140,7 @@ def test_simple_shear_xz():
         assert np.linalg.det(F) == 1.0
         u = m.displacement(X, k)
         np.testing.assert_allclose(u[:, 0], k * g * (X[:, 2] - CENTER[2]), rtol=1e-12, atol=1e-12)
-        assert np.all(np.abs(u[:, 1:]) <= 1e-13)
+        assert np.all(np.abs(u[:, 1:]) <= 1e-12)  # round-off of positions ~300 µm
         # engineering shear strain γ = 2 e_xz of the infinitesimal strain sym(F − I)
         e = 0.5 * ((F - np.eye(3)) + (F - np.eye(3)).T)
         assert 2 * e[0, 2] == k * g
@@ -157,7 +158,7 @@ def test_simple_shear_other_planes(plane):
     u = m.displacement(X, 3)
     np.testing.assert_allclose(u[:, a], 0.3 * (X[:, b] - CENTER[b]), rtol=1e-12, atol=1e-12)
     others = [j for j in range(3) if j != a]
-    assert np.all(np.abs(u[:, others]) <= 1e-13)
+    assert np.all(np.abs(u[:, others]) <= 1e-12)  # round-off of positions ~300 µm
 
 
 def test_simple_shear_composition():
@@ -166,7 +167,7 @@ def test_simple_shear_composition():
         np.linalg.matrix_power(m.deformation_gradient(1), 10),
         m.deformation_gradient(10),
         rtol=0,
-        atol=1e-15,
+        atol=1e-14,
     )
 
 

@@ -175,13 +175,22 @@ def test_gcv_is_close_to_the_oracle_smoothing_per_component():
 
 def test_gcv_does_not_smooth_exact_data_or_bias_affine_fields():
     X, _, truth, Xt = _noisy_field()
-    lam = gcv_smoothing(X, truth(X))  # noise-free, non-affine: (almost) interpolate
-    fit = fit_displacement(X, truth(X))
-    assert fit.smoothing == pytest.approx(tuple(lam))
+    Y, Yt = truth(X), truth(Xt)
+    # u_x and u_z are non-affine, u_y = 0.02 y is affine (interpolated to round-off by any λ)
+    lam = gcv_smoothing(X, Y)  # noise-free data: (almost) interpolate
+    fit = fit_displacement(X, Y)
+    # λ of the affine u_y is chosen from round-off residuals (depends on the BLAS kernels):
+    # compare only the non-affine components
+    assert fit.smoothing[0] == pytest.approx(lam[0]) and fit.smoothing[2] == pytest.approx(lam[2])
+    floor = 1e-10 * np.abs(Yt).max()  # round-off level of the fits (µm), far below any bias
     for c in range(3):
-        assert _rmse(X, truth(X)[:, c], lam[c], Xt, truth(Xt)[:, c]) <= 1.05 * _rmse(
-            X, truth(X)[:, c], 0.0, Xt, truth(Xt)[:, c]
-        )
+        e_gcv = _rmse(X, Y[:, c], lam[c], Xt, Yt[:, c])
+        e_exact = _rmse(X, Y[:, c], 0.0, Xt, Yt[:, c])
+        assert e_gcv <= 1.05 * e_exact + floor, (c, e_gcv, e_exact)
+        if c == 1:  # affine: reproduced exactly whatever λ
+            assert e_gcv < floor and e_exact < floor, (e_gcv, e_exact)
+        else:  # the non-affine interpolation error is real (not round-off): the test can fail
+            assert e_exact > 1e6 * floor, e_exact
     # noisy affine field: smoothing removes the non-affine noise, the mean F is unbiased
     rng = np.random.default_rng(8)
     F0 = CASES["combined"]
