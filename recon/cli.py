@@ -6,9 +6,12 @@ Commands::
     recon run FRAMES... [--scene SCENE.xml] [--calib calib.json] [--z-range -80:720]
               [--z-step 5] [--iterations 3] [-s 5] -o VOLDIR [--overwrite] ...
 
-``FRAMES`` are TIFF files, a folder of TIFFs, or an ``lfsim`` dataset folder (its
-``dataset.json`` names the scene and its ``white.tif`` is calibrated when no ``--calib`` is
-given).
+``FRAMES`` are TIFF files (reconstructed in the order given), a folder of TIFFs (in the
+order of the frame numbers in their names: ``img_2.tif`` before ``img_10.tif``; gaps in the
+numbering are reported, names that cannot be ordered are refused; see :mod:`recon.frames`),
+or an ``lfsim`` dataset folder (its ``dataset.json`` names the scene and its ``white.tif`` is
+calibrated when no ``--calib`` is given). ``recon.json`` records which file each volume
+``NNNNNN.tif`` was made from.
 
 Global options (before or after the command): ``--threads N``, ``-v`` (info; ``-vv`` debug),
 ``-q`` (errors only). Errors a user can cause (bad files, no lenslet grid, an existing output)
@@ -129,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         type=Path,
         metavar="FRAMES",
-        help="TIFF frames, a folder of TIFFs, or an lfsim dataset folder",
+        help="TIFF frames (in the order given), a folder of TIFFs (ordered by the frame number "
+        "in their names), or an lfsim dataset folder",
     )
     run.add_argument("--scene", type=Path, metavar="SCENE.xml", help="scene file (optics)")
     run.add_argument("--calib", type=Path, metavar="CALIB.json", help="from recon calibrate")
@@ -279,20 +283,24 @@ def _resolve_inputs(args: argparse.Namespace):
     from lfsim.scene import read_optics
 
     from .calibration import LensletGrid
+    from .frames import folder_frames, warn_if_unordered
 
     frames: list[Path] = []
+    explicit: list[Path] = []
     dataset = None
     for f in args.frames:
         if f.is_dir():
             if (f / "dataset.json").is_file():
                 dataset = f
-                frames += sorted((f / "frames").glob("*.tif"))
+                if not (f / "frames").is_dir():
+                    raise InputError(f"dataset folder {str(f)!r} has no frames/ folder")
+                frames += folder_frames(f / "frames")
             else:
-                frames += sorted(list(f.glob("*.tif")) + list(f.glob("*.tiff")))
+                frames += folder_frames(f)
         else:
             frames.append(f)
-    if not frames:
-        raise InputError(f"no TIFF frames found in {', '.join(map(str, args.frames))}")
+            explicit.append(f)
+    warn_if_unordered(explicit)
     scene = args.scene
     if scene is None and dataset is not None:
         scene = Path(read_json(dataset / "dataset.json")["scene"]["path"])
