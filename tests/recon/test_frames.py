@@ -220,3 +220,234 @@ def test_run_refuses_an_ambiguous_folder(calib, base_frame, tmp_path, capsys):
     assert str(tmp_path / "frames") in err and "'img_1.tif'" in err and "'img_01.tif'" in err
     assert "give the order explicitly (a list file or explicit files)" in err
     assert not vol_dir.exists()
+
+
+# -- input forms --------------------------------------------------------------------------
+def _recon(capsys, *frames_and_options, quiet=True):
+    """`recon run` on the small scene and calibration; returns (rc, stdout, stderr)."""
+    argv = ["run", *frames_and_options]
+    rc = main(["-q", *map(str, argv)] if quiet else list(map(str, argv)))
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def _opts(calib, out):
+    return ["--scene", SCENE, "--calib", calib, *FAST, "-o", out]
+
+
+def _refused(rc, out, err, *names):
+    """Exit status 2 and one line on stderr naming every one of ``names``."""
+    assert rc == 2 and out == "", err
+    assert err.startswith("recon: error: ") and err.count("\n") == 1, err
+    for name in names:
+        assert name in err, (name, err)
+
+
+def test_glob_pattern_is_ordered_naturally(calib, base_frame, tmp_path, capsys):
+    scale = write_series(tmp_path / "d", ["a_10.tif", "a_9.tif", "a_11.tif"], base_frame)
+    write_series(tmp_path / "d", ["b_1.tif"], base_frame)  # not matched
+    rc, _, err = _recon(capsys, tmp_path / "d" / "a_*.tif", *_opts(calib, tmp_path / "v"))
+    assert rc == 0, err
+    _check_mapping(tmp_path / "v", ["a_9.tif", "a_10.tif", "a_11.tif"], scale)
+    # A pattern matching nothing, or names that cannot be ordered: refused, nothing written.
+    _refused(*_recon(capsys, tmp_path / "d" / "z_*.tif", *_opts(calib, tmp_path / "v2")), "z_*.tif")
+    _refused(
+        *_recon(capsys, tmp_path / "d" / "*.tif", *_opts(calib, tmp_path / "v2")),
+        "'a_10.tif' and 'b_1.tif' are named differently",
+        "give the order explicitly",
+    )
+    assert not (tmp_path / "v2").exists()
+
+
+def test_list_file_gives_the_order(calib, base_frame, tmp_path, capsys):
+    scale = write_series(tmp_path / "frames", ["x_3.tif", "x_1.tif", "x_2.tif"], base_frame)
+    lst = tmp_path / "order.txt"
+    lst.write_text(f"# my order\nframes/x_3.tif\n\n  frames/x_1.tif\n{tmp_path}/frames/x_2.tif\n")
+    rc, _, err = _recon(capsys, lst, *_opts(calib, tmp_path / "v"))
+    assert rc == 0, err
+    _check_mapping(tmp_path / "v", ["x_3.tif", "x_1.tif", "x_2.tif"], scale)
+    bad = tmp_path / "bad.txt"
+    bad.write_text("frames/x_1.tif\nframes/x_4.tif\n")
+    _refused(*_recon(capsys, bad, *_opts(calib, tmp_path / "v2")), "bad.txt", "line 2", "x_4.tif")
+    empty = tmp_path / "empty.txt"
+    empty.write_text("# nothing\n\n")
+    _refused(*_recon(capsys, empty, *_opts(calib, tmp_path / "v2")), "empty.txt", "no frames")
+    binary = tmp_path / "frame.png"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00")
+    _refused(*_recon(capsys, binary, *_opts(calib, tmp_path / "v2")), "frame.png", "neither")
+    assert not (tmp_path / "v2").exists()
+
+
+def test_stack_gives_one_frame_per_page(calib, base_frame, tmp_path, capsys):
+    import hashlib
+
+    from lfsim.io import read_json, read_tiff
+
+    scales = [3, 1, 2, 5]
+    stack = np.stack([base_frame * s for s in scales]).astype(np.uint16)
+    path = tmp_path / "camera_export.tif"
+    tifffile.imwrite(path, stack, photometric="minisblack")
+    vol_dir = tmp_path / "v"
+    rc, _, err = _recon(capsys, path, "--fps", "500", *_opts(calib, vol_dir))
+    assert rc == 0, err
+    meta = read_json(vol_dir / "recon.json")
+    assert meta["fps"] == 500.0 and meta["frame_times"] == "fps"
+    frames = meta["frames"]
+    assert [f["page"] for f in frames] == [0, 1, 2, 3]
+    assert [f["number"] for f in frames] == [0, 1, 2, 3]
+    assert [f["time_s"] for f in frames] == pytest.approx([0.0, 0.002, 0.004, 0.006])
+    assert all(f["input"] == str(path) for f in frames)
+    for f, img in zip(frames, stack, strict=True):
+        assert f["input_sha256"] == hashlib.sha256(img.tobytes()).hexdigest()
+    sums = [
+        float(read_tiff(vol_dir / f"{k:06d}.tif")[0].sum(dtype=np.float64)) / s
+        for k, s in enumerate(scales)
+    ]
+    assert np.allclose(sums, sums[0], rtol=1e-3), sums
+    assert read_tiff(vol_dir / "000002.tif")[1]["page"] == 2
+    # Resuming recognises every page by its pixels.
+    rc, out, err = _recon(capsys, path, "--fps", "500", *_opts(calib, vol_dir), quiet=False)
+    assert rc == 0 and "0 volume(s) reconstructed, 4 already done" in out, err
+
+
+def test_stacks_continue_their_numbering_and_imagej_times(calib, base_frame, tmp_path, capsys):
+    from lfsim.io import read_json
+
+    for name, n in (("part1.tif", 3), ("part2.tif", 2)):
+        data = np.stack([base_frame] * n)
+        meta = {"axes": "TYX", "finterval": 0.004}
+        tifffile.imwrite(tmp_path / name, data, imagej=True, metadata=meta)
+    rc, _, err = _recon(
+        capsys, tmp_path / "part1.tif", tmp_path / "part2.tif", *_opts(calib, tmp_path / "v")
+    )
+    assert rc == 0, err
+    meta = read_json(tmp_path / "v" / "recon.json")
+    frames = meta["frames"]
+    assert [(Path(f["input"]).name, f["page"], f["number"]) for f in frames] == [
+        ("part1.tif", 0, 0),
+        ("part1.tif", 1, 1),
+        ("part1.tif", 2, 2),
+        ("part2.tif", 0, 3),
+        ("part2.tif", 1, 4),
+    ]
+    assert [f["time_s"] for f in frames] == pytest.approx([0, 0.004, 0.008, 0.012, 0.016])
+    assert meta["frame_times"] == "metadata" and meta["fps"] is None
+
+
+def test_times_from_fps_json_metadata_or_unknown(calib, base_frame, tmp_path, capsys):
+    from lfsim.io import read_json, write_tiff
+
+    for k in (4, 6):
+        write_tiff(tmp_path / "d" / f"f{k}.tif", base_frame, metadata={"time_s": k * 0.01})
+    rc, _, err = _recon(capsys, tmp_path / "d", *_opts(calib, tmp_path / "v1"))
+    assert rc == 0, err
+    frames = read_json(tmp_path / "v1" / "recon.json")["frames"]
+    assert [f["number"] for f in frames] == [4, 6]
+    assert [f["time_s"] for f in frames] == pytest.approx([0.04, 0.06])
+    rc, _, err = _recon(capsys, tmp_path / "d", "--fps", "100", *_opts(calib, tmp_path / "v2"))
+    assert rc == 0, err
+    frames = read_json(tmp_path / "v2" / "recon.json")["frames"]
+    assert [f["time_s"] for f in frames] == pytest.approx([0.04, 0.06])
+    tifffile.imwrite(tmp_path / "plain.tif", base_frame)
+    rc, _, err = _recon(capsys, tmp_path / "plain.tif", *_opts(calib, tmp_path / "v3"))
+    assert rc == 0, err
+    meta = read_json(tmp_path / "v3" / "recon.json")
+    assert meta["frames"][0]["time_s"] is None and meta["frames"][0]["number"] is None
+    assert meta["frame_times"] is None
+    _refused(*_recon(capsys, tmp_path / "d", "--fps", "0", *_opts(calib, tmp_path / "v4")), "--fps")
+    assert not (tmp_path / "v4").exists()
+
+
+def test_frame_selection(calib, base_frame, tmp_path, capsys):
+    from lfsim.io import read_json
+
+    names = [f"s_{k}.tif" for k in range(1, 8)]
+    scale = write_series(tmp_path / "d", names, base_frame)
+    rc, _, err = _recon(capsys, tmp_path / "d", "--frames", "1:6:2", *_opts(calib, tmp_path / "v"))
+    assert rc == 0, err
+    _check_mapping(tmp_path / "v", ["s_2.tif", "s_4.tif", "s_6.tif"], scale)
+    assert read_json(tmp_path / "v" / "recon.json")["frame_selection"] == "1:6:2"
+    rc, _, err = _recon(capsys, tmp_path / "d", "--frames", "5:", *_opts(calib, tmp_path / "w"))
+    assert rc == 0, err
+    _check_mapping(tmp_path / "w", ["s_6.tif", "s_7.tif"], scale)
+    for bad in ("3", "a:b", "4:2", "0:5:0", "7:9", "-1:3"):
+        _refused(
+            *_recon(capsys, tmp_path / "d", f"--frames={bad}", *_opts(calib, tmp_path / "x")),
+            "--frames",
+        )
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize(
+    ("odd", "what"),
+    [
+        (np.zeros((300, 280), np.uint16), "size 280 × 300 px, not 300 × 300"),
+        (np.zeros((300, 300), np.uint8), "pixel type uint8, not uint16"),
+        (np.zeros((300, 300), np.float32), "pixel type float32, not uint16"),
+    ],
+)
+def test_mixed_series_is_refused(calib, base_frame, tmp_path, capsys, odd, what):
+    write_series(tmp_path / "d", ["m_1.tif", "m_2.tif", "m_4.tif"], base_frame)
+    tifffile.imwrite(tmp_path / "d" / "m_3.tif", odd)
+    rc, out, err = _recon(capsys, tmp_path / "d", *_opts(calib, tmp_path / "v"))
+    _refused(rc, out, err, "mixed series", "m_3.tif", "m_1.tif", what)
+    assert not (tmp_path / "v").exists()
+
+
+def test_bit_depth_and_stack_checks():
+    from recon.frames import TiffHeader, check_uniform
+
+    a = TiffHeader(1, (8, 8), "uint16", 16)
+    b = TiffHeader(1, (8, 8), "uint16", 12)
+    check_uniform([(Path("a.tif"), a), (Path("c.tif"), a)])
+    with pytest.raises(InputError, match=r"'b.tif' differs .* 'a.tif' in bit depth 12, not 16"):
+        check_uniform([(Path("a.tif"), a), (Path("b.tif"), b)])
+
+
+def test_library_takes_paths_and_refuses_a_stack_as_one_frame(base_frame, tmp_path):
+    from recon.calibration import LensletGrid as Grid
+    from recon.frames import FrameRef
+    from recon.pipeline import reconstruct_series
+
+    stack = tmp_path / "stack.tif"
+    tifffile.imwrite(stack, np.stack([base_frame] * 2), photometric="minisblack")
+    grid = Grid(15.0, 0.0, (157.5, 157.5), (300, 300))
+    from lfsim import small_optics
+
+    kw = {"optics": small_optics(), "grid": grid, "progress": False}
+    with pytest.raises(InputError, match=r"stack\.tif' is a stack of 2 images"):
+        reconstruct_series([stack], tmp_path / "v", **kw)
+    with pytest.raises(InputError, match=r"stack.tif \[page 2\]'.* only 2 page"):
+        reconstruct_series([FrameRef(stack, 2)], tmp_path / "v", **kw)
+    assert not (tmp_path / "v").exists()
+    assert FrameRef.of(tmp_path / "img_0042.tif").number == 42
+
+
+def test_other_inputs_are_refused_and_a_shorter_run_is_extended(
+    calib, base_frame, tmp_path, capsys
+):
+    names = [f"r_{k}.tif" for k in range(1, 5)]
+    scale = write_series(tmp_path / "a", names, base_frame)
+    vol = tmp_path / "v"
+    rc, _, err = _recon(capsys, tmp_path / "a", "--frames", "0:2", *_opts(calib, vol))
+    assert rc == 0, err
+    before = {p.name: p.read_bytes() for p in vol.glob("*.tif")}
+    # The whole series extends the first two frames.
+    rc, out, err = _recon(capsys, tmp_path / "a", *_opts(calib, vol), quiet=False)
+    assert rc == 0 and "2 volume(s) reconstructed, 2 already done" in out, err
+    _check_mapping(vol, names, scale)
+    assert all((vol / n).read_bytes() == b for n, b in before.items())
+    # Other frames into the same folder: refused, nothing touched.
+    snapshot = {p.name: p.read_bytes() for p in vol.iterdir()}
+    rc, out, err = _recon(capsys, tmp_path / "a", "--frames", "1:3", *_opts(calib, vol))
+    _refused(rc, out, err, "other inputs", "000000.tif", "r_1.tif", "r_2.tif", "--overwrite")
+    rc, out, err = _recon(capsys, tmp_path / "a", "--frames", "0:2", *_opts(calib, vol))
+    _refused(rc, out, err, "other inputs", "000002.tif", "this run has 2 frame(s)")
+    assert {p.name: p.read_bytes() for p in vol.iterdir()} == snapshot
+    # With --overwrite: the folder then holds exactly this run.
+    rc, _, err = _recon(
+        capsys, tmp_path / "a", "--frames", "1:3", *_opts(calib, vol), "--overwrite"
+    )
+    assert rc == 0, err
+    _check_mapping(vol, ["r_2.tif", "r_3.tif"], scale)
+    assert sorted(p.name for p in vol.glob("*.tif")) == ["000000.tif", "000001.tif"]
