@@ -4,11 +4,24 @@ Commands::
 
     recon calibrate WHITE.tif --scene SCENE.xml -o calib.json [--overwrite]
     recon run FRAMES... [--scene SCENE.xml] [--calib calib.json] [--z-range -80:720]
-              [--z-step 5] [--iterations 3] [-s 5] -o VOLDIR [--overwrite] ...
+              [--z-step 5] [--iterations 3] [-s 5] [--frames START:STOP[:STEP]] [--fps HZ]
+              -o VOLDIR [--overwrite] ...
 
-``FRAMES`` are TIFF files, a folder of TIFFs, or an ``lfsim`` dataset folder (its
-``dataset.json`` names the scene and its ``white.tif`` is calibrated when no ``--calib`` is
-given).
+``FRAMES`` (any mix, in the order given; see :mod:`recon.frames`):
+
+- TIFF files, reconstructed in the order given; a multi-page stack gives one frame per page;
+- a folder of TIFFs, or a quoted glob pattern (``'run3/img_*.tif'``), in the order of the
+  frame numbers in the names (``img_2.tif`` before ``img_10.tif``); gaps in the numbering
+  are reported, names that cannot be ordered are refused;
+- a text file listing frames, one path per line relative to the list file (``#`` comments);
+- an ``lfsim`` dataset folder (its ``dataset.json`` names the scene and its ``white.tif`` is
+  calibrated when no ``--calib`` is given).
+
+All frames must share size, pixel type and bit depth (checked from the TIFF headers first).
+``--frames START:STOP[:STEP]`` keeps part of the ordered series. ``recon.json`` records, for
+each volume ``NNNNNN.tif``, its source (file, page of a stack), the frame's original number
+(from the file name, or the page) and its time (``number / --fps``, else from the TIFF
+metadata, else null).
 
 Global options (before or after the command): ``--threads N``, ``-v`` (info; ``-vv`` debug),
 ``-q`` (errors only). Errors a user can cause (bad files, no lenslet grid, an existing output)
@@ -129,7 +142,26 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         type=Path,
         metavar="FRAMES",
-        help="TIFF frames, a folder of TIFFs, or an lfsim dataset folder",
+        help="TIFF frames (in the order given; a multi-page stack gives one frame per page), "
+        "a folder of TIFFs or a quoted glob pattern ('run/img_*.tif') (both ordered by the "
+        "frame number in the names), a text file listing frames (one path per line, relative "
+        "to the list; the list gives the order), or an lfsim dataset folder",
+    )
+    run.add_argument(
+        "--frames",
+        dest="select",
+        default=None,
+        metavar="START:STOP[:STEP]",
+        help="reconstruct only these frames: indices into the ordered series, STOP excluded "
+        "(e.g. 0:100:2; default: all)",
+    )
+    run.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="frame rate in frames per second: recon.json records each frame's time as its "
+        "number / fps in s (default: the time recorded in the TIFF metadata, else none)",
     )
     run.add_argument("--scene", type=Path, metavar="SCENE.xml", help="scene file (optics)")
     run.add_argument("--calib", type=Path, metavar="CALIB.json", help="from recon calibrate")
@@ -279,20 +311,30 @@ def _resolve_inputs(args: argparse.Namespace):
     from lfsim.scene import read_optics
 
     from .calibration import LensletGrid
+    from .frames import (
+        build_series,
+        expand_argument,
+        folder_frames,
+        select_frames,
+        warn_if_unordered,
+    )
 
-    frames: list[Path] = []
+    files: list[Path] = []
+    explicit: list[Path] = []
     dataset = None
     for f in args.frames:
-        if f.is_dir():
-            if (f / "dataset.json").is_file():
-                dataset = f
-                frames += sorted((f / "frames").glob("*.tif"))
-            else:
-                frames += sorted(list(f.glob("*.tif")) + list(f.glob("*.tiff")))
-        else:
-            frames.append(f)
-    if not frames:
-        raise InputError(f"no TIFF frames found in {', '.join(map(str, args.frames))}")
+        if f.is_dir() and (f / "dataset.json").is_file():
+            dataset = f
+            if not (f / "frames").is_dir():
+                raise InputError(f"dataset folder {str(f)!r} has no frames/ folder")
+            files += folder_frames(f / "frames")
+            continue
+        paths, kind = expand_argument(f)
+        files += paths
+        if kind == "file":
+            explicit += paths
+    warn_if_unordered(explicit)
+    frames = select_frames(build_series(files, fps=args.fps), args.select)
     scene = args.scene
     if scene is None and dataset is not None:
         scene = Path(read_json(dataset / "dataset.json")["scene"]["path"])
@@ -315,6 +357,7 @@ def _resolve_inputs(args: argparse.Namespace):
 def _cmd_run(args: argparse.Namespace) -> int:
     from lfsim import init_backend
 
+    from .frames import time_source
     from .pipeline import ReconSettings, reconstruct_series
     from .preprocess import Preprocess, read_frame
 
@@ -354,7 +397,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         preprocess=pre,
         overwrite=args.overwrite,
         progress=not getattr(args, "quiet", False),
-        provenance={"scene": str(Path(scene).resolve()), "command": "recon run"},
+        provenance={
+            "scene": str(Path(scene).resolve()),
+            "command": "recon run",
+            "frame_selection": args.select,
+            "fps": args.fps,
+            "frame_times": time_source(frames, args.fps),
+        },
     )
     if not getattr(args, "quiet", False):
         sys.stdout.write(

@@ -4,9 +4,11 @@
 (:mod:`recon.preprocess`) → rectify onto the calibrated lenslet grid (:mod:`recon.rectify`)
 → Richardson–Lucy with the depth-adaptive filter (:mod:`recon.deconvolve`) → write
 ``VOLDIR/NNNNNN.tif`` (float32 ``(z, y, x)``, voxel size in µm in the metadata). The folder's
-``recon.json`` records the optics, calibration, depths, settings, timings and the checksum of
-every input, and is rewritten atomically after every frame: an interrupted run resumes with
-the frames it had not finished, and a folder made from other inputs or settings is refused.
+``recon.json`` records the optics, calibration, depths, settings, timings and, for every
+frame, its source (file, page of a stack), original number, time and checksum (of the file,
+or of a stack page's pixels). It is rewritten atomically after every frame: an interrupted run
+resumes with the frames it had not finished (a longer series extends a shorter one), and a
+folder whose volumes were made from other inputs or settings is refused.
 """
 
 from __future__ import annotations
@@ -198,8 +200,10 @@ def reconstruct_series(
 
     Parameters
     ----------
-    frames : list of path
-        TIFF frames, reconstructed in this order as ``000000.tif``, ``000001.tif``, ….
+    frames : list of recon.frames.FrameRef or path
+        Frames (a path is a single-image TIFF, numbered from its name), reconstructed in
+        this order as ``000000.tif``, ``000001.tif``, …. All must have the same size, pixel
+        type and bit depth (checked from the TIFF headers first).
     out_dir : path
     optics : lfsim.optics.Optics
         The microscope (from the scene file).
@@ -210,19 +214,26 @@ def reconstruct_series(
         Replace the outputs of a run with other inputs or settings (only this tool's files).
     provenance : dict, optional
         Extra entries for ``recon.json`` (e.g. the command line).
-    """
-    from lfsim.io import read_json, sha256_file, write_json, write_tiff
 
+    Raises
+    ------
+    InputError
+        Missing, unreadable or mixed frames; frames of another size than the calibration's.
+    OutputExistsError
+        ``out_dir`` holds something else, or volumes made from other inputs or settings
+        (without ``overwrite``). Nothing is written then.
+    """
+    from lfsim.io import write_json, write_tiff
+
+    from .frames import FrameReader, FrameRef, check_frames, frame_checksums
     from .rectify import rectify
 
     st = settings or ReconSettings()
     pp = preprocess or Preprocess()
-    frames = [Path(f) for f in frames]
-    if not frames:
+    refs = [FrameRef.of(f) for f in frames]
+    if not refs:
         raise InputError("no frames to reconstruct")
-    for f in frames:
-        if not f.is_file():
-            raise InputError(f"frame {str(f)!r} does not exist")
+    check_frames(refs)
     out = Path(out_dir)
     n = round(optics.px_per_lenslet)
     if abs(grid.pitch_px - optics.px_per_lenslet) > 0.05 * optics.px_per_lenslet:
@@ -235,10 +246,10 @@ def reconstruct_series(
     depths = st.depths_um
 
     # Rectification geometry from the first frame (all frames share the camera).
-    first = read_frame(frames[0])
+    first = read_frame(refs[0].path, page=refs[0].page)
     if tuple(first.shape) != tuple(grid.image_shape):
         raise InputError(
-            f"frame {str(frames[0])!r} is {first.shape[1]} × {first.shape[0]} px but the "
+            f"frame {refs[0].label!r} is {first.shape[1]} × {first.shape[0]} px but the "
             f"calibration was made on {grid.image_shape[1]} × {grid.image_shape[0]} px images"
         )
     _, geom = _rectify_roi(rectify, first, grid, n, st.roi_px)
@@ -256,29 +267,12 @@ def reconstruct_series(
             "bank": key,
         }
     )
+    checksums = frame_checksums(refs)
     meta_path = out / RECON_JSON
-    previous = None
-    if out.exists() and any(out.iterdir()):
-        if not meta_path.is_file():
-            raise OutputExistsError(
-                f"output folder {str(out)!r} is not empty and holds no {RECON_JSON}; "
-                "choose a new folder (nothing was written)"
-            )
-        previous = read_json(meta_path)
-        if previous.get("fingerprint") != fp:
-            if not overwrite:
-                raise OutputExistsError(
-                    f"output folder {str(out)!r} holds volumes made from other inputs or "
-                    "settings; use a new folder or --overwrite (nothing was written)"
-                )
-            for p in out.glob("[0-9][0-9][0-9][0-9][0-9][0-9].tif"):
-                p.unlink()
-            meta_path.unlink()
-            previous = None
+    previous = _check_output(out, fp, refs, checksums, overwrite)
     out.mkdir(parents=True, exist_ok=True)
 
-    checksums = [sha256_file(f) for f in frames]
-    prev_frames = {e["index"]: e for e in (previous or {}).get("frames", [])}
+    prev_frames = {e.get("index"): e for e in (previous or {}).get("frames", [])}
     o_x, o_y = _object_origin(grid, geom, optics)
     rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
     meta = {
@@ -300,14 +294,15 @@ def reconstruct_series(
     done, skipped, secs = [], [], {}
     frame_entries = []
     todo = []
-    for k, (f, sha) in enumerate(zip(frames, checksums, strict=True)):
+    for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
+        entry = _frame_entry(k, ref, sha)
         e = prev_frames.get(k)
         if e and e.get("input_sha256") == sha and volume_path(out, k).is_file():
-            frame_entries.append(e)
+            entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
             skipped.append(k)
         else:
             todo.append(k)
-            frame_entries.append({"index": k, "input": str(f), "input_sha256": sha})
+        frame_entries.append(entry)
     meta["frames"] = frame_entries
     write_json(meta_path, meta, overwrite=True)
     if skipped:
@@ -330,53 +325,133 @@ def reconstruct_series(
             from tqdm.auto import tqdm
 
             it = tqdm(todo, desc="recon", unit="frame")
-        for k in it:
-            t1 = time.perf_counter()
-            raw = first if k == 0 else read_frame(frames[k])
-            if raw.shape != first.shape:
-                raise InputError(
-                    f"frame {str(frames[k])!r} is {raw.shape} px, the series started with "
-                    f"{first.shape}"
+        with FrameReader() as reader:
+            for k in it:
+                t1 = time.perf_counter()
+                ref = refs[k]
+                raw = first if k == 0 else read_frame(ref.path, page=ref.page, reader=reader)
+                if raw.shape != first.shape:
+                    raise InputError(
+                        f"frame {ref.label!r} is {raw.shape} px, the series started with "
+                        f"{first.shape}"
+                    )
+                modelled = st.background_model == "model"
+                img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
+                rect, rgeom = _rectify_roi(rectify, img, grid, n, st.roi_px)
+                res = richardson_lucy(
+                    rect,
+                    projector,
+                    st.iterations,
+                    depth_filter=filt,
+                    stop_rel_change=st.stop_rel_change,
+                    track_kl=False,
+                    background=max(pinfo["background"], 0.0) * rgeom.flux_scale
+                    if modelled
+                    else 0.0,
                 )
-            modelled = st.background_model == "model"
-            img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
-            rect, rgeom = _rectify_roi(rectify, img, grid, n, st.roi_px)
-            res = richardson_lucy(
-                rect,
-                projector,
-                st.iterations,
-                depth_filter=filt,
-                stop_rel_change=st.stop_rel_change,
-                track_kl=False,
-                background=max(pinfo["background"], 0.0) * rgeom.flux_scale if modelled else 0.0,
-            )
-            write_tiff(
-                volume_path(out, k),
-                res.volume.astype(np.float32),
-                metadata={
-                    "frame": k,
-                    "input": str(frames[k]),
-                    "depths_um": list(map(float, depths)),
-                    "origin_um": [o_x, o_y],
-                    "iterations": res.iterations,
-                },
-                pixel_size_um=rgrid.voxel_size_um,
-                overwrite=True,
-            )
-            secs[k] = time.perf_counter() - t1
-            frame_entries[k].update(
-                {
-                    "seconds": secs[k],
-                    "iterations": res.iterations,
-                    "preprocess": pinfo,
-                    "rel_change": res.rel_change,
-                }
-            )
-            write_json(meta_path, meta, overwrite=True)
-            done.append(k)
+                source = {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS}
+                write_tiff(
+                    volume_path(out, k),
+                    res.volume.astype(np.float32),
+                    metadata={
+                        "frame": k,
+                        **source,
+                        "depths_um": list(map(float, depths)),
+                        "origin_um": [o_x, o_y],
+                        "iterations": res.iterations,
+                    },
+                    pixel_size_um=rgrid.voxel_size_um,
+                    overwrite=True,
+                )
+                secs[k] = time.perf_counter() - t1
+                frame_entries[k].update(
+                    {
+                        "seconds": secs[k],
+                        "iterations": res.iterations,
+                        "preprocess": pinfo,
+                        "rel_change": res.rel_change,
+                    }
+                )
+                write_json(meta_path, meta, overwrite=True)
+                done.append(k)
     meta["status"] = "complete"
     write_json(meta_path, meta, overwrite=True)
     return SeriesResult(out, done, skipped, secs)
+
+
+#: Per-frame entries of ``recon.json`` naming the frame's source.
+_SOURCE_KEYS = ("input", "page", "number", "time_s")
+#: Per-frame entries of ``recon.json`` that a reconstruction adds (kept when resuming).
+_RESULT_KEYS = ("seconds", "iterations", "preprocess", "rel_change")
+
+
+def _frame_entry(k: int, ref, sha: str) -> dict:
+    """The ``recon.json`` record of frame ``k``: index, source and checksum."""
+    return {
+        "index": k,
+        "input": str(ref.path),
+        "page": ref.page,
+        "number": ref.number,
+        "time_s": ref.time_s,
+        "input_sha256": sha,
+    }
+
+
+def _volume_indices(out: Path) -> list[int]:
+    return sorted(int(p.name[:6]) for p in out.glob("[0-9][0-9][0-9][0-9][0-9][0-9].tif"))
+
+
+def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict | None:
+    """Check the output folder before anything is written; the previous record to resume.
+
+    A folder that is not empty must hold a ``recon.json``. Its volumes must come from the
+    same settings (fingerprint) and from the same inputs as this run's frames of the same
+    index (checksums; a run may extend a shorter one); otherwise it is refused, or with
+    ``overwrite`` the volumes that do not belong to this run are deleted.
+    """
+    from lfsim.io import read_json
+
+    if not (out.exists() and any(out.iterdir())):
+        return None
+    meta_path = out / RECON_JSON
+    if not meta_path.is_file():
+        raise OutputExistsError(
+            f"output folder {str(out)!r} is not empty and holds no {RECON_JSON}; "
+            "choose a new folder (nothing was written)"
+        )
+    previous = read_json(meta_path)
+    volumes = _volume_indices(out)
+    if previous.get("fingerprint") != fp:
+        if not overwrite:
+            raise OutputExistsError(
+                f"output folder {str(out)!r} holds volumes made from other inputs or "
+                "settings; use a new folder or --overwrite (nothing was written)"
+            )
+        for k in volumes:
+            volume_path(out, k).unlink()
+        meta_path.unlink()
+        return None
+    prev_frames = {e.get("index"): e for e in previous.get("frames", [])}
+    stale = [
+        k
+        for k in volumes
+        if k >= len(refs) or prev_frames.get(k, {}).get("input_sha256") != checksums[k]
+    ]
+    if stale and not overwrite:
+        k = stale[0]
+        was = prev_frames.get(k, {})
+        was_label = was.get("input", "an unknown frame")
+        if was.get("page") is not None:
+            was_label += f" [page {was['page']}]"
+        now = f"now {refs[k].label!r}" if k < len(refs) else f"this run has {len(refs)} frame(s)"
+        raise OutputExistsError(
+            f"output folder {str(out)!r} holds volumes made from other inputs or settings "
+            f"(volume {k:06d}.tif was made from {was_label!r}, {now}); use a new folder or "
+            "--overwrite (nothing was written)"
+        )
+    for k in stale:
+        volume_path(out, k).unlink()
+    return previous
 
 
 def _rectify_roi(rectify, image, grid, n, roi):

@@ -24,37 +24,30 @@ from .errors import InputError
 log = logging.getLogger(__name__)
 
 
-def read_frame(path: str | os.PathLike, what: str = "frame") -> np.ndarray:
+def read_frame(
+    path: str | os.PathLike, what: str = "frame", *, page: int | None = None, reader=None
+) -> np.ndarray:
     """Read one 2-D light-field image (8/12/16-bit integer or float TIFF) as float32.
 
     ``what`` names the image in error messages ("frame", "white image", "dark frame").
+    ``page`` selects one page of a multi-page stack; without it the file must hold one image.
+    ``reader`` (a :class:`recon.frames.FrameReader`) keeps a stack open between its pages.
 
     Raises
     ------
     InputError
-        Missing or unreadable file, a stack instead of one image, non-finite pixels.
+        Missing or unreadable file, a stack instead of one image (or a page beyond its end),
+        a non-numeric pixel type, non-finite pixels.
     """
-    import tifffile
+    from .frames import FrameRef, read_raw
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{what} {str(path)!r} does not exist")
-    try:
-        with tifffile.TiffFile(path) as tif:
-            n_pages = len(tif.pages)
-            arr = tif.asarray()
-    except (OSError, ValueError, IndexError, tifffile.TiffFileError) as exc:
-        raise InputError(f"cannot read {what} {str(path)!r} as TIFF: {exc}") from exc
-    if arr.ndim != 2 or n_pages != 1:
-        raise InputError(
-            f"{what} {str(path)!r} holds an array of shape {arr.shape}; expected one 2-D "
-            "grey-level image (y, x) — split stacks into one file per frame"
-        )
+    ref = FrameRef(Path(path), page)
+    arr = read_raw(ref, what) if reader is None else reader.read(ref, what)
     if arr.dtype.kind not in "uif":
-        raise InputError(f"{what} {str(path)!r} has unsupported pixel type {arr.dtype}")
+        raise InputError(f"{what} {ref.label!r} has unsupported pixel type {arr.dtype}")
     out = arr.astype(np.float32)
     if not np.all(np.isfinite(out)):
-        raise InputError(f"{what} {str(path)!r} holds non-finite pixels (NaN or inf)")
+        raise InputError(f"{what} {ref.label!r} holds non-finite pixels (NaN or inf)")
     return out
 
 
