@@ -5,6 +5,23 @@ One function per kind of study (:data:`hrvptm.config.KINDS`). Each returns an
 the plots need. Lengths in µm, strains dimensionless (0.01 = 1 %), Green–Lagrange
 ``E = (FᵀF − I)/2`` (DESIGN.md §2); the imposed strain comes from the prescribed motion's
 deformation gradient (``lfsim.motion``), or from central differences of a user field.
+
+Failed frames
+-------------
+A frame (or pair) *fails* when what the comparison needs was not measured; its numbers are
+then not representative and the study is failed (:mod:`hrvptm.study`: no ✓ in the report,
+``status: "failed"``). A frame fails when
+
+- detection found no particle, fewer than :data:`MIN_PARTICLES` (the fewest a 3-D affine
+  fit of a pair needs; fewer when the volume holds fewer true particles), or fewer than
+  :data:`MIN_DETECTED_FRACTION` of the true particles inside the reconstructed volume;
+- (pairs, series) ``track`` could not link it (its pair's status in ``summary.json`` is not
+  ``"ok"``), could not grid its field, or its tracking ratio (correct tracks / particles
+  detected in both frames) is below :data:`MIN_TRACKING_RATIO` or undefined.
+
+Each row carries a ``failure`` column (empty when the frame is fine), the summary
+``failed_frames`` (the number of distinct failed frames) and :attr:`Analysis.failures` the
+reasons.
 """
 
 from __future__ import annotations
@@ -29,6 +46,13 @@ from .stages import VariantPaths
 
 log = logging.getLogger(__name__)
 
+#: Fewest detected particles of a frame (a 3-D affine fit of a pair needs 4).
+MIN_PARTICLES = 4
+#: Fewest detected particles of a frame, as a fraction of the true ones inside the volume.
+MIN_DETECTED_FRACTION = 0.25
+#: Lowest tracking ratio of a frame or pair that is not a failure (the studies measure 0.88–1).
+MIN_TRACKING_RATIO = 0.5
+
 
 @dataclass
 class Analysis:
@@ -47,6 +71,12 @@ class Analysis:
     rows: list[dict]
     summary: dict
     arrays: dict = field(default_factory=dict)
+    failures: list[dict] = field(default_factory=list)
+
+    @property
+    def failed(self) -> bool:
+        """Whether any frame failed (see the module docstring)."""
+        return bool(self.failures)
 
 
 # -- inputs ------------------------------------------------------------------------------------
@@ -111,6 +141,56 @@ def _pooled(errors: list[np.ndarray], prefix: str) -> dict:
     return vector_stats(e, prefix)
 
 
+# -- failed frames -----------------------------------------------------------------------------
+def _detection_failure(data: VariantData, k: int) -> str:
+    """Why detection failed in frame ``k`` (empty: it did not), see the module docstring."""
+    n = len(data.detections[k])
+    n_truth = data.n_in_volume(k)
+    if n == 0:
+        return f"frame {k}: no particle detected ({n_truth} in the volume)"
+    if n < min(MIN_PARTICLES, n_truth) or (n_truth and n < MIN_DETECTED_FRACTION * n_truth):
+        return f"frame {k}: only {n} of {n_truth} particles detected"
+    return ""
+
+
+def _ratio_failure(where: str, ratio: float, reasons: list) -> list[str]:
+    """A tracking ratio below :data:`MIN_TRACKING_RATIO` (or undefined) as a failure, unless
+    an earlier reason already explains the frame."""
+    if reasons or (math.isfinite(ratio) and ratio >= MIN_TRACKING_RATIO):
+        return []
+    if not math.isfinite(ratio):
+        return [f"{where}: no particle detected in both frames"]
+    return [f"{where}: tracking ratio {100 * ratio:.0f} % (< {100 * MIN_TRACKING_RATIO:.0f} %)"]
+
+
+def _track_failures(paths: VariantPaths) -> dict[int, str]:
+    """Pairs ``track`` could not link or grid, by deformed frame, from its ``summary.json``."""
+    from track.errors import TrackError
+    from track.io import read_json
+
+    path = paths.track / "summary.json"
+    try:
+        summary = read_json(path)
+    except TrackError as exc:
+        raise StageError(f"{path}: {exc}") from None
+    out: dict[int, str] = {}
+    for inc in summary.get("increments", []):
+        where = f"frames {inc['ref_frame']} → {inc['def_frame']}"
+        if inc["status"] != "ok":
+            out[int(inc["def_frame"])] = f"{where}: {inc['status']}"
+        elif summary.get("fields_requested", True) and inc.get("field_status", "ok") != "ok":
+            out[int(inc["def_frame"])] = f"{where}: field {inc['field_status']}"
+    return out
+
+
+def _with_failures(a: Analysis, failures: list[dict]) -> Analysis:
+    a.failures = failures
+    a.summary["failed_frames"] = len({f["frame"] for f in failures})
+    if failures:
+        log.warning("%d failed frame(s): %s", a.summary["failed_frames"], failures[0]["reason"])
+    return a
+
+
 # -- localization (Fig. 4a) ----------------------------------------------------------------------
 def analyse_localization(data: VariantData) -> Analysis:
     """Detected centres of every frame against the true ones.
@@ -119,7 +199,7 @@ def analyse_localization(data: VariantData) -> Analysis:
     ``n_detected, n_matched, recall, precision`` and ``mean_/rmsd_/maxabs_{x,y,z}`` of
     ``detected − true`` (µm). Summary: the same pooled over frames, plus the worst frame's RMSD.
     """
-    rows, errs = [], []
+    rows, errs, failures = [], [], []
     for k, det in enumerate(data.detections):
         ids = data.associate(k, det)
         truth = data.truth_by_id(k)
@@ -137,15 +217,18 @@ def analyse_localization(data: VariantData) -> Analysis:
                 "recall": ok.sum() / n_truth if n_truth else math.nan,
                 "precision": ok.sum() / len(det) if len(det) else math.nan,
                 **vector_stats(err),
+                "failure": _detection_failure(data, k),
             }
         )
+        if rows[-1]["failure"]:
+            failures.append({"frame": k, "reason": rows[-1]["failure"]})
     summary = _pooled(errs, "pooled_")
     for ax in AXES:
         summary[f"worst_rmsd_{ax}"] = float(np.nanmax([r[f"rmsd_{ax}"] for r in rows]))
         summary[f"worst_maxabs_{ax}"] = float(np.nanmax([r[f"maxabs_{ax}"] for r in rows]))
         summary[f"worst_abs_mean_{ax}"] = float(np.nanmax([abs(r[f"mean_{ax}"]) for r in rows]))
     summary["mean_recall"] = float(np.nanmean([r["recall"] for r in rows]))
-    return Analysis(rows, summary)
+    return _with_failures(Analysis(rows, summary), failures)
 
 
 # -- zero-displacement pairs (Figs. 4b, 4c) ------------------------------------------------------
@@ -164,7 +247,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
     """
     from track.matching import LinkSettings, link_pair
 
-    rows, errs, hist = [], [], []
+    rows, errs, hist, failures = [], [], [], []
     group = data.study.study.group_size
     for p, (a, b) in enumerate(_pairs(len(data.detections), group)):
         ca, cb = data.detections[a], data.detections[b]
@@ -173,9 +256,13 @@ def analyse_pairs(data: VariantData) -> Analysis:
         row = {"pair": p, "frame_a": a, "frame_b": b, **data.noise[a], "n_a": len(ca)}
         row["n_b"] = len(cb)
         err = np.zeros((0, 3))
-        if min(len(ca), len(cb)) >= 4:
+        found = {f: _detection_failure(data, f) for f in (a, b)}
+        fails = [(f, r) for f, r in found.items() if r]
+        if min(len(ca), len(cb)) >= MIN_PARTICLES:
             res = link_pair(ca, cb, LinkSettings())
             m = res.matches if res.ok else np.zeros((0, 2), int)
+            if not res.ok:
+                fails.append((b, f"frames {a} → {b}: not linked: {res.reason}"))
         else:
             m = np.zeros((0, 2), int)
         ta, tb = data.truth_by_id(a), data.truth_by_id(b)
@@ -195,6 +282,10 @@ def analyse_pairs(data: VariantData) -> Analysis:
                 **vector_stats(err, "u_"),
             }
         )
+        ratio = _ratio_failure(f"frames {a} → {b}", row["tracking_ratio"], fails)
+        fails += [(b, r) for r in ratio]
+        row["failure"] = "; ".join(r for _, r in fails)
+        failures += [{"frame": f, "reason": r} for f, r in fails]
         rows.append(row)
         errs.append(err)
         hist.append(err)
@@ -203,7 +294,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
         summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_links"] = int(sum(r["n_wrong"] for r in rows))
-    return Analysis(rows, summary, {"errors": hist})
+    return _with_failures(Analysis(rows, summary, {"errors": hist}), failures)
 
 
 # -- tracked series (Figs. 5-7) ------------------------------------------------------------------
@@ -290,6 +381,10 @@ def analyse_series(data: VariantData) -> Analysis:
     tid0_truth = data.associate(0, x0)
     det_ids0 = data.associate(0, data.detections[0])
     rows, errs, strain_err = [], [], {c: [] for c in TENSOR_COMPONENTS}
+    linked = _track_failures(data.paths)
+    failures = []
+    if reason := _detection_failure(data, 0):
+        failures.append({"frame": 0, "reason": reason})
     floor_err: dict[str, list] = {c: [] for c in TENSOR_COMPONENTS}
     arrays: dict = {"amplitude_label": imposed_amplitude(motion, 1)[0] if motion else "frame"}
     dt = st.study.time_step_s
@@ -323,6 +418,9 @@ def analyse_series(data: VariantData) -> Analysis:
             "n_correct": correct,
             "tracking_ratio": correct / trackable if trackable else math.nan,
         }
+        reasons = [r for r in (linked.get(k, ""), _detection_failure(data, k)) if r]
+        reasons += _ratio_failure(f"frame {k}", row["tracking_ratio"], reasons)
+        failures += [{"frame": k, "reason": r} for r in reasons]
         for j, ax in enumerate(AXES):
             row[f"u_true_{ax}"] = float(true_u[:, j].mean()) if len(true_u) else math.nan
             row[f"u_meas_{ax}"] = float(meas_u[:, j].mean()) if len(meas_u) else math.nan
@@ -351,6 +449,7 @@ def analyse_series(data: VariantData) -> Analysis:
                 peak_field = {"frame": k, "field": fld, "E_true": E_true}
         else:
             row.update(tensor_stats(np.zeros((0, 3, 3)), np.eye(3), "E_"))
+        row["failure"] = "; ".join(reasons)
         rows.append(row)
         vectors[k] = {"X_um": x0[i0][known], "true_u": true_u, "meas_u": meas_u}
     # The plots show the peak frame (largest imposed amplitude; the last one on ties).
@@ -373,7 +472,7 @@ def analyse_series(data: VariantData) -> Analysis:
         summary[f"worst_E_abs_mean_err_{c}"] = float(max(vals)) if vals else math.nan
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
-    return Analysis(rows, summary, arrays)
+    return _with_failures(Analysis(rows, summary, arrays), failures)
 
 
 ANALYSES = {

@@ -13,6 +13,9 @@ and prints its summary. ``collect`` gathers finished reports into one Markdown p
 project's ``docs/validation.md``).
 
 Errors a user can cause print one line ``hrvptm: error: <message>`` and exit with status 2.
+So does a study whose frames failed (not tracked, far too few particles detected, tracking
+ratio below 50 %; :mod:`hrvptm.analysis`), after writing its report (``status: "failed"``,
+no comparison with the paper met), unless ``--allow-partial``.
 """
 
 from __future__ import annotations
@@ -54,6 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
             "--overwrite",
             action="store_true",
             help="reuse a report folder of another study (default: refuse)",
+        )
+        q.add_argument(
+            "--allow-partial",
+            action="store_true",
+            help="exit 0 when frames failed (the report still says FAILED)",
         )
 
     st = sub.add_parser(
@@ -119,6 +127,7 @@ def _run(path: Path, args, command: str) -> dict:
         overwrite=args.overwrite,
         progress=not args.quiet,
         command=command,
+        allow_partial=args.allow_partial,
     )
 
 

@@ -73,7 +73,12 @@ def _fmt(v) -> str:
 
 
 def comparison(figure: str, summaries: dict[str, dict]) -> list[dict]:
-    """Rows ``{label, paper, bound, unit, note, <variant>: value, <variant>_meets: bool}``."""
+    """Rows ``{label, paper, bound, unit, note, <variant>: value, <variant>_meets: bool}``.
+
+    A variant with failed frames (``summary["failed_frames"] > 0``, see
+    :mod:`hrvptm.analysis`) never meets a bound: its numbers leave those frames out, so
+    ``<variant>_meets`` is False on every row with a bound (and ``<variant>_failed`` True).
+    """
     out = []
     for ref in references(figure):
         row = {"label": ref.label, "key": ref.key, "paper": ref.paper, "bound": ref.bound}
@@ -81,10 +86,34 @@ def comparison(figure: str, summaries: dict[str, dict]) -> list[dict]:
         for variant, s in summaries.items():
             v = s.get(ref.key)
             row[variant] = v
+            failed = bool(s.get("failed_frames"))
+            if failed:
+                row[f"{variant}_failed"] = True
             if ref.bound is not None and v is not None and math.isfinite(v):
-                row[f"{variant}_meets"] = bool(v <= ref.bound)
+                row[f"{variant}_meets"] = bool(v <= ref.bound) and not failed
+            elif ref.bound is not None and failed:
+                row[f"{variant}_meets"] = False
         out.append(row)
     return out
+
+
+def failed_line(result: dict) -> str:
+    """``FAILED: …`` naming the failed frames of each variant; empty when none failed."""
+    parts = []
+    for variant, v in result["variants"].items():
+        fails = v.get("failures") or []
+        if not fails:
+            continue
+        frames = sorted({f["frame"] for f in fails})
+        shown = "; ".join(f["reason"] for f in fails[:3])
+        more = f"; … ({len(fails) - 3} more in tables/{variant}.csv)" if len(fails) > 3 else ""
+        parts.append(
+            f"{variant}: {len(frames)} failed frame{'s' if len(frames) > 1 else ''} "
+            f"({', '.join(map(str, frames))}): {shown}{more}"
+        )
+    if not parts:
+        return ""
+    return "FAILED: " + " | ".join(parts)
 
 
 def _num(v, unit: str = "um") -> str:
@@ -113,6 +142,16 @@ def markdown(study_dict: dict, result: dict) -> str:
         f"{study_dict['recon']['iterations']} iterations",
         f"- command: `{result.get('command', '')}`",
         "",
+    ]
+    if failed := failed_line(result):
+        lines += [
+            f"**{failed}**",
+            "",
+            "The numbers below leave the failed frames out; no comparison with the paper is "
+            "met (✗).",
+            "",
+        ]
+    lines += [
         "## Time per stage (s, this run; resumed stages count only new work)",
         "",
         "| variant | simulate | reconstruct | track | analyse |",
@@ -134,7 +173,9 @@ def markdown(study_dict: dict, result: dict) -> str:
             cells = []
             for v in variants:
                 cell = _num(row.get(v), row["unit"])
-                if f"{v}_meets" in row:
+                if row.get(f"{v}_failed") and f"{v}_meets" in row:
+                    cell += " ✗ (failed frames)"
+                elif f"{v}_meets" in row:
                     cell += " ✓" if row[f"{v}_meets"] else " ✗"
                 cells.append(cell)
             lines.append(

@@ -118,7 +118,8 @@ def track_stage(study, paths: VariantPaths, *, progress: bool = True) -> float:
 
     t0 = time.perf_counter()
     command = "run" if study.study.kind == "series" else "detect"
-    argv = [command, str(paths.volumes), "-o", str(paths.track), "--overwrite"]
+    # Failed frames are kept (--allow-partial): the analysis counts them and fails the study.
+    argv = [command, str(paths.volumes), "-o", str(paths.track), "--overwrite", "--allow-partial"]
     argv += study.track.detect_argv()
     if command == "run":
         argv += study.track.link_argv()

@@ -8,6 +8,12 @@ only redoes the (cheap) comparison.
 
 The report folder is refused when it holds anything that ``hrvptm`` did not write, or
 another study's outputs (unless ``overwrite``); nothing outside it is written.
+
+A study whose frames failed (:mod:`hrvptm.analysis`: not tracked, far too few particles
+detected, tracking ratio below 50 %) is *failed*: the tracking stage keeps the frames that
+worked (``track`` with partial results allowed) so that the report is still written, with
+``status: "failed"``, ``failed_frames`` and no comparison met; then :func:`run_study` raises
+:class:`~hrvptm.errors.StageError` naming the failed frames, unless ``allow_partial``.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from . import plots
 from .analysis import analyse
 from .config import Study
 from .errors import ReportExistsError, StageError, StudyConfigError
-from .report import comparison, write_summary, write_table
+from .report import comparison, failed_line, write_summary, write_table
 from .stages import VariantPaths, reconstruct, simulate, track_stage
 
 log = logging.getLogger(__name__)
@@ -120,6 +126,7 @@ def run_study(
     overwrite: bool = False,
     progress: bool = True,
     command: str = "",
+    allow_partial: bool = False,
 ) -> dict:
     """Run (or resume) a study and write its report.
 
@@ -137,6 +144,8 @@ def run_study(
         Progress bars of the stages.
     command : str
         Command line, recorded in the report.
+    allow_partial : bool
+        Return a failed study's result instead of raising (the report is the same).
 
     Returns
     -------
@@ -147,6 +156,8 @@ def run_study(
     Raises
     ------
     ReportExistsError, StageError, StudyConfigError
+        ``StageError`` also when frames failed (after the report is written), unless
+        ``allow_partial``.
     """
     from lfsim import init_backend
 
@@ -199,15 +210,21 @@ def run_study(
         out_variants[variant] = {
             "seconds": seconds[variant],
             "seconds_total": state["seconds_total"].get(variant, {}),
+            "failed_frames": a.summary["failed_frames"],
+            "failures": a.failures,
             "summary": a.summary,
             "rows": a.rows,
         }
     plot_files = _plots(study, results, report)
+    failed_frames = sum(v["failed_frames"] for v in out_variants.values())
     result = {
         "tool": TOOL,
         "version": _version(),
         "command": command,
         "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+        "status": "failed" if failed_frames else "complete",
+        "failed_frames": failed_frames,
+        "allow_partial": allow_partial,
         "variants": out_variants,
         "comparison": comparison(
             study.study.figure, {v: r["summary"] for v, r in out_variants.items()}
@@ -216,5 +233,14 @@ def run_study(
     }
     write_summary(report, study.to_dict(), result)
     run["finished"] = result["finished"]
+    run["status"] = result["status"]
     _save_state(report, state)
+    if failed_frames:
+        message = f"study {study.name!r} failed: {failed_line(result).removeprefix('FAILED: ')}"
+        if not allow_partial:
+            raise StageError(
+                f"{message}; report written to {report / 'summary.md'} "
+                "(use --allow-partial to accept a failed study)"
+            )
+        log.warning("%s (--allow-partial)", message)
     return result

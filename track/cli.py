@@ -23,9 +23,25 @@ are recomputed. A ``RESULTS`` folder made from other inputs or detection setting
 unless ``--overwrite`` (which then deletes only files ``track`` writes); a non-empty folder
 without a ``summary.json`` written by ``track`` is always refused.
 
-Errors a user can cause print one line ``track: error: <message>`` and exit with status 2.
-Frames that cannot be linked (fewer than 4 particles, tracking failure) do not stop the run:
-their pairs are marked ``"skipped: <reason>"`` in ``summary.json``.
+Exit status and failures:
+
+- ``0``: every step worked (``summary.json`` status ``"complete"``), or some failed and
+  ``--allow-partial`` was given (status ``"partial"``; each failure is a warning);
+- ``2``: an error a user can cause (bad option, input file or results folder), printed as
+  one line ``track: error: <message>``; an explicit ``--grid-spacing-um`` that gives more
+  nodes than ``10 × --target-nodes`` (and at most 2 000 000) or a single cell is refused
+  before any work;
+- ``3``: the run finished but some frames failed: a pair that could not be linked (fewer
+  than 4 particles, no consistent matches), a field that could not be gridded, or (``detect``)
+  a volume without particles. The results of everything that worked are written (each pair's
+  status in ``summary.json``, whose status is ``"failed"``), and one line names the first
+  failing frames and the reason, e.g. ``track: error: frames 3 → 4: skipped: fewer than 4
+  particles in frame 4 (2 found) (use --allow-partial to keep partial results)``;
+- ``130``: interrupted.
+
+Unless ``-q``, ``run``, ``detect`` and ``link`` show progress bars (on a terminal) and end
+with one line on stdout such as ``RESULTS: 7 volumes, 24–25 particles/frame, 6/6 pairs
+linked, tracking ratio ≥ 0.96, 6 fields, 12.3 s``.
 """
 
 from __future__ import annotations
@@ -51,11 +67,21 @@ from . import __version__
 from . import io as tio
 from .errors import InputError
 from .fields import GridSettings
-from .series import MODES, SeriesSettings, link_pairs, track_series
+from .series import (
+    MAX_GRID_NODES,
+    MODES,
+    SeriesSettings,
+    check_grid,
+    link_pairs,
+    track_series,
+)
 
 log = logging.getLogger("track.cli")
 
 SUMMARY = "summary.json"
+
+#: Exit status of a run that finished with failed frames (without ``--allow-partial``).
+EXIT_FAILED = 3
 
 
 class _Parser(argparse.ArgumentParser):
@@ -86,6 +112,22 @@ def _count(text: str) -> int:
     return v
 
 
+def _int_in(lo: int, hi: int):
+    """argparse type: an integer in ``lo..hi``."""
+    message = f"expected an integer in {lo}..{hi}, got {{!r}}"
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(message.format(text)) from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(message.format(text))
+        return v
+
+    return parse
+
+
 def _keyword_or_number(keyword: str, ok, expected: str):
     """argparse type: ``keyword`` itself, or a finite number for which ``ok(v)`` holds."""
     message = f"expected '{keyword}' or {expected}, got {{!r}}"
@@ -114,6 +156,12 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--overwrite",
         action="store_true",
         help="replace a RESULTS folder made by track from other inputs or settings",
+    )
+    p.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="keep going when frames fail (warnings, exit 0, summary status 'partial') "
+        "instead of exit status 3",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more messages")
@@ -153,9 +201,17 @@ def _link_options(p: argparse.ArgumentParser) -> None:
         type=_positive_float,
         default=None,
         metavar="UM",
-        help="node spacing of the gridded fields (default: about 50 000 nodes)",
+        help="node spacing of the gridded fields (default: about --target-nodes nodes); "
+        "refused when it gives more than 10 × --target-nodes nodes",
     )
-    g.add_argument("--target-nodes", type=_count, default=50_000, metavar="N")
+    g.add_argument(
+        "--target-nodes",
+        type=_int_in(8, MAX_GRID_NODES),
+        default=GridSettings.target_nodes,
+        metavar="N",
+        help=f"nodes of the default grid (default {GridSettings.target_nodes}, "
+        f"at most {MAX_GRID_NODES})",
+    )
     g.add_argument(
         "--interpolation", choices=("rbf", "linear"), default="rbf", help="gridding method"
     )
@@ -340,7 +396,7 @@ def _detect_all(args, out: Path, summary: dict, prev: dict | None) -> list[np.nd
                 }
             )
             if clouds[i].shape[0] == 0:
-                log.warning("volume %s: no particle found", v.path.name)
+                log.info("volume %s: no particle found", v.path.name)
             summary["psf"] = psf_note
             tio.write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
     summary["psf"] = psf_note
@@ -355,7 +411,7 @@ def _series_settings(args) -> SeriesSettings:
 
     grid = GridSettings(
         spacing_um=args.grid_spacing_um,
-        target_nodes=max(int(args.target_nodes), 8),
+        target_nodes=int(args.target_nodes),
         method=args.interpolation,
         smoothing=args.smoothing,
     )
@@ -369,27 +425,25 @@ def _series_settings(args) -> SeriesSettings:
 
 def _link_and_write(args, out: Path, summary: dict, clouds, frame_ids) -> None:
     settings = _series_settings(args)
+    summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
         "mode": settings.mode,
         "min_particles": settings.min_particles,
         "grid": _settings_dict(settings.grid),
         "link": _settings_dict(settings.link),
     }
-    _clear_derived(out)
     if len(clouds) < 2:
         raise InputError(f"linking needs at least 2 frames, got {len(clouds)}")
+    if settings.compute_fields and clouds[0].shape[0] >= settings.min_particles:
+        _check_grid_option(args, np.ptp(clouds[0], axis=0), "frame 0's particles")
+    _clear_derived(out)
     t0 = time.perf_counter()
-    bar = _progress(range(len(clouds) - 1), args, "link", "pair")
-    it = iter(bar)
-
-    def tick(_pair) -> None:
-        next(it, None)
-
-    pairs = link_pairs(clouds, settings, on_pair=tick)
-    if hasattr(bar, "close"):
-        bar.close()
+    n_pairs = len(clouds) - 1
+    with _progress(n_pairs, args, "link", "pair") as bar:
+        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update())
     t1 = time.perf_counter()
-    res = track_series(clouds, settings, pairs=pairs)
+    with _progress(n_pairs if settings.compute_fields else 0, args, "fields", "field") as bar:
+        res = track_series(clouds, settings, pairs=pairs, on_field=lambda _k: bar.update())
     t2 = time.perf_counter()
     increments = []
     for k, pair in enumerate(res.pairs):
@@ -410,8 +464,8 @@ def _link_and_write(args, out: Path, summary: dict, clouds, frame_ids) -> None:
             "field": None,
             "smoothing_xyz": None if res.smoothing[k] is None else list(res.smoothing[k]),
         }
-        if not pair.ok:
-            log.warning("frames %d → %d %s", ref_id, def_id, pair.status)
+        if not pair.ok:  # reported once at the end (_finish)
+            log.info("frames %d → %d %s", ref_id, def_id, pair.status)
         fld = res.total_fields[k]
         if fld is not None:
             base = out / "fields" / f"{def_id:06d}"
@@ -451,10 +505,110 @@ def _link_and_write(args, out: Path, summary: dict, clouds, frame_ids) -> None:
 
 
 def _progress(items, args, desc: str, unit: str):
+    """tqdm bar on stderr over ``items`` (an iterable, or a total count for ``update()``);
+    off with ``--no-progress`` or ``-q``, and when stderr is not a terminal."""
     from tqdm.auto import tqdm
 
     disable = True if (args.no_progress or args.quiet) else None
+    if isinstance(items, int):
+        disable = True if items == 0 else disable
+        return tqdm(total=items, desc=desc, unit=unit, disable=disable, file=sys.stderr)
     return tqdm(items, desc=desc, unit=unit, disable=disable, file=sys.stderr)
+
+
+def _check_grid_option(args, extent_xyz_um, where: str) -> None:
+    """Refuse a ``--grid-spacing-um`` that gives too many nodes, or a single cell."""
+    if getattr(args, "no_fields", False):
+        return
+    check_grid(
+        extent_xyz_um,
+        _series_settings(args).grid,
+        where=where,
+        spacing_name="--grid-spacing-um",
+        target_name="--target-nodes",
+    )
+
+
+def _volume_extent(vols) -> np.ndarray:
+    """Size (x, y, z) in µm spanned by the voxel centres of a volume series."""
+    shape = np.asarray(vols[0].shape, dtype=float)  # (nz, ny, nx)
+    vs = np.asarray(vols[0].voxel_size_um, dtype=float)  # (dz, dy, dx)
+    return ((shape - 1) * vs)[::-1]
+
+
+# -- failures and the closing line -----------------------------------------------------------
+def _failures(summary: dict) -> list[str]:
+    """One message per failed frame or pair of a finished run (empty: all worked)."""
+    out = []
+    if summary["command"] == "detect":
+        for f in summary.get("frames", []):
+            if f.get("n_particles", 1) == 0:
+                out.append(f"volume {Path(f['input']).name}: no particle found")
+    for inc in summary.get("increments", []):
+        where = f"frames {inc['ref_frame']} → {inc['def_frame']}"
+        if inc["status"] != "ok":
+            out.append(f"{where}: {inc['status']}")
+        elif summary.get("fields_requested", True) and inc["field_status"] != "ok":
+            out.append(f"{where}: field {inc['field_status']}")
+    return out
+
+
+def _failure_line(failures: list[str], summary: dict) -> str:
+    what = "pair" if summary.get("increments") else "volume"
+    more = len(failures) - 1
+    extra = f"; and {more} more {what}{'s' if more > 1 else ''} failed" if more else ""
+    where = f" (results kept, see {SUMMARY}; " if more else " ("
+    return f"{failures[0]}{extra}{where}use --allow-partial to keep partial results)"
+
+
+def _results_line(summary: dict) -> str:
+    """``RESULTS: 7 volumes, 24–25 particles/frame, 6/6 pairs linked, ...`` (one line)."""
+    frames = summary.get("frames", [])
+    kind = "clouds" if summary["command"] == "link" else "volumes"
+    parts = [f"{len(frames)} {kind}"]
+    counts = [f["n_particles"] for f in frames if "n_particles" in f]
+    if counts:
+        lo, hi = min(counts), max(counts)
+        parts.append(f"{lo}–{hi} particles/frame" if lo != hi else f"{lo} particles/frame")
+    incs = summary.get("increments")
+    if incs is not None:
+        linked = [i for i in incs if i["status"] == "ok"]
+        parts.append(f"{len(linked)}/{len(incs)} pairs linked")
+        ratios = [i["tracking_ratio"] for i in linked if i["tracking_ratio"] is not None]
+        if ratios:
+            parts.append(f"tracking ratio ≥ {math.floor(100 * min(ratios)) / 100:.2f}")
+        if summary.get("fields_requested", True):
+            parts.append(f"{sum(i['field'] is not None for i in incs)} fields")
+        else:
+            parts.append("no fields")
+    parts.append(f"{summary['timings'].get('total_s', 0.0):.1f} s")
+    status = summary["status"]
+    return "RESULTS: " + ", ".join(parts) + ("" if status == "complete" else f" ({status.upper()})")
+
+
+def _finish(args, out: Path, summary: dict, t0: float) -> int:
+    """Set the status, write ``summary.json``, print the closing lines; the exit status."""
+    failures = _failures(summary)
+    summary["failures"] = failures
+    summary["allow_partial"] = bool(args.allow_partial)
+    if not failures:
+        summary["status"] = "complete"
+    else:
+        summary["status"] = "partial" if args.allow_partial else "failed"
+    summary["timings"]["total_s"] = time.perf_counter() - t0
+    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    log.info("results in %s", out)
+    if not args.quiet:
+        sys.stdout.write(_results_line(summary) + "\n")
+        sys.stdout.flush()
+    if not failures:
+        return 0
+    if args.allow_partial:
+        for f in failures:
+            log.warning("%s (kept: --allow-partial)", f)
+        return 0
+    sys.stderr.write(f"track: error: {_failure_line(failures, summary)}\n")
+    return EXIT_FAILED
 
 
 def _new_summary(args, command: str, fingerprint: str, parameters: dict) -> dict:
@@ -491,16 +645,15 @@ def cmd_detect(args, *, then_link: bool = False) -> int:
     clouds = _detect_all(args, out, summary, prev)
     if then_link:
         _link_and_write(args, out, summary, clouds, summary["frame_ids"])
-    summary["status"] = "complete"
-    summary["timings"]["total_s"] = time.perf_counter() - t0
-    tio.write_json(out / SUMMARY, summary, overwrite=True)
-    log.info("results in %s", out)
-    return 0
+    return _finish(args, out, summary, t0)
 
 
 def cmd_run(args) -> int:
     """``track run``: detect, link, grid."""
     _series_settings(args)  # validate before any work
+    if args.voldir.is_dir():
+        vols = tio.scan_volumes(args.voldir)
+        _check_grid_option(args, _volume_extent(vols), "the volume")
     return cmd_detect(args, then_link=True)
 
 
@@ -511,6 +664,8 @@ def cmd_link(args) -> int:
         raise InputError(f"link needs at least 2 point clouds, got {len(args.clouds)}")
     _series_settings(args)
     clouds = [tio.read_points_csv(p) for p in args.clouds]
+    if clouds[0].shape[0] >= 2:
+        _check_grid_option(args, np.ptp(clouds[0], axis=0), "frame 0's particles")
     checks = [tio.sha256_file(p) for p in args.clouds]
     params = {"sources": [str(p.resolve()) for p in args.clouds]}
     fp = _fingerprint({**params, "sha256": checks})
@@ -536,10 +691,7 @@ def cmd_link(args) -> int:
     summary["frames"] = frames
     tio.write_json(out / SUMMARY, summary, overwrite=True)
     _link_and_write(args, out, summary, clouds, list(range(len(clouds))))
-    summary["status"] = "complete"
-    summary["timings"]["total_s"] = time.perf_counter() - t0
-    tio.write_json(out / SUMMARY, summary, overwrite=True)
-    return 0
+    return _finish(args, out, summary, t0)
 
 
 class _Formatter(logging.Formatter):
@@ -548,7 +700,8 @@ class _Formatter(logging.Formatter):
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``track``; returns the exit status (0 success, 2 user error)."""
+    """Entry point of ``track``; returns the exit status (0 success, 2 user error, 3 failed
+    frames, 130 interrupted: see the module docstring)."""
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     try:

@@ -63,6 +63,12 @@ MODES = ("incremental", "cumulative")
 #: Status of a pair, increment or field that was computed.
 OK = "ok"
 
+#: Most nodes a gridded field may have. A series keeps about 60 floats per node and frame in
+#: memory (increment and total ``u, F, E, e``), 0.5 kB: 1 GB per frame at this size.
+MAX_GRID_NODES = 2_000_000
+#: An explicit grid spacing may give at most this many times ``GridSettings.target_nodes``.
+SPACING_NODES_FACTOR = 10
+
 
 @dataclass(frozen=True)
 class SeriesSettings:
@@ -96,6 +102,80 @@ class SeriesSettings:
             raise InputError(f"min_particles must be an integer >= 4, got {self.min_particles!r}")
         if not isinstance(self.grid, GridSettings):
             raise InputError(f"grid must be a GridSettings, got {type(self.grid).__name__}")
+        if int(self.grid.target_nodes) > MAX_GRID_NODES:
+            raise InputError(
+                f"target_nodes must be at most {MAX_GRID_NODES}, got {self.grid.target_nodes!r}"
+            )
+
+
+def grid_node_count(extent_xyz_um, spacing_um: float) -> float:
+    """Nodes of the grid :func:`track.fields.grid_axes` builds with ``spacing_um`` over a box.
+
+    Parameters
+    ----------
+    extent_xyz_um : sequence of 3 float
+        Size of the box along x, y, z (µm), each > 0.
+    spacing_um : float
+        Node spacing (µm), > 0.
+
+    Returns
+    -------
+    float
+        ``Π max(2, ⌈extent / spacing⌉ + 1)``, in floating point (no integer overflow for
+        absurd spacings).
+    """
+    ext = np.asarray(extent_xyz_um, dtype=float).reshape(3)
+    n = np.maximum(2.0, np.ceil(ext / float(spacing_um) - 1e-9) + 1.0)
+    return float(np.prod(n))
+
+
+def check_grid(
+    extent_xyz_um,
+    grid: GridSettings,
+    *,
+    where: str = "the particles",
+    spacing_name: str = "spacing_um",
+    target_name: str = "target_nodes",
+) -> None:
+    """Refuse an explicit grid spacing that gives too many nodes, or a single cell.
+
+    Parameters
+    ----------
+    extent_xyz_um : sequence of 3 float
+        Size along x, y, z (µm) of the box the grid covers (frame 0's particles, or a volume
+        that holds them: an upper bound).
+    grid : GridSettings
+        Only an explicit ``spacing_um`` is checked (the default spacing gives about
+        ``target_nodes`` nodes).
+    where : str
+        What the box is, for the message.
+    spacing_name, target_name : str
+        Names of the two settings in the message (e.g. the command-line options).
+
+    Raises
+    ------
+    InputError
+        More than ``min(SPACING_NODES_FACTOR × target_nodes, MAX_GRID_NODES)`` nodes, or a
+        spacing at least as large as the box's largest extent (the grid would be one cell).
+    """
+    h = grid.spacing_um
+    ext = np.asarray(extent_xyz_um, dtype=float).reshape(3)
+    if h is None or not np.all(np.isfinite(ext)) or np.any(ext <= 0):
+        return
+    size = " × ".join(f"{v:.4g}" for v in ext)
+    limit = min(SPACING_NODES_FACTOR * int(grid.target_nodes), MAX_GRID_NODES)
+    count = grid_node_count(ext, h)
+    if count > limit:
+        raise InputError(
+            f"{spacing_name} {h:g} µm gives {count:.3g} grid nodes over {where} ({size} µm), "
+            f"more than {limit} (at most {SPACING_NODES_FACTOR} × {target_name} and "
+            f"{MAX_GRID_NODES}); choose a larger spacing"
+        )
+    if h >= float(ext.max()):
+        raise InputError(
+            f"{spacing_name} {h:g} µm is not smaller than {where} ({size} µm): the grid would be "
+            "a single cell; choose a smaller spacing"
+        )
 
 
 @dataclass(frozen=True)
@@ -476,7 +556,7 @@ def link_pairs(
                 )
                 prev_field = getattr(lr, "displacement_field", None)
             except TrackError as exc:
-                log.warning("frames %d → %d not tracked: %s", r, i, exc)
+                log.info("frames %d → %d not tracked: %s", r, i, exc)
                 res = _skipped(r, i, f"tracking failed: {exc}")
         log.info("frames %d → %d: %s, %d matches", r, i, res.status, res.matches.shape[0])
         if on_pair is not None:
@@ -492,6 +572,7 @@ def track_series(
     linker: Callable[..., Any] | None = None,
     pairs: Sequence[PairResult] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
+    on_field: Callable[[int], None] | None = None,
 ) -> SeriesResult:
     """Link a series of point clouds and compute trajectories and displacement/strain fields.
 
@@ -506,6 +587,8 @@ def track_series(
         Already linked pairs (skip the linking).
     on_pair : callable, optional
         Progress callback, see :func:`link_pairs`.
+    on_field : callable, optional
+        Called with the pair's index ``k`` once its field is done (gridded or skipped).
 
     Returns
     -------
@@ -537,11 +620,12 @@ def track_series(
             if pts[0].shape[0] < settings.min_particles:
                 raise InputError(f"fewer than {settings.min_particles} particles in frame 0")
             g = settings.grid
+            check_grid(np.ptp(pts[0], axis=0), g, where="frame 0's particles")
             axes = grid_axes(pts[0], g.spacing_um, target_nodes=g.target_nodes)
         except InputError as exc:
             status = [f"skipped: no reference grid ({exc})"] * n
         if axes is not None:
-            _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams)
+            _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field)
     return SeriesResult(
         mode=settings.mode,
         pairs=pairs,
@@ -566,7 +650,8 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
     return fit_displacement(ref, pair.displacement_um, settings.grid)
 
 
-def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams) -> None:
+def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field) -> None:
+    done = on_field or (lambda k: None)
     step = axes.spacing_um
     X = axes.points()
     shape = axes.shape
@@ -579,6 +664,7 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams) -> Non
                 status[k] = OK
             except InputError as exc:
                 status[k] = f"skipped: {exc}"
+            done(k)
         return
     u = np.zeros_like(X)
     F = np.broadcast_to(np.eye(3), (X.shape[0], 3, 3)).copy()
@@ -590,11 +676,13 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams) -> Non
         except InputError as exc:
             status[k] = f"skipped: {exc}"
             broken = broken or f"skipped: increment {pair.ref_frame} → {pair.def_frame} missing"
+            done(k)
             continue
         lams[k] = interp.smoothing
         inc_fields[k] = field_on_grid(interp, axes)
         if broken is not None:
             status[k] = broken
+            done(k)
             continue
         u, F, sup = compose_step(X, u, F, interp, step)
         mask &= sup
@@ -610,16 +698,21 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams) -> Non
             mask.reshape(shape),
         )
         status[k] = OK
+        done(k)
 
 
 __all__ = [
+    "MAX_GRID_NODES",
     "MODES",
+    "SPACING_NODES_FACTOR",
     "PairResult",
     "SeriesResult",
     "SeriesSettings",
     "Tracks",
+    "check_grid",
     "compose_step",
     "cumulate_eulerian",
+    "grid_node_count",
     "lagrangian_displacements",
     "link_pairs",
     "link_tracks",

@@ -43,14 +43,15 @@ def _write_csv(path: Path, header: str, rows: np.ndarray) -> None:
     np.savetxt(path, rows, delimiter=",", header=header, comments="", fmt="%.9g")
 
 
-def _fake_variant(tmp: Path, study, bias, noise_um, seed=0, drop=()):
-    """Truth from the study's motion; detections = truth + bias + N(0, noise) (per axis)."""
+def _fake_variant(tmp: Path, study, bias, noise_um, seed=0, drop=(), keep_n=None, name="v"):
+    """Truth from the study's motion; detections = truth + bias + N(0, noise) (per axis).
+    ``keep_n``: ``{frame: n}`` keeps only ``n`` detections of those frames (failed frames)."""
     rng = np.random.default_rng(seed)
     exp = study.experiment
     X = np.column_stack(
         [rng.uniform(-400, 400, 60), rng.uniform(-300, 300, 60), rng.uniform(120, 400, 60)]
     )
-    paths = VariantPaths(tmp / "v")
+    paths = VariantPaths(tmp / name)
     records = []
     for k in range(exp.frames):
         x = exp.positions(X, k)
@@ -63,7 +64,8 @@ def _fake_variant(tmp: Path, study, bias, noise_um, seed=0, drop=()):
         det = x + np.asarray(bias) + rng.normal(0, 1, x.shape) * np.asarray(noise_um)
         keep = np.setdiff1d(ids, drop) if k > 0 else ids
         det = det[keep][rng.permutation(len(keep))]
-        _write_csv(paths.track / "particles" / f"{k:06d}.csv", "x_um,y_um,z_um", det)
+        rows = det[: (keep_n or {}).get(k, len(det))]
+        _write_csv(paths.track / "particles" / f"{k:06d}.csv", "x_um,y_um,z_um", rows)
         records.append({"frame": k, "noise": {"snr": exp.noise_for_frame(k).snr}})
     (paths.dataset / "dataset.json").write_text(json.dumps({"frame_records": records}))
     paths.volumes.mkdir(parents=True)
@@ -74,13 +76,15 @@ def _fake_variant(tmp: Path, study, bias, noise_um, seed=0, drop=()):
 
 
 def _link(tmp: Path, paths, frames: int) -> None:
-    """Link the (already detected) clouds with the track command line, as a study would."""
+    """Link the (already detected) clouds with the track command line, as a study would
+    (failed pairs are kept: the analysis counts them)."""
     from track.cli import main as track_main
 
     clouds = [str(paths.track / "particles" / f"{k:06d}.csv") for k in range(frames)]
     link_dir = tmp / "linked"
-    assert track_main(["link", *clouds, "-o", str(link_dir), "--target-nodes", "4000", "-q"]) == 0
-    for name in ("tracks.csv", "fields"):
+    argv = ["link", *clouds, "-o", str(link_dir), "--target-nodes", "4000", "-q"]
+    assert track_main([*argv, "--allow-partial"]) == 0
+    for name in ("tracks.csv", "fields", "summary.json"):
         (link_dir / name).rename(paths.track / name)
 
 
@@ -178,3 +182,81 @@ def test_series_of_a_non_affine_field_reports_the_sampling_floor(tmp_path):
         assert floor > 0.002  # a cosine across 600 µm sampled by 60 particles: not exact
         assert floor <= last[f"E_rmsd_{c}"] < 1.1 * floor  # measured 0.81/0.83, 0.67/0.70 %
     assert a.summary["pooled_E_floor_rmsd_xz"] > 0.002
+
+
+def test_localization_counts_a_frame_without_detections_as_failed(tmp_path):
+    study = _study(3, None, "localization")
+    paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.1, 0.1, 0.5), keep_n={1: 0, 2: 10})
+    a = analyse_localization(VariantData.load(study, paths))
+    assert [r["failure"] for r in a.rows] == [
+        "",
+        "frame 1: no particle detected (60 in the volume)",
+        "frame 2: only 10 of 60 particles detected",  # < 25 % of the true particles
+    ]
+    assert a.summary["failed_frames"] == 2 and a.failed
+    assert a.summary["pooled_rmsd_x"] < 0.2  # the numbers alone would look fine
+
+
+def _failed_series(tmp_path, name="v"):
+    """Simple shear over 5 frames whose frame 2 kept only 3 detections: pairs 1 → 2 and
+    2 → 3 cannot be linked and no track from frame 0 reaches frames 2–4."""
+    motion = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.02, "center_um": [0, 0, 250]}
+    study = _study(5, motion, "series", figure="6c")
+    paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n={2: 3}, name=name)
+    _link(tmp_path, paths, 5)
+    return study, paths
+
+
+def test_series_with_untracked_frames_is_failed_and_meets_no_bound(tmp_path):
+    from hrvptm.report import comparison, failed_line, markdown
+
+    study, paths = _failed_series(tmp_path)
+    a = analyse_series(VariantData.load(study, paths))
+    assert [r["tracking_ratio"] for r in a.rows] == [1.0, 0.0, 0.0, 0.0]
+    fails = [r["failure"] for r in a.rows]
+    assert fails[0] == ""
+    assert fails[1].startswith("frames 1 → 2: skipped: fewer than 4 particles in frame 2")
+    assert fails[1].endswith("; frame 2: only 3 of 60 particles detected")
+    assert fails[2].startswith("frames 2 → 3: skipped: fewer than 4 particles in frame 2")
+    assert fails[3] == "frames 3 → 4: field skipped: increment 1 → 2 missing"
+    assert a.summary["failed_frames"] == 3
+    # the tracked frame alone is accurate: without the failure every bound would be met
+    assert a.summary["pooled_E_rmsd_xz"] < 0.005 and a.summary["pooled_u_rmsd_x"] < 0.2
+    summaries = {"matched": a.summary}
+    rows = comparison("6c", summaries)
+    assert rows and all(r["matched_meets"] is False for r in rows if r["bound"] is not None)
+    ok = comparison("6c", {"matched": {**a.summary, "failed_frames": 0}})
+    assert any(r.get("matched_meets") for r in ok)  # the same numbers, not failed: ✓
+    variant = {"seconds": {}, "summary": a.summary, "rows": a.rows, "failures": a.failures}
+    result = {"variants": {"matched": variant}, "comparison": rows, "status": "failed"}
+    line = failed_line(result)
+    assert line.startswith("FAILED: matched: 3 failed frames (2, 3, 4): frames 1 → 2: skipped")
+    md = markdown(study.to_dict(), result)
+    assert f"**{line}**" in md and "✓" not in md.split("✓/✗")[0]
+
+
+def test_run_study_reports_a_failed_study_then_raises(tmp_path, monkeypatch):
+    """The study runner writes the report of a failed study (status failed, failed_frames,
+    FAILED line, no ✓) and raises, unless partial results are allowed."""
+    import hrvptm.study as hs
+    import lfsim
+    from hrvptm.errors import StageError
+
+    monkeypatch.setattr(lfsim, "init_backend", lambda: None)
+    for stage in ("simulate", "reconstruct", "track_stage"):
+        monkeypatch.setattr(hs, stage, lambda *a, **k: 0.0)
+    report = tmp_path / "report"
+    study, _ = _failed_series(tmp_path, name="report/matched")
+    state = {"tool": "hrvptm", "name": study.name, "runs": [], "seconds_total": {}}
+    (report / "study.json").write_text(json.dumps(state))
+    with pytest.raises(StageError, match=r"study 'synthetic' failed: matched: 3 failed frames"):
+        hs.run_study(study, report)
+    s = json.loads((report / "summary.json").read_text())
+    assert s["status"] == "failed" and s["failed_frames"] == 3
+    assert s["variants"]["matched"]["failed_frames"] == 3
+    assert not any(r.get("matched_meets") for r in s["comparison"])
+    md = (report / "summary.md").read_text()
+    assert "**FAILED: matched: 3 failed frames (2, 3, 4)" in md
+    assert "✓" not in md.split("✓/✗")[0]
+    result = hs.run_study(study, report, allow_partial=True)
+    assert result["status"] == "failed" and result["allow_partial"] is True

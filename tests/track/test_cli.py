@@ -18,6 +18,14 @@ from .conftest import random_centres, render_blobs
 N = 300
 
 
+def _error_line(err: str) -> str:
+    """The one error line of a failed run (library warnings such as detect's may precede it)."""
+    lines = err.strip().splitlines()
+    assert sum(ln.startswith("track: error:") for ln in lines) == 1 and "Traceback" not in err
+    assert lines[-1].startswith("track: error:")
+    return lines[-1]
+
+
 def _write_cloud(path: Path, xyz, extra=True):
     cols = "x_um,y_um,z_um,intensity" if extra else "x_um,y_um,z_um"
     lines = [cols] + [",".join(repr(float(v)) for v in (*p, 1.0)[: 4 if extra else 3]) for p in xyz]
@@ -42,10 +50,10 @@ def clouds(tmp_path_factory):
     return paths, ids
 
 
-def _run(argv, capsys):
+def _run(argv, capsys, out=False):
     rc = main([str(a) for a in argv])
     cap = capsys.readouterr()
-    return rc, cap.err
+    return (rc, cap.err, cap.out) if out else (rc, cap.err)
 
 
 @pytest.fixture(scope="module")
@@ -133,23 +141,64 @@ def test_bad_clouds_exit_2_with_one_line(clouds, tmp_path, capsys, content, matc
     assert not out.exists()
 
 
-def test_frame_with_fewer_than_4_particles_is_flagged(clouds, tmp_path, capsys):
+def test_frame_with_fewer_than_4_particles_fails_loudly(clouds, tmp_path, capsys):
+    """A pair that cannot be linked: exit status 3 and one line naming the frames and the
+    reason; what worked is still written, summary.json says "failed"."""
     paths, _ = clouds
     few = tmp_path / "few.csv"
     _write_cloud(few, [[1, 2, 3], [4, 5, 6], [7, 8, 10]], extra=False)
     out = tmp_path / "out"
+    argv = ["link", paths[0], paths[1], few, "-o", out, "--target-nodes", "500", "--no-progress"]
+    rc, err, stdout = _run(argv, capsys, out=True)
+    assert rc == 3
+    assert err.count("\n") == 1 and err.startswith("track: error: frames 1 → 2: skipped: fewer ")
+    assert "in frame 2 (3 found)" in err and "--allow-partial" in err
+    assert stdout.startswith("RESULTS: 3 clouds, 3–300 particles/frame, 1/2 pairs linked")
+    assert stdout.rstrip().endswith("(FAILED)")
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and s["allow_partial"] is False
+    assert s["increments"][0]["status"] == "ok"
+    assert s["increments"][1]["status"].startswith("skipped: fewer than 4 particles in frame 2")
+    assert s["increments"][1]["tracking_ratio"] is None
+    assert len(s["failures"]) == 1 and s["failures"][0] in err
+    assert (out / "fields" / "000001.npz").is_file()  # the pair that worked is kept
+    assert not (out / "fields" / "000002.npz").exists()
+    # two failing pairs: still one line, naming the first and counting the others
+    argv[1:4] = [paths[0], few, paths[1]]
+    rc, err = _run([*argv, "--overwrite"], capsys)
+    assert rc == 3 and err.count("\n") == 1
+    assert err.startswith("track: error: frames 0 → 1: skipped: fewer than 4 particles in frame 1")
+    assert "and 1 more pair failed" in err
+    # --allow-partial: the same results, warnings, exit 0, status "partial"
+    rc, err, stdout = _run([*argv, "--allow-partial", "-q"], capsys, out=True)
+    assert rc == 0 and err == "" and stdout == ""
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "partial" and len(s["failures"]) == 2
+    rc, err = _run([*argv, "--allow-partial"], capsys)
+    assert rc == 0 and err.count("track: warning: frames ") == 2 and "Traceback" not in err
+
+
+def test_grid_spacing_and_target_nodes_are_refused_up_front(clouds, tmp_path, capsys):
+    paths, _ = clouds
+    out = tmp_path / "out"
+    for spacing, what in (("0.01", "grid nodes over frame 0's particles"), ("1e6", "single")):
+        rc, err = _run(["link", *paths, "-o", out, "--grid-spacing-um", spacing], capsys)
+        assert rc == 2 and err.count("\n") == 1, err
+        assert err.startswith(f"track: error: --grid-spacing-um {float(spacing):g} µm ")
+        assert what in err
+        assert not out.exists()
+    # 400 × 400 × 300 µm at 5 µm: 81 × 81 × 61 = 400 221 nodes, within 10 × 50 000
+    rc, err = _run(["link", *paths, "-o", out, "--grid-spacing-um", "5", "--no-fields"], capsys)
+    assert rc == 0, err
     rc, err = _run(
-        ["link", paths[0], few, paths[1], "-o", out, "--target-nodes", "500", "--no-progress"],
+        ["link", *paths, "-o", tmp_path / "o2", "--grid-spacing-um", "5", "--target-nodes", "9000"],
         capsys,
     )
-    assert rc == 0, err
-    s = json.loads((out / "summary.json").read_text())
-    st = [i["status"] for i in s["increments"]]
-    assert st[0].startswith("skipped: fewer than 4 particles in frame 1")
-    assert st[1].startswith("skipped: fewer than 4 particles in frame 1")
-    assert s["increments"][0]["tracking_ratio"] is None
-    assert not (out / "fields" / "000001.npz").exists()
-    assert "Traceback" not in err
+    assert rc == 2 and "more than 90000 (at most 10 × --target-nodes" in err
+    for n in ("0", "7", "1000000000000", "1e12", "2000001"):
+        rc, err = _run(["link", *paths, "-o", out, "--target-nodes", n], capsys)
+        assert rc == 2 and err.count("\n") == 1
+        assert f"argument --target-nodes: expected an integer in 8..2000000, got '{n}'" in err
 
 
 def test_usage_errors_are_one_line(tmp_path, capsys):
@@ -193,10 +242,13 @@ def test_run_end_to_end_and_resume(tmp_path, capsys):
     _volumes(vols)
     out = tmp_path / "res"
     argv = ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4", "--no-progress"]
-    rc, err = _run(argv, capsys)
+    rc, err, stdout = _run(argv, capsys, out=True)
     assert rc == 0, err
+    line = stdout.strip()
+    assert line.count("\n") == 0 and line.startswith("RESULTS: 3 volumes, ")
+    assert "20 particles/frame, 2/2 pairs linked, tracking ratio ≥ 1.00, 2 fields, " in line
     s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "complete" and len(s["frames"]) == 3
+    assert s["status"] == "complete" and len(s["frames"]) == 3 and s["failures"] == []
     assert all(len(f["input_sha256"]) == 64 for f in s["frames"])
     for k in range(3):
         assert tio.read_points_csv(out / "particles" / f"{k:06d}.csv").shape[0] >= 10
@@ -220,6 +272,32 @@ def test_run_end_to_end_and_resume(tmp_path, capsys):
     assert rc == 0, err
 
 
+def test_run_refuses_a_grid_finer_than_the_volume_allows_before_detection(tmp_path, capsys):
+    vols = tmp_path / "vols"
+    _volumes(vols, n_frames=2)
+    out = tmp_path / "res"
+    rc, err = _run(["run", vols, "-o", out, "--grid-spacing-um", "0.01", "--no-progress"], capsys)
+    assert rc == 2 and err.count("\n") == 1
+    assert "--grid-spacing-um 0.01 µm gives" in err and "over the volume (63 × 63 × 58 µm)" in err
+    assert not out.exists()
+
+
+def test_detect_fails_on_a_volume_without_particles(tmp_path, capsys):
+    vols = tmp_path / "vols"
+    _volumes(vols, n_frames=2, empty=(1,))
+    out = tmp_path / "res"
+    argv = ["detect", vols, "-o", out, "--no-deconvolution", "--no-progress"]
+    rc, err, stdout = _run(argv, capsys, out=True)
+    assert rc == 3 and _error_line(err) == (
+        "track: error: volume 000001.tif: no particle found "
+        "(use --allow-partial to keep partial results)"
+    )
+    assert stdout.startswith("RESULTS: 2 volumes, 0–")
+    assert (out / "particles" / "000000.csv").is_file()
+    rc, err = _run([*argv, "--allow-partial"], capsys)
+    assert rc == 0 and "warning: volume 000001.tif: no particle found" in err
+
+
 def test_run_bad_series_exit_2(tmp_path, capsys):
     vols = tmp_path / "gap"
     _volumes(vols)
@@ -236,16 +314,21 @@ def test_run_bad_series_exit_2(tmp_path, capsys):
     assert not (tmp_path / "r2").exists()
 
 
-def test_run_with_an_empty_volume_flags_the_pairs(tmp_path, capsys):
+def test_run_with_an_empty_volume_fails_unless_partial_results_are_allowed(tmp_path, capsys):
     vols = tmp_path / "vols"
     _volumes(vols, n_frames=3, empty=(2,))
     out = tmp_path / "res"
-    rc, err = _run(
-        ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4", "--no-progress"],
-        capsys,
+    argv = ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4"]
+    rc, err = _run([*argv, "--no-progress"], capsys)
+    assert rc == 3 and _error_line(err).startswith(
+        "track: error: frames 1 → 2: skipped: fewer than 4 particles in frame 2"
     )
+    assert json.loads((out / "summary.json").read_text())["status"] == "failed"
+    # the same folder resumes (detection reused) and keeps the partial results when allowed
+    rc, err = _run([*argv, "--no-progress", "--allow-partial"], capsys)
     assert rc == 0, err
     s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "partial" and all(f.get("reused") for f in s["frames"])
     assert s["frames"][2]["n_particles"] < 4
     assert s["increments"][0]["status"] == "ok"
     assert s["increments"][1]["status"].startswith("skipped: fewer than 4 particles in frame 2")
