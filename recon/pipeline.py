@@ -223,7 +223,8 @@ def reconstruct_series(
         ``out_dir`` holds something else, or volumes made from other inputs or settings
         (without ``overwrite``). Nothing is written then.
     """
-    from lfsim.io import write_json, write_tiff
+    from hrvbase.io import file_record, verify_record, write_json
+    from lfsim.io import write_tiff
 
     from .frames import FrameReader, FrameRef, check_frames, frame_checksums
     from .rectify import rectify
@@ -297,10 +298,21 @@ def reconstruct_series(
     for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
         entry = _frame_entry(k, ref, sha)
         e = prev_frames.get(k)
-        if e and e.get("input_sha256") == sha and volume_path(out, k).is_file():
+        if (
+            e
+            and e.get("input_sha256") == sha
+            and verify_record(volume_path(out, k), e.get("output"))
+        ):
             entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
             skipped.append(k)
         else:
+            if e and e.get("input_sha256") == sha and volume_path(out, k).is_file():
+                log.warning(
+                    "%s: volume %06d.tif changed on disk since it was written (truncated or "
+                    "corrupt); reconstructing it again",
+                    out,
+                    k,
+                )
             todo.append(k)
         frame_entries.append(entry)
     meta["frames"] = frame_entries
@@ -337,7 +349,7 @@ def reconstruct_series(
                     )
                 modelled = st.background_model == "model"
                 img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
-                rect, rgeom = _rectify_roi(rectify, img, grid, n, st.roi_px)
+                rect, _ = _rectify_roi(rectify, img, grid, n, st.roi_px)
                 res = richardson_lucy(
                     rect,
                     projector,
@@ -345,9 +357,9 @@ def reconstruct_series(
                     depth_filter=filt,
                     stop_rel_change=st.stop_rel_change,
                     track_kl=False,
-                    background=max(pinfo["background"], 0.0) * rgeom.flux_scale
-                    if modelled
-                    else 0.0,
+                    # Rectified pixels are interpolated samples, so a constant black level
+                    # keeps its value (no flux factor).
+                    background=max(pinfo["background"], 0.0) if modelled else 0.0,
                 )
                 source = {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS}
                 write_tiff(
@@ -370,6 +382,7 @@ def reconstruct_series(
                         "iterations": res.iterations,
                         "preprocess": pinfo,
                         "rel_change": res.rel_change,
+                        "output": file_record(volume_path(out, k)),
                     }
                 )
                 write_json(meta_path, meta, overwrite=True)
@@ -382,7 +395,7 @@ def reconstruct_series(
 #: Per-frame entries of ``recon.json`` naming the frame's source.
 _SOURCE_KEYS = ("input", "page", "number", "time_s")
 #: Per-frame entries of ``recon.json`` that a reconstruction adds (kept when resuming).
-_RESULT_KEYS = ("seconds", "iterations", "preprocess", "rel_change")
+_RESULT_KEYS = ("seconds", "iterations", "preprocess", "rel_change", "output")
 
 
 def _frame_entry(k: int, ref, sha: str) -> dict:
