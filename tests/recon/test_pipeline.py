@@ -101,6 +101,16 @@ def test_resume_and_refusal(dataset, tmp_path, capsys):
     assert "1 volume(s) reconstructed, 2 already done" in out
     after = {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")}
     assert after == before  # the resumed frame is byte-identical
+    # Resume verifies what it keeps: a truncated volume is redone, exactly that one.
+    with open(vol_dir / "000002.tif", "r+b") as fh:
+        fh.truncate(1000)
+    mtimes = {p.name: p.stat().st_mtime_ns for p in vol_dir.glob("*.tif")}
+    rc, out, err = main_verbose(capsys, *args)
+    assert rc == 0 and "1 volume(s) reconstructed, 2 already done" in out
+    assert "000002.tif changed on disk" in err
+    assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
+    changed = [p.name for p in vol_dir.glob("*.tif") if p.stat().st_mtime_ns != mtimes[p.name]]
+    assert changed == ["000002.tif"]
     # Other settings into the same folder: refused, nothing touched.
     rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "2", "-o", vol_dir)
     assert rc == 2 and "other inputs or settings" in err and err.count("\n") == 1
