@@ -71,8 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate → reconstruct → track → compare with the truth; writes CSV "
         "tables, plots, summary.md and summary.json into REPORT. A rerun resumes.",
     )
-    st.add_argument("experiment", type=Path, metavar="EXPERIMENT.toml")
-    st.add_argument("-o", "--output", required=True, type=Path, metavar="REPORT")
+    st.add_argument(
+        "experiment", type=Path, metavar="EXPERIMENT.toml", help="study file (experiment TOML)"
+    )
+    st.add_argument(
+        "-o", "--output", required=True, type=Path, metavar="REPORT", help="report folder"
+    )
     st.add_argument(
         "--until",
         choices=("simulate", "reconstruct", "track", "analyse"),
@@ -88,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the built-in small study (simple shear, test size)",
         description=f"Run {DEMO.name} end to end and print its summary.",
     )
-    de.add_argument("-o", "--output", required=True, type=Path, metavar="DIR")
+    de.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="report folder")
     common(de)
     de.set_defaults(func=cmd_demo)
 
@@ -98,10 +102,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="gather study reports into one Markdown page",
         description="Gather the summary.md of finished reports into one page with their plots.",
     )
-    co.add_argument("reports", type=Path, nargs="+", metavar="REPORT")
-    co.add_argument("-o", "--output", required=True, type=Path, metavar="PAGE.md")
+    co.add_argument("reports", type=Path, nargs="+", metavar="REPORT", help="finished reports")
     co.add_argument(
-        "--preamble", type=Path, default=None, metavar="INTRO.md", help="page header to use"
+        "-o", "--output", required=True, type=Path, metavar="PAGE.md", help="Markdown page"
+    )
+    co.add_argument(
+        "--preamble",
+        type=Path,
+        default=None,
+        metavar="INTRO.md",
+        help="Markdown file to use as the page header (default: a generated one)",
     )
     co.add_argument(
         "--overwrite",

@@ -294,6 +294,42 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=Parser)
     common = common_options(suppress=True)
 
+    def output(q, what: str, meta: str) -> None:
+        q.add_argument("-o", "--output", required=True, metavar=meta, help=f"{what} (required)")
+        q.add_argument(
+            "--overwrite",
+            action="store_true",
+            help="replace an existing output file (never an input; default: refuse)",
+        )
+
+    def image_options(q, *, snr: float | None, bits: int | None, what: str) -> None:
+        q.add_argument("scene", metavar="SCENE.xml", help="scene file of the microscope")
+        q.add_argument(
+            "--snr",
+            type=float,
+            default=None if snr is None else snr,
+            help=f"P99.9(clean)/sigma of the Gaussian noise (default {snr or 17:g}"
+            + ("" if snr else "; --noise gaussian only")
+            + ")",
+        )
+        q.add_argument(
+            "--bit-depth",
+            type=int,
+            choices=(8, 12, 16),
+            default=bits,
+            help=f"bits of the output pixels (default {bits or '8; camera model: its own 12'})",
+        )
+        q.add_argument(
+            "--seed", type=int, default=0, help="seed of the rays and the noise (default 0)"
+        )
+        q.add_argument(
+            "--tracer",
+            choices=("mitsuba", "paraxial"),
+            default="mitsuba",
+            help="Mitsuba scene tracer or the direct paraxial one (default mitsuba)",
+        )
+        output(q, what, "OUT.tif")
+
     s = sub.add_parser(
         "scene", parents=[common], help="write a Mitsuba scene file of the microscope"
     )
@@ -301,36 +337,34 @@ def build_parser() -> argparse.ArgumentParser:
         "--preset",
         choices=PRESETS,
         required=True,
-        help="paper_4x: Table 1 optics, 1280×800 px; small: 300×300 px",
+        help="paper_4x: Table 1 optics, 1280×800 px; small: 300×300 px (required)",
     )
     s.add_argument(
         "--mla",
         choices=("ideal", "glass"),
         default=None,
-        help="ideal paraxial lenslets (default) or a glass spherical-cap mesh",
+        help="ideal paraxial lenslets or a glass spherical-cap mesh (default ideal)",
     )
     s.add_argument(
         "--set",
         action="append",
         metavar="KEY=VALUE",
-        help="override an Optics field, e.g. na=0.3 or sensor_px=640,400 (repeatable)",
+        help="override an Optics field in its unit (µm), e.g. na=0.3 or sensor_px=640,400 "
+        "(repeatable; default: none)",
     )
-    s.add_argument("-o", "--output", required=True, metavar="OUT.xml")
-    s.add_argument("--overwrite", action="store_true")
+    output(s, "scene file to write", "OUT.xml")
     s.set_defaults(func=cmd_scene, needs_backend=False)
 
     r = sub.add_parser(
         "render", parents=[common], help="render particles from a CSV into a light-field image"
     )
-    r.add_argument("scene", metavar="SCENE.xml")
     r.add_argument(
         "--particles",
         required=True,
         metavar="P.csv",
-        help="CSV with x_um,y_um,z_um[,id,diameter_um,brightness]",
+        help="CSV with x_um,y_um,z_um[,id,diameter_um,brightness] (required)",
     )
-    r.add_argument("-o", "--output", required=True, metavar="IMAGE.tif")
-    r.add_argument("--rays", type=int, default=100_000, help="rays per particle (default 1e5)")
+    r.add_argument("--rays", type=int, default=100_000, help="rays per particle (default 100000)")
     r.add_argument(
         "--noise",
         choices=("none", "gaussian", "camera"),
@@ -338,72 +372,57 @@ def build_parser() -> argparse.ArgumentParser:
         help="noise model (default gaussian)",
     )
     r.add_argument(
-        "--snr",
-        type=float,
-        default=None,
-        help="P99.9(clean)/sigma for --noise gaussian (default 17)",
+        "--no-diffraction", action="store_true", help="no Gaussian diffraction blur (default: on)"
     )
-    r.add_argument(
-        "--bit-depth",
-        type=int,
-        choices=(8, 12, 16),
-        default=None,
-        help="output bits (default 8; camera: its own 12)",
-    )
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--tracer", choices=("mitsuba", "paraxial"), default="mitsuba")
-    r.add_argument("--no-diffraction", action="store_true", help="no Gaussian diffraction blur")
     r.add_argument(
         "--float",
         action="store_true",
-        help="write the noise-free float32 expected-photon image instead",
+        help="write the noise-free float32 expected-photon image instead (default: off)",
     )
-    r.add_argument("--overwrite", action="store_true")
+    image_options(r, snr=None, bits=None, what="light-field image to write")
     r.set_defaults(func=cmd_render, needs_backend=True)
 
     w = sub.add_parser(
         "white", parents=[common], help="flat-field image of a uniformly fluorescent slide"
     )
-    w.add_argument("scene", metavar="SCENE.xml")
-    w.add_argument("-o", "--output", required=True, metavar="WHITE.tif")
-    w.add_argument("--rays-per-lenslet", type=int, default=20_000)
-    w.add_argument("--snr", type=float, default=50.0, help="P99.9(clean)/sigma (default 50)")
-    w.add_argument("--bit-depth", type=int, choices=(8, 12, 16), default=16)
-    w.add_argument("--seed", type=int, default=0)
-    w.add_argument("--tracer", choices=("mitsuba", "paraxial"), default="mitsuba")
-    w.add_argument("--overwrite", action="store_true")
+    w.add_argument(
+        "--rays-per-lenslet",
+        type=int,
+        default=20_000,
+        help="rays traced per lenslet (default 20000)",
+    )
+    image_options(w, snr=50.0, bits=16, what="white image to write")
     w.set_defaults(func=cmd_white, needs_backend=True)
 
     m = sub.add_parser(
         "micrometer", parents=[common], help="stage-micrometer image for pixel-size calibration"
     )
-    m.add_argument("scene", metavar="SCENE.xml")
-    m.add_argument("-o", "--output", required=True, metavar="M.tif")
-    m.add_argument("--division-um", type=float, default=10.0, help="line spacing (default 10)")
-    m.add_argument("--line-width-um", type=float, default=2.0)
+    m.add_argument(
+        "--division-um", type=float, default=10.0, help="line spacing in µm (default 10)"
+    )
+    m.add_argument("--line-width-um", type=float, default=2.0, help="line width in µm (default 2)")
     m.add_argument(
         "--axis",
         choices=("x", "y"),
         default="x",
-        help="scale direction (x: vertical lines along x)",
+        help="scale direction; x: lines perpendicular to x (default x)",
     )
-    m.add_argument("--rays-per-line", type=int, default=50_000)
-    m.add_argument("--snr", type=float, default=50.0, help="P99.9(clean)/sigma (default 50)")
-    m.add_argument("--bit-depth", type=int, choices=(8, 12, 16), default=16)
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--tracer", choices=("mitsuba", "paraxial"), default="mitsuba")
-    m.add_argument("--overwrite", action="store_true")
+    m.add_argument(
+        "--rays-per-line", type=int, default=50_000, help="rays traced per line (default 50000)"
+    )
+    image_options(m, snr=50.0, bits=16, what="micrometer image to write")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)
 
     d = sub.add_parser(
         "dataset", parents=[common], help="generate (or resume) a dataset from an experiment TOML"
     )
-    d.add_argument("experiment", metavar="EXPERIMENT.toml")
-    d.add_argument("-o", "--output", required=True, metavar="DIR")
+    d.add_argument("experiment", metavar="EXPERIMENT.toml", help="experiment file (TOML)")
+    d.add_argument("-o", "--output", required=True, metavar="DIR", help="dataset folder (required)")
     d.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace a dataset of another experiment (removes only lfsim's files)",
+        help="replace a dataset of another experiment (removes only lfsim's files; "
+        "default: refuse)",
     )
     d.set_defaults(func=cmd_dataset, needs_backend=True)
     return p
