@@ -3,9 +3,17 @@
 Commands::
 
     recon calibrate WHITE.tif --scene SCENE.xml -o calib.json [--overwrite]
+                    [--allow-pitch-mismatch]
     recon run FRAMES... [--scene SCENE.xml] [--calib calib.json] [--z-range -80:720]
               [--z-step 5] [--iterations 3] [-s 5] [--frames START:STOP[:STEP]] [--fps HZ]
-              -o VOLDIR [--overwrite] ...
+              [--allow-optics-mismatch] -o VOLDIR [--overwrite] ...
+
+``calibrate`` refuses a white image whose size is not the scene's sensor size, and a fitted
+lenslet pitch more than 5 % off the scene's (``--allow-pitch-mismatch``: a warning). ``run``
+refuses a scene whose optics (NA, focal lengths, lenslet pitch and focal length, pixel size,
+sensor size, optical axis; relative tolerance 1e-6) differ from those recorded with the
+calibration, or with the dataset whose white image it calibrates, and a calibration made on
+images of another size (``--allow-optics-mismatch``: a warning).
 
 ``FRAMES`` (any mix, in the order given; see :mod:`recon.frames`):
 
@@ -47,8 +55,9 @@ from .errors import InputError, ReconError
 
 log = logging.getLogger("recon.cli")
 
-#: Relative difference between fitted and nominal pitch above which ``calibrate`` warns.
-PITCH_WARN_FRACTION = 0.05
+#: Relative difference between fitted and nominal lenslet pitch above which a calibration is
+#: refused (``--allow-pitch-mismatch``: a warning).
+PITCH_MISMATCH_FRACTION = 0.05
 
 #: ``"format"`` entry of the calibration files ``recon calibrate`` writes.
 CALIBRATION_FORMAT = "hrvptm.recon.calibration"
@@ -126,7 +135,15 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "-o", "--output", type=Path, required=True, metavar="CALIB.json", help="output file"
     )
-    cal.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    cal.add_argument(
+        "--overwrite", action="store_true", help="replace an existing output (default: refuse)"
+    )
+    cal.add_argument(
+        "--allow-pitch-mismatch",
+        action="store_true",
+        help="accept a fitted lenslet pitch more than 5 %% off the scene's nominal pitch (a "
+        "warning; default: refuse it, the white image probably belongs to another microscope)",
+    )
     cal.set_defaults(func=_cmd_calibrate)
 
     run = sub.add_parser(
@@ -165,6 +182,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--scene", type=Path, metavar="SCENE.xml", help="scene file (optics)")
     run.add_argument("--calib", type=Path, metavar="CALIB.json", help="from recon calibrate")
+    run.add_argument(
+        "--allow-optics-mismatch",
+        action="store_true",
+        help="reconstruct even when the scene's optics (NA, focal lengths, lenslet pitch and "
+        "focal length, pixel size, sensor size, optical axis) differ from the calibration's "
+        "(a warning; default: refuse)",
+    )
     run.add_argument(
         "--z-range", default="-80:720", metavar="ZMIN:ZMAX", help="depths in µm (-80:720)"
     )
@@ -221,6 +245,108 @@ def read_white(path: Path) -> np.ndarray:
     return read_frame(path, what="white image")
 
 
+def _calibrate(white: Path, optics, scene: Path, *, allow_pitch_mismatch: bool, allow_flag: str):
+    """Read a white image, check it against the scene's sensor and fit its lenslet grid.
+
+    Returns
+    -------
+    image : ndarray, float32, shape (height, width)
+    grid : LensletGrid
+    deviation : float
+        Fitted pitch / nominal pitch − 1.
+
+    Raises
+    ------
+    InputError
+        The white image's size differs from the scene's sensor.
+    CalibrationError
+        No lenslet grid, or a fitted pitch more than :data:`PITCH_MISMATCH_FRACTION` off the
+        scene's (unless ``allow_pitch_mismatch``: then a warning).
+    """
+    from .errors import CalibrationError
+
+    image = read_white(white)
+    h, w = image.shape
+    sw, sh = optics.sensor_px
+    if (w, h) != (sw, sh):
+        raise InputError(
+            f"white image {str(white)!r} is {w} × {h} px but the sensor of scene "
+            f"{str(scene)!r} is {sw} × {sh} px; use a white image of this camera or the "
+            "scene of the camera that took it"
+        )
+    nominal = optics.px_per_lenslet
+    try:
+        grid = calibrate_white(image, expected_pitch_px=nominal)
+    except ReconError as exc:
+        raise type(exc)(f"{white}: {exc}") from None
+    deviation = grid.pitch_px / nominal - 1.0
+    if abs(deviation) > PITCH_MISMATCH_FRACTION:
+        msg = (
+            f"fitted lenslet pitch {grid.pitch_px:.4f} px differs by {100 * deviation:+.1f} % "
+            f"from the scene's optics ({nominal:.4f} px = mla_pitch_um / pixel_um); check that "
+            f"{white} belongs to {scene}"
+        )
+        if not allow_pitch_mismatch:
+            raise CalibrationError(f"{msg} (or pass {allow_flag} to accept it)")
+        log.warning("%s", msg)
+    return image, grid, deviation
+
+
+def _read_calibration(path: Path):
+    """A calibration file's lenslet grid, and the optics and scene file recorded with it.
+
+    A bare grid file (:meth:`recon.calibration.LensletGrid.save`) records neither: None.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, invalid grid or optics (names the file).
+    """
+    import json
+
+    from lfsim.errors import ConfigError
+    from lfsim.optics import Optics
+
+    from .calibration import LensletGrid
+
+    grid = LensletGrid.load(path)
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    optics, scene = None, None
+    if isinstance(data, dict) and data.get("optics") is not None:
+        try:
+            optics = Optics.from_dict(data["optics"])
+        except (ConfigError, TypeError) as exc:
+            raise InputError(f"{path}: invalid optics record: {exc}") from None
+        scene = (data.get("scene") or {}).get("path")
+    return grid, optics, scene
+
+
+def _check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: bool) -> None:
+    """Refuse a scene whose optics differ from those the calibration was made with.
+
+    ``recorded`` are the calibration's optics (None for a bare grid file: only the image
+    size is checked); ``source`` names the calibration in messages.
+    """
+    from .pipeline import optics_differences
+
+    diffs = [] if recorded is None else optics_differences(optics, recorded)
+    h, w = grid.image_shape
+    sw, sh = optics.sensor_px
+    if (w, h) != (sw, sh) and not any(d.startswith("sensor_px") for d in diffs):
+        diffs.append(f"sensor {sw} × {sh} px (scene) vs {w} × {h} px images (calibration)")
+    if recorded is None:
+        log.info("%s records no optics; only its image size was checked against %s", source, scene)
+    if not diffs:
+        return
+    msg = f"scene {str(scene)!r} does not match {source}: {'; '.join(diffs)}"
+    if not allow:
+        raise InputError(
+            f"{msg}; use the scene the calibration was made with, or pass "
+            "--allow-optics-mismatch to reconstruct with the scene's optics anyway"
+        )
+    log.warning("%s; reconstructing with the scene's optics (--allow-optics-mismatch)", msg)
+
+
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from lfsim.errors import OutputError
     from lfsim.io import sha256_file, write_json
@@ -231,32 +357,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise OutputError(f"{out} already exists; refusing to overwrite it (pass --overwrite)")
     t0 = time.perf_counter()
     optics = read_optics(args.scene)
-    image = read_white(args.white)
+    image, grid, deviation = _calibrate(
+        args.white,
+        optics,
+        args.scene,
+        allow_pitch_mismatch=args.allow_pitch_mismatch,
+        allow_flag="--allow-pitch-mismatch",
+    )
     nominal = optics.px_per_lenslet
     h, w = image.shape
-    if (w, h) != tuple(optics.sensor_px):
-        log.warning(
-            "white image %s is %d x %d px but the scene's sensor is %d x %d px",
-            args.white,
-            w,
-            h,
-            *optics.sensor_px,
-        )
-    try:
-        grid = calibrate_white(image, expected_pitch_px=nominal)
-    except ReconError as exc:
-        raise type(exc)(f"{args.white}: {exc}") from None
-    deviation = grid.pitch_px / nominal - 1.0
-    if abs(deviation) > PITCH_WARN_FRACTION:
-        log.warning(
-            "fitted lenslet pitch %.4f px differs by %+.1f %% from the scene's optics "
-            "(%.4f px = mla_pitch_um / pixel_um); check that %s belongs to %s",
-            grid.pitch_px,
-            100 * deviation,
-            nominal,
-            args.white,
-            args.scene,
-        )
     record = {
         "format": CALIBRATION_FORMAT,
         "format_version": 1,
@@ -310,7 +419,6 @@ def _resolve_inputs(args: argparse.Namespace):
     from lfsim.io import read_json
     from lfsim.scene import read_optics
 
-    from .calibration import LensletGrid
     from .frames import (
         build_series,
         expand_argument,
@@ -343,15 +451,39 @@ def _resolve_inputs(args: argparse.Namespace):
     if scene is None:
         raise InputError("--scene is required (the optics of the microscope)")
     optics = read_optics(scene)
+    allow = args.allow_optics_mismatch
     if args.calib is not None:
-        grid = LensletGrid.load(args.calib)
+        grid, recorded, made_with = _read_calibration(args.calib)
+        source = f"calibration {str(args.calib)!r}"
+        if made_with:
+            source += f" (made with {made_with})"
     elif dataset is not None and (dataset / "white.tif").is_file():
-        log.info("calibrating the lenslet grid from %s", dataset / "white.tif")
-        white = read_white(dataset / "white.tif")
-        grid = calibrate_white(white, expected_pitch_px=optics.px_per_lenslet)
+        white = dataset / "white.tif"
+        log.info("calibrating the lenslet grid from %s", white)
+        _, grid, _ = _calibrate(
+            white, optics, scene, allow_pitch_mismatch=allow, allow_flag="--allow-optics-mismatch"
+        )
+        recorded = _dataset_optics(dataset)
+        source = f"the optics dataset {str(dataset)!r} was rendered with"
     else:
         raise InputError("--calib is required (make one with `recon calibrate`)")
+    _check_optics(optics, grid, recorded, scene=scene, source=source, allow=allow)
     return frames, optics, grid, scene
+
+
+def _dataset_optics(dataset: Path):
+    """The optics recorded in an lfsim dataset's ``dataset.json`` (None if absent)."""
+    from lfsim.errors import ConfigError
+    from lfsim.io import read_json
+    from lfsim.optics import Optics
+
+    record = read_json(dataset / "dataset.json")
+    if not isinstance(record, dict) or record.get("optics") is None:
+        return None
+    try:
+        return Optics.from_dict(record["optics"])
+    except (ConfigError, TypeError) as exc:
+        raise InputError(f"{dataset / 'dataset.json'}: invalid optics record: {exc}") from None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

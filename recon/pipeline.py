@@ -161,6 +161,53 @@ def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> N
             )
 
 
+#: Optics a calibration and the scene of a run must agree on: a lenslet grid fitted on one
+#: microscope places lenslets, and the optical axis (the object origin), wrongly on another.
+#: The lenslet kind (glass or ideal) is not among them: both model the same microscope.
+OPTICS_MATCH_FIELDS = (
+    "na",
+    "f_objective_um",
+    "f_tube_um",
+    "mla_pitch_um",
+    "mla_focal_um",
+    "pixel_um",
+    "sensor_px",
+    "axis_px",
+)
+
+#: Relative tolerance of :func:`optics_differences`.
+OPTICS_RTOL = 1e-6
+
+
+def optics_differences(scene, calibration, rtol: float = OPTICS_RTOL) -> list[str]:
+    """The :data:`OPTICS_MATCH_FIELDS` in which two optics differ, as readable text.
+
+    Parameters
+    ----------
+    scene, calibration : lfsim.optics.Optics
+        The optics of a run's scene and those recorded with its calibration.
+    rtol : float
+        Relative tolerance per value.
+
+    Returns
+    -------
+    list of str
+        ``"na 0.25 (scene) vs 0.2 (calibration)"`` for each field that differs; empty when
+        they agree.
+    """
+
+    def text(v) -> str:
+        return f"{v:g}" if np.ndim(v) == 0 else "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+    out = []
+    for name in OPTICS_MATCH_FIELDS:
+        a, b = getattr(scene, name), getattr(calibration, name)
+        va, vb = np.atleast_1d(np.asarray(a, float)), np.atleast_1d(np.asarray(b, float))
+        if va.shape != vb.shape or not np.allclose(va, vb, rtol=rtol, atol=0.0):
+            out.append(f"{name} {text(a)} (scene) vs {text(b)} (calibration)")
+    return out
+
+
 def rectified_optics(optics, n: int):
     """The optics as seen in a rectified image with exactly ``n`` pixels per lenslet."""
     return replace(optics, pixel_um=optics.mla_pitch_um / n, axis_px=None, sensor_px=(n, n))
@@ -411,6 +458,10 @@ def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict 
     """
     from lfsim.io import read_json
 
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(
+            f"output {str(out)!r} is a file, not a folder (nothing was written)"
+        )
     if not (out.exists() and any(out.iterdir())):
         return None
     meta_path = out / RECON_JSON

@@ -230,3 +230,15 @@ def test_background_model_is_a_setting_of_its_own(dataset, tmp_path, capsys):
 
     with pytest.raises(InputError, match="background_model"):
         ReconSettings(background_model="clip")
+
+
+def test_dataset_with_a_scene_of_other_optics_is_refused(dataset, tmp_path, capsys):
+    from lfsim import small_optics
+    from lfsim.scene import write_scene
+
+    other = write_scene(small_optics(na=0.25), tmp_path / "na025.xml")
+    out = tmp_path / "v"
+    rc, stdout, err = run(capsys, "run", dataset, "--scene", other, *FAST, "-o", out)
+    assert rc == 2 and stdout == "" and err.count("\n") == 1
+    assert "na025.xml" in err and str(dataset) in err and "na 0.25 (scene) vs 0.2" in err
+    assert not out.exists()
