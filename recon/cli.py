@@ -13,7 +13,10 @@ lenslet pitch more than 5 % off the scene's (``--allow-pitch-mismatch``: a warni
 refuses a scene whose optics (NA, focal lengths, lenslet pitch and focal length, pixel size,
 sensor size, optical axis; relative tolerance 1e-6) differ from those recorded with the
 calibration, or with the dataset whose white image it calibrates, and a calibration made on
-images of another size (``--allow-optics-mismatch``: a warning).
+images of another size (``--allow-optics-mismatch``: a warning). A scene with the glass
+lenslet mesh (``mla_kind="glass"``, e.g. an ``lfsim`` dataset rendered without inverse crime)
+is reconstructed with ideal lenslets of the same optics, with a warning. A run that fails
+before its first volume leaves nothing in ``VOLDIR`` that would block the corrected command.
 
 ``FRAMES`` (any mix, in the order given; see :mod:`recon.frames`):
 
@@ -130,10 +133,16 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         required=True,
         metavar="SCENE.xml",
-        help="scene file of the microscope (its optics give the nominal lenslet pitch)",
+        help="scene file of the microscope (required; its optics give the sensor size and the "
+        "nominal lenslet pitch)",
     )
     cal.add_argument(
-        "-o", "--output", type=Path, required=True, metavar="CALIB.json", help="output file"
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="CALIB.json",
+        help="output file (required)",
     )
     cal.add_argument(
         "--overwrite", action="store_true", help="replace an existing output (default: refuse)"
@@ -152,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="reconstruct volumes from light-field frames",
         description="Reconstruct a time series of light-field frames into float32 volumes "
         "(z, y, x) with Richardson-Lucy deconvolution. Resumes an interrupted run; refuses an "
-        "output folder made from other inputs unless --overwrite.",
+        "output folder made from other inputs or settings unless --overwrite.",
     )
     run.add_argument(
         "frames",
@@ -180,8 +189,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="frame rate in frames per second: recon.json records each frame's time as its "
         "number / fps in s (default: the time recorded in the TIFF metadata, else none)",
     )
-    run.add_argument("--scene", type=Path, metavar="SCENE.xml", help="scene file (optics)")
-    run.add_argument("--calib", type=Path, metavar="CALIB.json", help="from recon calibrate")
+    run.add_argument(
+        "--scene",
+        type=Path,
+        metavar="SCENE.xml",
+        help="scene file of the microscope (its optics; default: the scene named by an lfsim "
+        "dataset's dataset.json, otherwise required)",
+    )
+    run.add_argument(
+        "--calib",
+        type=Path,
+        metavar="CALIB.json",
+        help="lenslet calibration from `recon calibrate` (default: calibrate an lfsim "
+        "dataset's white.tif, otherwise required)",
+    )
     run.add_argument(
         "--allow-optics-mismatch",
         action="store_true",
@@ -190,32 +211,85 @@ def build_parser() -> argparse.ArgumentParser:
         "(a warning; default: refuse)",
     )
     run.add_argument(
-        "--z-range", default="-80:720", metavar="ZMIN:ZMAX", help="depths in µm (-80:720)"
-    )
-    run.add_argument("--z-step", type=float, default=5.0, help="depth step in µm (5)")
-    run.add_argument("--iterations", type=int, default=3, help="Richardson-Lucy iterations (3)")
-    run.add_argument(
-        "-s", "--super-resolution", type=int, default=5, dest="s", help="voxels per lenslet (5)"
+        "--z-range",
+        default="-80:720",
+        metavar="ZMIN:ZMAX",
+        help="depths in µm (default: -80:720)",
     )
     run.add_argument(
-        "--lanczos", type=float, default=2.0, help="anti-aliasing filter window (2; 0 = off)"
+        "--z-step", type=float, default=5.0, metavar="UM", help="depth step in µm (default: 5)"
     )
-    run.add_argument("--stop-rel-change", type=float, default=None, help="early stop threshold")
-    run.add_argument("--rays-per-pattern", type=int, default=200_000, help="PSF bank rays")
-    run.add_argument("--dark", type=Path, metavar="DARK.tif", help="dark frame to subtract")
+    run.add_argument(
+        "--iterations",
+        type=int,
+        default=3,
+        metavar="N",
+        help="Richardson-Lucy iterations (default: 3)",
+    )
+    run.add_argument(
+        "-s",
+        "--super-resolution",
+        type=int,
+        default=5,
+        dest="s",
+        metavar="S",
+        help="voxels per lenslet along x and y (default: 5)",
+    )
+    run.add_argument(
+        "--lanczos",
+        type=float,
+        default=2.0,
+        metavar="A",
+        help="Lanczos window a (lobes, no unit) of the depth-adaptive anti-aliasing filter "
+        "(default: 2; 0: off)",
+    )
+    run.add_argument(
+        "--stop-rel-change",
+        type=float,
+        default=None,
+        metavar="X",
+        help="stop early when the volume changes by less than this fraction (relative L1) "
+        "in one iteration (default: off, run all iterations)",
+    )
+    run.add_argument(
+        "--rays-per-pattern",
+        type=int,
+        default=200_000,
+        metavar="N",
+        help="rays traced per PSF-bank pattern (default: 200000)",
+    )
+    run.add_argument(
+        "--dark",
+        type=Path,
+        metavar="DARK.tif",
+        help="dark frame subtracted pixel by pixel (default: none)",
+    )
     run.add_argument(
         "--background",
         default="auto",
-        help="constant to subtract: a number, 'auto' (the image median, default) or 'none'",
+        help="constant subtracted, in grey levels: a number, 'auto' (the image median; "
+        "default) or 'none'",
     )
-    run.add_argument("--hot-pixels", action="store_true", help="suppress isolated hot pixels")
-    run.add_argument("--roi", default=None, metavar="X0:X1,Y0:Y1", help="pixel region")
-    run.add_argument("--device", choices=("auto", "llvm", "cuda"), default="auto")
+    run.add_argument(
+        "--hot-pixels", action="store_true", help="suppress isolated hot pixels (default: off)"
+    )
+    run.add_argument(
+        "--roi",
+        default=None,
+        metavar="X0:X1,Y0:Y1",
+        help="reconstruct only the lenslets inside this pixel region (default: whole image)",
+    )
+    run.add_argument(
+        "--device",
+        choices=("auto", "llvm", "cuda"),
+        default="auto",
+        help="Dr.Jit backend (default: auto, CUDA when available, else LLVM on the CPU)",
+    )
     run.add_argument(
         "--projector",
         choices=("auto", "gather", "sparse"),
         default="auto",
-        help="projector implementation (auto: fastest for the backend)",
+        help="projector implementation (default: auto, the fastest for the backend)",
     )
     run.add_argument(
         "--background-model",
@@ -224,8 +298,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="subtract the black level and clip at zero (default), or keep it in the forward "
         "model y = Hx + b",
     )
-    run.add_argument("-o", "--output", type=Path, required=True, metavar="VOLDIR")
-    run.add_argument("--overwrite", action="store_true", help="replace another run's volumes")
+    run.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="VOLDIR",
+        help="output folder for NNNNNN.tif volumes and recon.json (required)",
+    )
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace volumes of another run (other inputs or settings) in VOLDIR (default: "
+        "refuse)",
+    )
     run.set_defaults(func=_cmd_run)
     return parser
 

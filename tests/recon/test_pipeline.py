@@ -242,3 +242,25 @@ def test_dataset_with_a_scene_of_other_optics_is_refused(dataset, tmp_path, caps
     assert rc == 2 and stdout == "" and err.count("\n") == 1
     assert "na025.xml" in err and str(dataset) in err and "na 0.25 (scene) vs 0.2" in err
     assert not out.exists()
+
+
+def test_dataset_rendered_through_glass_lenslets(dataset, tmp_path, capsys):
+    """The README quick start on a dataset whose scene has the glass lenslet mesh: it is
+    reconstructed with the ideal lenslets of the same optics (a warning says so)."""
+    import json
+
+    from lfsim.io import read_json
+
+    glass = tmp_path / "dataset_glass"
+    shutil.copytree(dataset, glass)
+    record = json.loads((glass / "dataset.json").read_text())
+    record["scene"]["path"] = str(ROOT / "scenes" / "small_glass.xml")
+    record["optics"]["mla_kind"] = "glass"
+    (glass / "dataset.json").write_text(json.dumps(record))
+    out = tmp_path / "vol"
+    rc, _, err = main_verbose(capsys, "run", glass, *FAST, "--iterations", "1", "-o", out)
+    assert rc == 0, err
+    assert "recon: warning:" in err and "glass mesh" in err and "ideal lenslets" in err
+    meta = read_json(out / "recon.json")
+    assert meta["status"] == "complete" and meta["scene_mla_kind"] == "glass"
+    assert meta["scene"].endswith("small_glass.xml")

@@ -1,4 +1,5 @@
-"""`recon run` refuses a scene whose optics differ from the calibration's."""
+"""`recon run` checks: scene optics against the calibration's, glass-lenslet scenes, and a
+failed start that must not block the corrected command."""
 
 from __future__ import annotations
 
@@ -107,3 +108,70 @@ def test_calibration_of_another_sensor_is_refused(base_frame, backend, tmp_path,
     rc, stdout, err = run(capsys, "run", big, "--scene", SCENE, "--calib", bare, *FAST, "-o", out)
     refused(rc, stdout, err, "grid.json", "sensor 300 × 300 px (scene) vs 1280 × 800 px images")
     assert not out.exists()
+
+
+# -- glass lenslets, failed starts ----------------------------------------------------------
+def test_glass_scene_is_reconstructed_with_ideal_lenslets(calib, frame, tmp_path, capsys):
+    """A scene with the glass lenslet mesh is reconstructed with the ideal lenslets of the
+    same optics: the same volumes as with the ideal scene, and a warning."""
+    import numpy as np
+
+    from lfsim.io import read_json, read_tiff
+
+    glass = ROOT / "scenes" / "small_glass.xml"
+    out_glass, out_ideal = tmp_path / "glass", tmp_path / "ideal"
+    args = [frame, "--calib", calib, *FAST]
+    rc, _, err = run(capsys, "run", *args, "--scene", glass, "-o", out_glass, quiet=False)
+    assert rc == 0, err
+    assert err.count("recon: warning:") == 1 and "glass mesh" in err and "ideal lenslets" in err
+    meta = read_json(out_glass / "recon.json")
+    assert meta["optics"]["mla_kind"] == "ideal" and meta["scene_mla_kind"] == "glass"
+    rc, _, err = run(capsys, "run", *args, "--scene", SCENE, "-o", out_ideal)
+    assert rc == 0, err
+    assert read_json(out_ideal / "recon.json")["scene_mla_kind"] == "ideal"
+    a, b = read_tiff(out_glass / "000000.tif")[0], read_tiff(out_ideal / "000000.tif")[0]
+    assert a.max() > 0 and np.array_equal(a, b)
+    # Same model, same settings: the ideal scene resumes the glass scene's folder.
+    rc, stdout, err = run(capsys, "run", *args, "--scene", SCENE, "-o", out_glass, quiet=False)
+    assert rc == 0 and "0 volume(s) reconstructed, 1 already done" in stdout, err
+
+
+def test_failed_start_leaves_nothing_in_the_way(calib, frame, tmp_path, capsys, monkeypatch):
+    import recon.pipeline
+    from lfsim.errors import ConfigError
+
+    def broken(*a, **k):
+        raise ConfigError("PSF model failed")
+
+    out = tmp_path / "new" / "v"
+    args = ["run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out]
+    with monkeypatch.context() as m:
+        m.setattr(recon.pipeline, "compute_psf_bank", broken)
+        refused(*run(capsys, *args), "PSF model failed")
+        assert not out.exists()
+        # A folder the user made is kept, empty.
+        out.mkdir(parents=True)
+        refused(*run(capsys, *args), "PSF model failed")
+        assert out.is_dir() and not any(out.iterdir())
+
+        def interrupted(*a, **k):
+            raise KeyboardInterrupt
+
+        m.setattr(recon.pipeline, "compute_psf_bank", interrupted)
+        assert run(capsys, *args)[0] == 130
+        assert out.is_dir() and not any(out.iterdir())
+    # The same command, now working, needs no --overwrite.
+    rc, _, err = run(capsys, *args)
+    assert rc == 0, err
+    assert (out / "000000.tif").is_file()
+
+
+def test_record_without_volumes_does_not_block(calib, frame, tmp_path, capsys):
+    """A recon.json left by a run that wrote no volume (e.g. by an older version that failed
+    in the PSF model) is replaced, even with other settings, without --overwrite."""
+    out = tmp_path / "v"
+    out.mkdir()
+    (out / "recon.json").write_text(json.dumps({"fingerprint": "0" * 64, "status": "incomplete"}))
+    rc, _, err = run(capsys, "run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out)
+    assert rc == 0, err
+    assert json.loads((out / "recon.json").read_text())["status"] == "complete"
