@@ -3,9 +3,20 @@
 Commands::
 
     recon calibrate WHITE.tif --scene SCENE.xml -o calib.json [--overwrite]
+                    [--allow-pitch-mismatch]
     recon run FRAMES... [--scene SCENE.xml] [--calib calib.json] [--z-range -80:720]
               [--z-step 5] [--iterations 3] [-s 5] [--frames START:STOP[:STEP]] [--fps HZ]
-              -o VOLDIR [--overwrite] ...
+              [--allow-optics-mismatch] -o VOLDIR [--overwrite] ...
+
+``calibrate`` refuses a white image whose size is not the scene's sensor size, and a fitted
+lenslet pitch more than 5 % off the scene's (``--allow-pitch-mismatch``: a warning). ``run``
+refuses a scene whose optics (NA, focal lengths, lenslet pitch and focal length, pixel size,
+sensor size, optical axis; relative tolerance 1e-6) differ from those recorded with the
+calibration, or with the dataset whose white image it calibrates, and a calibration made on
+images of another size (``--allow-optics-mismatch``: a warning). A scene with the glass
+lenslet mesh (``mla_kind="glass"``, e.g. an ``lfsim`` dataset rendered without inverse crime)
+is reconstructed with ideal lenslets of the same optics, with a warning. A run that fails
+before its first volume leaves nothing in ``VOLDIR`` that would block the corrected command.
 
 ``FRAMES`` (any mix, in the order given; see :mod:`recon.frames`):
 
@@ -47,8 +58,9 @@ from .errors import InputError, ReconError
 
 log = logging.getLogger("recon.cli")
 
-#: Relative difference between fitted and nominal pitch above which ``calibrate`` warns.
-PITCH_WARN_FRACTION = 0.05
+#: Relative difference between fitted and nominal lenslet pitch above which a calibration is
+#: refused (``--allow-pitch-mismatch``: a warning).
+PITCH_MISMATCH_FRACTION = 0.05
 
 #: ``"format"`` entry of the calibration files ``recon calibrate`` writes.
 CALIBRATION_FORMAT = "hrvptm.recon.calibration"
@@ -121,12 +133,26 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         required=True,
         metavar="SCENE.xml",
-        help="scene file of the microscope (its optics give the nominal lenslet pitch)",
+        help="scene file of the microscope (required; its optics give the sensor size and the "
+        "nominal lenslet pitch)",
     )
     cal.add_argument(
-        "-o", "--output", type=Path, required=True, metavar="CALIB.json", help="output file"
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="CALIB.json",
+        help="output file (required)",
     )
-    cal.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    cal.add_argument(
+        "--overwrite", action="store_true", help="replace an existing output (default: refuse)"
+    )
+    cal.add_argument(
+        "--allow-pitch-mismatch",
+        action="store_true",
+        help="accept a fitted lenslet pitch more than 5 %% off the scene's nominal pitch (a "
+        "warning; default: refuse it, the white image probably belongs to another microscope)",
+    )
     cal.set_defaults(func=_cmd_calibrate)
 
     run = sub.add_parser(
@@ -135,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="reconstruct volumes from light-field frames",
         description="Reconstruct a time series of light-field frames into float32 volumes "
         "(z, y, x) with Richardson-Lucy deconvolution. Resumes an interrupted run; refuses an "
-        "output folder made from other inputs unless --overwrite.",
+        "output folder made from other inputs or settings unless --overwrite.",
     )
     run.add_argument(
         "frames",
@@ -163,35 +189,107 @@ def build_parser() -> argparse.ArgumentParser:
         help="frame rate in frames per second: recon.json records each frame's time as its "
         "number / fps in s (default: the time recorded in the TIFF metadata, else none)",
     )
-    run.add_argument("--scene", type=Path, metavar="SCENE.xml", help="scene file (optics)")
-    run.add_argument("--calib", type=Path, metavar="CALIB.json", help="from recon calibrate")
     run.add_argument(
-        "--z-range", default="-80:720", metavar="ZMIN:ZMAX", help="depths in µm (-80:720)"
-    )
-    run.add_argument("--z-step", type=float, default=5.0, help="depth step in µm (5)")
-    run.add_argument("--iterations", type=int, default=3, help="Richardson-Lucy iterations (3)")
-    run.add_argument(
-        "-s", "--super-resolution", type=int, default=5, dest="s", help="voxels per lenslet (5)"
+        "--scene",
+        type=Path,
+        metavar="SCENE.xml",
+        help="scene file of the microscope (its optics; default: the scene named by an lfsim "
+        "dataset's dataset.json, otherwise required)",
     )
     run.add_argument(
-        "--lanczos", type=float, default=2.0, help="anti-aliasing filter window (2; 0 = off)"
+        "--calib",
+        type=Path,
+        metavar="CALIB.json",
+        help="lenslet calibration from `recon calibrate` (default: calibrate an lfsim "
+        "dataset's white.tif, otherwise required)",
     )
-    run.add_argument("--stop-rel-change", type=float, default=None, help="early stop threshold")
-    run.add_argument("--rays-per-pattern", type=int, default=200_000, help="PSF bank rays")
-    run.add_argument("--dark", type=Path, metavar="DARK.tif", help="dark frame to subtract")
+    run.add_argument(
+        "--allow-optics-mismatch",
+        action="store_true",
+        help="reconstruct even when the scene's optics (NA, focal lengths, lenslet pitch and "
+        "focal length, pixel size, sensor size, optical axis) differ from the calibration's "
+        "(a warning; default: refuse)",
+    )
+    run.add_argument(
+        "--z-range",
+        default="-80:720",
+        metavar="ZMIN:ZMAX",
+        help="depths in µm (default: -80:720)",
+    )
+    run.add_argument(
+        "--z-step", type=float, default=5.0, metavar="UM", help="depth step in µm (default: 5)"
+    )
+    run.add_argument(
+        "--iterations",
+        type=int,
+        default=3,
+        metavar="N",
+        help="Richardson-Lucy iterations (default: 3)",
+    )
+    run.add_argument(
+        "-s",
+        "--super-resolution",
+        type=int,
+        default=5,
+        dest="s",
+        metavar="S",
+        help="voxels per lenslet along x and y (default: 5)",
+    )
+    run.add_argument(
+        "--lanczos",
+        type=float,
+        default=2.0,
+        metavar="A",
+        help="Lanczos window a (lobes, no unit) of the depth-adaptive anti-aliasing filter "
+        "(default: 2; 0: off)",
+    )
+    run.add_argument(
+        "--stop-rel-change",
+        type=float,
+        default=None,
+        metavar="X",
+        help="stop early when the volume changes by less than this fraction (relative L1) "
+        "in one iteration (default: off, run all iterations)",
+    )
+    run.add_argument(
+        "--rays-per-pattern",
+        type=int,
+        default=200_000,
+        metavar="N",
+        help="rays traced per PSF-bank pattern (default: 200000)",
+    )
+    run.add_argument(
+        "--dark",
+        type=Path,
+        metavar="DARK.tif",
+        help="dark frame subtracted pixel by pixel (default: none)",
+    )
     run.add_argument(
         "--background",
         default="auto",
-        help="constant to subtract: a number, 'auto' (the image median, default) or 'none'",
+        help="constant subtracted, in grey levels: a number, 'auto' (the image median; "
+        "default) or 'none'",
     )
-    run.add_argument("--hot-pixels", action="store_true", help="suppress isolated hot pixels")
-    run.add_argument("--roi", default=None, metavar="X0:X1,Y0:Y1", help="pixel region")
-    run.add_argument("--device", choices=("auto", "llvm", "cuda"), default="auto")
+    run.add_argument(
+        "--hot-pixels", action="store_true", help="suppress isolated hot pixels (default: off)"
+    )
+    run.add_argument(
+        "--roi",
+        default=None,
+        metavar="X0:X1,Y0:Y1",
+        help="reconstruct only the lenslets inside this pixel region (default: whole image)",
+    )
+    run.add_argument(
+        "--device",
+        choices=("auto", "llvm", "cuda"),
+        default="auto",
+        help="Dr.Jit backend (default: auto, CUDA when available, else LLVM on the CPU)",
+    )
     run.add_argument(
         "--projector",
         choices=("auto", "gather", "sparse"),
         default="auto",
-        help="projector implementation (auto: fastest for the backend)",
+        help="projector implementation (default: auto, the fastest for the backend)",
     )
     run.add_argument(
         "--background-model",
@@ -200,8 +298,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="subtract the black level and clip at zero (default), or keep it in the forward "
         "model y = Hx + b",
     )
-    run.add_argument("-o", "--output", type=Path, required=True, metavar="VOLDIR")
-    run.add_argument("--overwrite", action="store_true", help="replace another run's volumes")
+    run.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="VOLDIR",
+        help="output folder for NNNNNN.tif volumes and recon.json (required)",
+    )
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace volumes of another run (other inputs or settings) in VOLDIR (default: "
+        "refuse)",
+    )
     run.set_defaults(func=_cmd_run)
     return parser
 
@@ -221,6 +331,108 @@ def read_white(path: Path) -> np.ndarray:
     return read_frame(path, what="white image")
 
 
+def _calibrate(white: Path, optics, scene: Path, *, allow_pitch_mismatch: bool, allow_flag: str):
+    """Read a white image, check it against the scene's sensor and fit its lenslet grid.
+
+    Returns
+    -------
+    image : ndarray, float32, shape (height, width)
+    grid : LensletGrid
+    deviation : float
+        Fitted pitch / nominal pitch − 1.
+
+    Raises
+    ------
+    InputError
+        The white image's size differs from the scene's sensor.
+    CalibrationError
+        No lenslet grid, or a fitted pitch more than :data:`PITCH_MISMATCH_FRACTION` off the
+        scene's (unless ``allow_pitch_mismatch``: then a warning).
+    """
+    from .errors import CalibrationError
+
+    image = read_white(white)
+    h, w = image.shape
+    sw, sh = optics.sensor_px
+    if (w, h) != (sw, sh):
+        raise InputError(
+            f"white image {str(white)!r} is {w} × {h} px but the sensor of scene "
+            f"{str(scene)!r} is {sw} × {sh} px; use a white image of this camera or the "
+            "scene of the camera that took it"
+        )
+    nominal = optics.px_per_lenslet
+    try:
+        grid = calibrate_white(image, expected_pitch_px=nominal)
+    except ReconError as exc:
+        raise type(exc)(f"{white}: {exc}") from None
+    deviation = grid.pitch_px / nominal - 1.0
+    if abs(deviation) > PITCH_MISMATCH_FRACTION:
+        msg = (
+            f"fitted lenslet pitch {grid.pitch_px:.4f} px differs by {100 * deviation:+.1f} % "
+            f"from the scene's optics ({nominal:.4f} px = mla_pitch_um / pixel_um); check that "
+            f"{white} belongs to {scene}"
+        )
+        if not allow_pitch_mismatch:
+            raise CalibrationError(f"{msg} (or pass {allow_flag} to accept it)")
+        log.warning("%s", msg)
+    return image, grid, deviation
+
+
+def _read_calibration(path: Path):
+    """A calibration file's lenslet grid, and the optics and scene file recorded with it.
+
+    A bare grid file (:meth:`recon.calibration.LensletGrid.save`) records neither: None.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, invalid grid or optics (names the file).
+    """
+    import json
+
+    from lfsim.errors import ConfigError
+    from lfsim.optics import Optics
+
+    from .calibration import LensletGrid
+
+    grid = LensletGrid.load(path)
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    optics, scene = None, None
+    if isinstance(data, dict) and data.get("optics") is not None:
+        try:
+            optics = Optics.from_dict(data["optics"])
+        except (ConfigError, TypeError) as exc:
+            raise InputError(f"{path}: invalid optics record: {exc}") from None
+        scene = (data.get("scene") or {}).get("path")
+    return grid, optics, scene
+
+
+def _check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: bool) -> None:
+    """Refuse a scene whose optics differ from those the calibration was made with.
+
+    ``recorded`` are the calibration's optics (None for a bare grid file: only the image
+    size is checked); ``source`` names the calibration in messages.
+    """
+    from .pipeline import optics_differences
+
+    diffs = [] if recorded is None else optics_differences(optics, recorded)
+    h, w = grid.image_shape
+    sw, sh = optics.sensor_px
+    if (w, h) != (sw, sh) and not any(d.startswith("sensor_px") for d in diffs):
+        diffs.append(f"sensor {sw} × {sh} px (scene) vs {w} × {h} px images (calibration)")
+    if recorded is None:
+        log.info("%s records no optics; only its image size was checked against %s", source, scene)
+    if not diffs:
+        return
+    msg = f"scene {str(scene)!r} does not match {source}: {'; '.join(diffs)}"
+    if not allow:
+        raise InputError(
+            f"{msg}; use the scene the calibration was made with, or pass "
+            "--allow-optics-mismatch to reconstruct with the scene's optics anyway"
+        )
+    log.warning("%s; reconstructing with the scene's optics (--allow-optics-mismatch)", msg)
+
+
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from lfsim.errors import OutputError
     from lfsim.io import sha256_file, write_json
@@ -231,32 +443,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise OutputError(f"{out} already exists; refusing to overwrite it (pass --overwrite)")
     t0 = time.perf_counter()
     optics = read_optics(args.scene)
-    image = read_white(args.white)
+    image, grid, deviation = _calibrate(
+        args.white,
+        optics,
+        args.scene,
+        allow_pitch_mismatch=args.allow_pitch_mismatch,
+        allow_flag="--allow-pitch-mismatch",
+    )
     nominal = optics.px_per_lenslet
     h, w = image.shape
-    if (w, h) != tuple(optics.sensor_px):
-        log.warning(
-            "white image %s is %d x %d px but the scene's sensor is %d x %d px",
-            args.white,
-            w,
-            h,
-            *optics.sensor_px,
-        )
-    try:
-        grid = calibrate_white(image, expected_pitch_px=nominal)
-    except ReconError as exc:
-        raise type(exc)(f"{args.white}: {exc}") from None
-    deviation = grid.pitch_px / nominal - 1.0
-    if abs(deviation) > PITCH_WARN_FRACTION:
-        log.warning(
-            "fitted lenslet pitch %.4f px differs by %+.1f %% from the scene's optics "
-            "(%.4f px = mla_pitch_um / pixel_um); check that %s belongs to %s",
-            grid.pitch_px,
-            100 * deviation,
-            nominal,
-            args.white,
-            args.scene,
-        )
     record = {
         "format": CALIBRATION_FORMAT,
         "format_version": 1,
@@ -310,7 +505,6 @@ def _resolve_inputs(args: argparse.Namespace):
     from lfsim.io import read_json
     from lfsim.scene import read_optics
 
-    from .calibration import LensletGrid
     from .frames import (
         build_series,
         expand_argument,
@@ -343,15 +537,39 @@ def _resolve_inputs(args: argparse.Namespace):
     if scene is None:
         raise InputError("--scene is required (the optics of the microscope)")
     optics = read_optics(scene)
+    allow = args.allow_optics_mismatch
     if args.calib is not None:
-        grid = LensletGrid.load(args.calib)
+        grid, recorded, made_with = _read_calibration(args.calib)
+        source = f"calibration {str(args.calib)!r}"
+        if made_with:
+            source += f" (made with {made_with})"
     elif dataset is not None and (dataset / "white.tif").is_file():
-        log.info("calibrating the lenslet grid from %s", dataset / "white.tif")
-        white = read_white(dataset / "white.tif")
-        grid = calibrate_white(white, expected_pitch_px=optics.px_per_lenslet)
+        white = dataset / "white.tif"
+        log.info("calibrating the lenslet grid from %s", white)
+        _, grid, _ = _calibrate(
+            white, optics, scene, allow_pitch_mismatch=allow, allow_flag="--allow-optics-mismatch"
+        )
+        recorded = _dataset_optics(dataset)
+        source = f"the optics dataset {str(dataset)!r} was rendered with"
     else:
         raise InputError("--calib is required (make one with `recon calibrate`)")
+    _check_optics(optics, grid, recorded, scene=scene, source=source, allow=allow)
     return frames, optics, grid, scene
+
+
+def _dataset_optics(dataset: Path):
+    """The optics recorded in an lfsim dataset's ``dataset.json`` (None if absent)."""
+    from lfsim.errors import ConfigError
+    from lfsim.io import read_json
+    from lfsim.optics import Optics
+
+    record = read_json(dataset / "dataset.json")
+    if not isinstance(record, dict) or record.get("optics") is None:
+        return None
+    try:
+        return Optics.from_dict(record["optics"])
+    except (ConfigError, TypeError) as exc:
+        raise InputError(f"{dataset / 'dataset.json'}: invalid optics record: {exc}") from None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

@@ -13,6 +13,7 @@ folder whose volumes were made from other inputs or settings is refused.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -161,6 +162,75 @@ def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> N
             )
 
 
+#: Optics a calibration and the scene of a run must agree on: a lenslet grid fitted on one
+#: microscope places lenslets, and the optical axis (the object origin), wrongly on another.
+#: The lenslet kind (glass or ideal) is not among them: both model the same microscope.
+OPTICS_MATCH_FIELDS = (
+    "na",
+    "f_objective_um",
+    "f_tube_um",
+    "mla_pitch_um",
+    "mla_focal_um",
+    "pixel_um",
+    "sensor_px",
+    "axis_px",
+)
+
+#: Relative tolerance of :func:`optics_differences`.
+OPTICS_RTOL = 1e-6
+
+
+def optics_differences(scene, calibration, rtol: float = OPTICS_RTOL) -> list[str]:
+    """The :data:`OPTICS_MATCH_FIELDS` in which two optics differ, as readable text.
+
+    Parameters
+    ----------
+    scene, calibration : lfsim.optics.Optics
+        The optics of a run's scene and those recorded with its calibration.
+    rtol : float
+        Relative tolerance per value.
+
+    Returns
+    -------
+    list of str
+        ``"na 0.25 (scene) vs 0.2 (calibration)"`` for each field that differs; empty when
+        they agree.
+    """
+
+    def text(v) -> str:
+        return f"{v:g}" if np.ndim(v) == 0 else "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+    out = []
+    for name in OPTICS_MATCH_FIELDS:
+        a, b = getattr(scene, name), getattr(calibration, name)
+        va, vb = np.atleast_1d(np.asarray(a, float)), np.atleast_1d(np.asarray(b, float))
+        if va.shape != vb.shape or not np.allclose(va, vb, rtol=rtol, atol=0.0):
+            out.append(f"{name} {text(a)} (scene) vs {text(b)} (calibration)")
+    return out
+
+
+def model_optics(optics):
+    """The optics of the reconstruction's forward model: ideal lenslets.
+
+    The PSF bank is traced through a paraxial lenslet array
+    (:func:`lfsim.tracer.trace_paraxial`). A scene with a glass lenslet array
+    (``mla_kind="glass"``, the simulator's no-inverse-crime renderings) is reconstructed with
+    the ideal array of the same pitch and focal length — the model a user has for a real
+    microscope — and a warning says so.
+    """
+    if optics.mla_kind == "ideal":
+        return optics
+    log.warning(
+        "the scene's lenslet array is %s (mla_kind=%r); reconstructing with ideal lenslets of "
+        "the same pitch (%g µm) and focal length (%g µm), the only lenslets the PSF model knows",
+        "a glass mesh" if optics.mla_kind == "glass" else optics.mla_kind,
+        optics.mla_kind,
+        optics.mla_pitch_um,
+        optics.mla_focal_um,
+    )
+    return replace(optics, mla_kind="ideal")
+
+
 def rectified_optics(optics, n: int):
     """The optics as seen in a rectified image with exactly ``n`` pixels per lenslet."""
     return replace(optics, pixel_um=optics.mla_pitch_um / n, axis_px=None, sensor_px=(n, n))
@@ -206,7 +276,8 @@ def reconstruct_series(
         type and bit depth (checked from the TIFF headers first).
     out_dir : path
     optics : lfsim.optics.Optics
-        The microscope (from the scene file).
+        The microscope (from the scene file); glass lenslets are modelled as ideal ones
+        (:func:`model_optics`).
     grid : recon.calibration.LensletGrid
         Lenslet calibration of these frames' camera.
     settings, preprocess : optional
@@ -214,6 +285,10 @@ def reconstruct_series(
         Replace the outputs of a run with other inputs or settings (only this tool's files).
     provenance : dict, optional
         Extra entries for ``recon.json`` (e.g. the command line).
+
+    A run that fails before its first volume leaves no ``recon.json`` (nor the folder, if it
+    made it), so that the corrected command needs no ``overwrite``; a record without volumes
+    is replaced in any case.
 
     Raises
     ------
@@ -231,6 +306,8 @@ def reconstruct_series(
 
     st = settings or ReconSettings()
     pp = preprocess or Preprocess()
+    scene_mla_kind = optics.mla_kind
+    optics = model_optics(optics)
     refs = [FrameRef.of(f) for f in frames]
     if not refs:
         raise InputError("no frames to reconstruct")
@@ -271,122 +348,124 @@ def reconstruct_series(
     checksums = frame_checksums(refs)
     meta_path = out / RECON_JSON
     previous = _check_output(out, fp, refs, checksums, overwrite)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-
-    prev_frames = {e.get("index"): e for e in (previous or {}).get("frames", [])}
-    o_x, o_y = _object_origin(grid, geom, optics)
-    rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
-    meta = {
-        "tool": "recon",
-        "version": _version(),
-        "fingerprint": fp,
-        "status": "incomplete",
-        "optics": optics.to_dict(),
-        "calibration": grid.to_dict(),
-        "settings": st.to_dict(),
-        "preprocess": pp.to_dict(),
-        "grid": rgrid.to_dict(),
-        "voxel_size_um": list(rgrid.voxel_size_um),
-        "volume_shape": list(rgrid.shape),
-        "psf_bank": key,
-        "frames": [],
-        **(provenance or {}),
-    }
     done, skipped, secs = [], [], {}
-    frame_entries = []
-    todo = []
-    for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
-        entry = _frame_entry(k, ref, sha)
-        e = prev_frames.get(k)
-        if (
-            e
-            and e.get("input_sha256") == sha
-            and verify_record(volume_path(out, k), e.get("output"))
-        ):
-            entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
-            skipped.append(k)
-        else:
-            if e and e.get("input_sha256") == sha and volume_path(out, k).is_file():
-                log.warning(
-                    "%s: volume %06d.tif changed on disk since it was written (truncated or "
-                    "corrupt); reconstructing it again",
-                    out,
-                    k,
-                )
-            todo.append(k)
-        frame_entries.append(entry)
-    meta["frames"] = frame_entries
-    write_json(meta_path, meta, overwrite=True)
-    if skipped:
-        log.info("%s: %d frame(s) already reconstructed, skipped", out, len(skipped))
-    if todo:
-        t0 = time.perf_counter()
-        bank = compute_psf_bank(
-            ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
-        )
-        projector = make_projector(bank, (nx, ny), st.projector)
-        filt = (
-            DepthFilter.for_optics(ropt, depths, st.s, st.lanczos_a)
-            if st.lanczos_a is not None
-            else None
-        )
-        meta["psf_seconds"] = time.perf_counter() - t0
-        meta["macs_per_projection"] = projector.macs_per_projection
-        it = todo
-        if progress:
-            from tqdm.auto import tqdm
-
-            it = tqdm(todo, desc="recon", unit="frame")
-        with FrameReader() as reader:
-            for k in it:
-                t1 = time.perf_counter()
-                ref = refs[k]
-                raw = first if k == 0 else read_frame(ref.path, page=ref.page, reader=reader)
-                if raw.shape != first.shape:
-                    raise InputError(
-                        f"frame {ref.label!r} is {raw.shape} px, the series started with "
-                        f"{first.shape}"
+    try:
+        prev_frames = {e.get("index"): e for e in (previous or {}).get("frames", [])}
+        o_x, o_y = _object_origin(grid, geom, optics)
+        rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
+        meta = {
+            "tool": "recon",
+            "version": _version(),
+            "fingerprint": fp,
+            "status": "incomplete",
+            "optics": optics.to_dict(),
+            "calibration": grid.to_dict(),
+            "settings": st.to_dict(),
+            "preprocess": pp.to_dict(),
+            "grid": rgrid.to_dict(),
+            "voxel_size_um": list(rgrid.voxel_size_um),
+            "volume_shape": list(rgrid.shape),
+            "psf_bank": key,
+            "scene_mla_kind": scene_mla_kind,
+            "frames": [],
+            **(provenance or {}),
+        }
+        frame_entries = []
+        todo = []
+        for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
+            entry = _frame_entry(k, ref, sha)
+            e = prev_frames.get(k)
+            kept = volume_path(out, k)
+            if e and e.get("input_sha256") == sha and verify_record(kept, e.get("output")):
+                entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
+                skipped.append(k)
+            else:
+                if e and e.get("input_sha256") == sha and kept.is_file():
+                    log.warning(
+                        "%s: volume %s changed on disk since it was written (truncated or "
+                        "corrupt); reconstructing it again",
+                        out,
+                        kept.name,
                     )
-                modelled = st.background_model == "model"
-                img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
-                rect, _ = _rectify_roi(rectify, img, grid, n, st.roi_px)
-                res = richardson_lucy(
-                    rect,
-                    projector,
-                    st.iterations,
-                    depth_filter=filt,
-                    stop_rel_change=st.stop_rel_change,
-                    track_kl=False,
-                    # Rectified pixels are interpolated samples, so a constant black level
-                    # keeps its value (no flux factor).
-                    background=max(pinfo["background"], 0.0) if modelled else 0.0,
-                )
-                source = {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS}
-                write_tiff(
-                    volume_path(out, k),
-                    res.volume.astype(np.float32),
-                    metadata={
-                        "frame": k,
-                        **source,
-                        "depths_um": list(map(float, depths)),
-                        "origin_um": [o_x, o_y],
-                        "iterations": res.iterations,
-                    },
-                    pixel_size_um=rgrid.voxel_size_um,
-                    overwrite=True,
-                )
-                secs[k] = time.perf_counter() - t1
-                frame_entries[k].update(
-                    {
-                        "seconds": secs[k],
-                        "iterations": res.iterations,
-                        "preprocess": pinfo,
-                        "rel_change": res.rel_change,
-                        "output": file_record(volume_path(out, k)),
-                    }
-                )
-                write_json(meta_path, meta, overwrite=True)
-                done.append(k)
+                todo.append(k)
+            frame_entries.append(entry)
+        meta["frames"] = frame_entries
+        write_json(meta_path, meta, overwrite=True)
+        if skipped:
+            log.info("%s: %d frame(s) already reconstructed, skipped", out, len(skipped))
+        if todo:
+            t0 = time.perf_counter()
+            bank = compute_psf_bank(
+                ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
+            )
+            projector = make_projector(bank, (nx, ny), st.projector)
+            filt = (
+                DepthFilter.for_optics(ropt, depths, st.s, st.lanczos_a)
+                if st.lanczos_a is not None
+                else None
+            )
+            meta["psf_seconds"] = time.perf_counter() - t0
+            meta["macs_per_projection"] = projector.macs_per_projection
+            it = todo
+            if progress:
+                from tqdm.auto import tqdm
+
+                it = tqdm(todo, desc="recon", unit="frame")
+            with FrameReader() as reader:
+                for k in it:
+                    t1 = time.perf_counter()
+                    ref = refs[k]
+                    raw = first if k == 0 else read_frame(ref.path, page=ref.page, reader=reader)
+                    if raw.shape != first.shape:
+                        raise InputError(
+                            f"frame {ref.label!r} is {raw.shape} px, the series started with "
+                            f"{first.shape}"
+                        )
+                    modelled = st.background_model == "model"
+                    img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
+                    rect, _ = _rectify_roi(rectify, img, grid, n, st.roi_px)
+                    res = richardson_lucy(
+                        rect,
+                        projector,
+                        st.iterations,
+                        depth_filter=filt,
+                        stop_rel_change=st.stop_rel_change,
+                        track_kl=False,
+                        # Rectified pixels are interpolated samples: a constant black
+                        # level keeps its value (no flux factor).
+                        background=max(pinfo["background"], 0.0) if modelled else 0.0,
+                    )
+                    source = {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS}
+                    write_tiff(
+                        volume_path(out, k),
+                        res.volume.astype(np.float32),
+                        metadata={
+                            "frame": k,
+                            **source,
+                            "depths_um": list(map(float, depths)),
+                            "origin_um": [o_x, o_y],
+                            "iterations": res.iterations,
+                        },
+                        pixel_size_um=rgrid.voxel_size_um,
+                        overwrite=True,
+                    )
+                    secs[k] = time.perf_counter() - t1
+                    frame_entries[k].update(
+                        {
+                            "seconds": secs[k],
+                            "iterations": res.iterations,
+                            "preprocess": pinfo,
+                            "rel_change": res.rel_change,
+                            "output": file_record(volume_path(out, k)),
+                        }
+                    )
+                    write_json(meta_path, meta, overwrite=True)
+                    done.append(k)
+    except BaseException:
+        _clean_up_failed_start(out, created, done)
+        raise
     meta["status"] = "complete"
     write_json(meta_path, meta, overwrite=True)
     return SeriesResult(out, done, skipped, secs)
@@ -410,6 +489,18 @@ def _frame_entry(k: int, ref, sha: str) -> dict:
     }
 
 
+def _clean_up_failed_start(out: Path, created: bool, done: list) -> None:
+    """After a failure: a run that wrote no volume leaves no trace (its ``recon.json`` and, if
+    it made it, the empty folder go), so that the corrected command runs as if for the first
+    time. A folder with volumes keeps its record, to be resumed."""
+    if done or _volume_indices(out):
+        return
+    (out / RECON_JSON).unlink(missing_ok=True)
+    if created:
+        with contextlib.suppress(OSError):
+            out.rmdir()
+
+
 def _volume_indices(out: Path) -> list[int]:
     return sorted(int(p.name[:6]) for p in out.glob("[0-9][0-9][0-9][0-9][0-9][0-9].tif"))
 
@@ -424,6 +515,10 @@ def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict 
     """
     from lfsim.io import read_json
 
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(
+            f"output {str(out)!r} is a file, not a folder (nothing was written)"
+        )
     if not (out.exists() and any(out.iterdir())):
         return None
     meta_path = out / RECON_JSON
@@ -435,7 +530,9 @@ def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict 
     previous = read_json(meta_path)
     volumes = _volume_indices(out)
     if previous.get("fingerprint") != fp:
-        if not overwrite:
+        if not volumes:
+            log.info("%s: replacing the record of a run that wrote no volume", out)
+        elif not overwrite:
             raise OutputExistsError(
                 f"output folder {str(out)!r} holds volumes made from other inputs or "
                 "settings; use a new folder or --overwrite (nothing was written)"

@@ -93,22 +93,24 @@ class PSFBank:
         return img, y0, x0
 
     def save(self, path: str | os.PathLike) -> Path:
+        """Write the bank as ``.npz``, atomically (concurrent writers of the same cache entry
+        each publish a complete file)."""
+        from hrvbase.io import atomic_path
+
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(
-            tmp,
-            depths_um=self.depths_um,
-            s=self.s,
-            n=self.n,
-            offsets=self.offsets,
-            dy=self.dy,
-            dx=self.dx,
-            w=self.w,
-            optics=json.dumps(self.optics),
-            format=BANK_FORMAT,
-        )
-        os.replace(tmp, path)
+        with atomic_path(path, overwrite=True) as tmp, open(tmp, "wb") as fh:
+            np.savez(
+                fh,
+                depths_um=self.depths_um,
+                s=self.s,
+                n=self.n,
+                offsets=self.offsets,
+                dy=self.dy,
+                dx=self.dx,
+                w=self.w,
+                optics=json.dumps(self.optics),
+                format=BANK_FORMAT,
+            )
         return path
 
     @classmethod

@@ -101,13 +101,34 @@ def test_no_grid_and_missing_scene(tmp_path, capsys, white_tif):
     assert not (tmp_path / "c.json").exists()
 
 
-def test_pitch_mismatch_warns(tmp_path, capsys):
+def test_pitch_mismatch_is_refused_unless_allowed(tmp_path, capsys):
     other = _white(tmp_path / "w17.tif", LensletGrid(17.0, 0.0, (150.2, 150.7), (300, 300)))
     out = tmp_path / "c.json"
-    rc, _, err = _run(capsys, "calibrate", other, "--scene", SCENE, "-o", out)
+    rc, stdout, err = _run(capsys, "calibrate", other, "--scene", SCENE, "-o", out)
+    assert rc == 2 and stdout == ""
+    assert err.startswith("recon: error: ") and err.count("\n") == 1
+    assert "differs by +13.3 %" in err and "w17.tif" in err and "--allow-pitch-mismatch" in err
+    assert not out.exists()
+    rc, _, err = _run(
+        capsys, "calibrate", other, "--scene", SCENE, "-o", out, "--allow-pitch-mismatch"
+    )
     assert rc == 0
     assert "recon: warning:" in err and "differs by +13.3 %" in err
     assert json.loads(out.read_text())["grid"]["pitch_px"] == pytest.approx(17.0, abs=0.01)
+
+
+def test_white_of_another_sensor_size_is_refused(tmp_path, capsys):
+    img = synthetic_white((280, 300), LensletGrid(15.0, 0.0, (150.0, 140.0), (280, 300)), rng=2)
+    white = tmp_path / "white_300x280.tif"
+    tifffile.imwrite(white, np.rint(100 + 3000 * img).astype(np.uint16))
+    out = tmp_path / "c.json"
+    for extra in ([], ["--allow-pitch-mismatch"]):
+        rc, stdout, err = _run(capsys, "calibrate", white, "--scene", SCENE, "-o", out, *extra)
+        assert rc == 2 and stdout == ""
+        assert err.startswith("recon: error: ") and err.count("\n") == 1
+        assert "white_300x280.tif" in err and "300 × 280 px" in err and "300 × 300 px" in err
+        assert "small.xml" in err
+        assert not out.exists()
 
 
 def test_verbosity_options(tmp_path, capsys, white_tif):

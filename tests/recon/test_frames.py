@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import tifffile
 
-from recon import LensletGrid, synthetic_white
 from recon.cli import main
 from recon.errors import InputError
 from recon.frames import format_numbers, natural_order, parse_frame_name
@@ -19,52 +18,14 @@ SCENE = ROOT / "scenes" / "small.xml"
 
 #: A fast reconstruction: 3 depths, 1 voxel per lenslet, 1 iteration, no background guess
 #: (so that a frame scaled by n gives a volume scaled by n).
-FAST = [
-    "--z-range",
-    "100:200",
-    "--z-step",
-    "50",
-    "-s",
-    "1",
-    "--iterations",
-    "1",
-    "--rays-per-pattern",
-    "20000",
-    "--background",
-    "none",
-]
+FAST = "--z-range 100:200 --z-step 50 -s 1 --iterations 1 --rays-per-pattern 20000".split()
+FAST += ["--background", "none"]
 
 
 def run(capsys, *args):
     rc = main(["-q", *map(str, args)])
     out = capsys.readouterr()
     return rc, out.out, out.err
-
-
-@pytest.fixture(scope="module")
-def psf_cache(tmp_path_factory):
-    """A private PSF cache for this module (never the user's)."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("HRVPTM_CACHE", str(tmp_path_factory.mktemp("cache")))
-        yield
-
-
-@pytest.fixture(scope="module")
-def base_frame() -> np.ndarray:
-    """Integer light-field-like pixels of the small scene's 300 × 300 px sensor."""
-    grid = LensletGrid(15.0, 0.0, (157.5, 157.5), (300, 300))
-    img = synthetic_white((300, 300), grid, noise_sigma=0.02, rng=5)
-    return np.rint(50 + 1000 * np.clip(img, 0, None)).astype(np.uint16)
-
-
-@pytest.fixture(scope="module")
-def calib(backend, psf_cache, base_frame, tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("calib")
-    white = d / "white.tif"
-    tifffile.imwrite(white, base_frame)
-    out = d / "calib.json"
-    assert main(["-q", "calibrate", str(white), "--scene", str(SCENE), "-o", str(out)]) == 0
-    return out
 
 
 def write_series(folder: Path, names, base: np.ndarray) -> dict[str, int]:

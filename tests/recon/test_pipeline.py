@@ -240,3 +240,37 @@ def test_background_model_is_a_setting_of_its_own(dataset, tmp_path, capsys):
 
     with pytest.raises(InputError, match="background_model"):
         ReconSettings(background_model="clip")
+
+
+def test_dataset_with_a_scene_of_other_optics_is_refused(dataset, tmp_path, capsys):
+    from lfsim import small_optics
+    from lfsim.scene import write_scene
+
+    other = write_scene(small_optics(na=0.25), tmp_path / "na025.xml")
+    out = tmp_path / "v"
+    rc, stdout, err = run(capsys, "run", dataset, "--scene", other, *FAST, "-o", out)
+    assert rc == 2 and stdout == "" and err.count("\n") == 1
+    assert "na025.xml" in err and str(dataset) in err and "na 0.25 (scene) vs 0.2" in err
+    assert not out.exists()
+
+
+def test_dataset_rendered_through_glass_lenslets(dataset, tmp_path, capsys):
+    """The README quick start on a dataset whose scene has the glass lenslet mesh: it is
+    reconstructed with the ideal lenslets of the same optics (a warning says so)."""
+    import json
+
+    from lfsim.io import read_json
+
+    glass = tmp_path / "dataset_glass"
+    shutil.copytree(dataset, glass)
+    record = json.loads((glass / "dataset.json").read_text())
+    record["scene"]["path"] = str(ROOT / "scenes" / "small_glass.xml")
+    record["optics"]["mla_kind"] = "glass"
+    (glass / "dataset.json").write_text(json.dumps(record))
+    out = tmp_path / "vol"
+    rc, _, err = main_verbose(capsys, "run", glass, *FAST, "--iterations", "1", "-o", out)
+    assert rc == 0, err
+    assert "recon: warning:" in err and "glass mesh" in err and "ideal lenslets" in err
+    meta = read_json(out / "recon.json")
+    assert meta["status"] == "complete" and meta["scene_mla_kind"] == "glass"
+    assert meta["scene"].endswith("small_glass.xml")

@@ -1,0 +1,177 @@
+"""`recon run` checks: scene optics against the calibration's, glass-lenslet scenes, and a
+failed start that must not block the corrected command."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import tifffile
+
+from recon.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENE = ROOT / "scenes" / "small.xml"
+FAST = "--z-range 100:200 --z-step 50 -s 1 --iterations 1 --rays-per-pattern 20000".split()
+
+
+def run(capsys, *args, quiet=True):
+    argv = list(map(str, args))
+    rc = main(["-q", *argv] if quiet else argv)
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def refused(rc, out, err, *names):
+    """Exit status 2 and one line on stderr naming every one of ``names``."""
+    assert rc == 2 and out == "", err
+    assert err.startswith("recon: error: ") and err.count("\n") == 1, err
+    for name in names:
+        assert name in err, (name, err)
+
+
+@pytest.fixture(scope="module")
+def frame(base_frame, tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("frame") / "img_1.tif"
+    tifffile.imwrite(path, base_frame)
+    return path
+
+
+def scene_with(tmp_path: Path, name: str, **changes) -> Path:
+    from lfsim import small_optics
+    from lfsim.scene import write_scene
+
+    return write_scene(small_optics(**changes), tmp_path / name)
+
+
+@pytest.mark.parametrize(
+    ("changes", "what"),
+    [
+        ({"na": 0.25}, "na 0.25 (scene) vs 0.2 (calibration)"),
+        ({"mla_focal_um": 1100.0}, "mla_focal_um 1100 (scene) vs 1000 (calibration)"),
+        ({"pixel_um": 100 / 15 * (1 + 1e-4)}, "pixel_um"),
+        ({"sensor_px": (330, 300)}, "sensor_px [330, 300] (scene) vs [300, 300] (calibration)"),
+        ({"axis_px": (142.5, 157.5)}, "axis_px [142.5, 157.5] (scene)"),
+    ],
+)
+def test_scene_other_than_the_calibrations_is_refused(
+    calib, frame, tmp_path, capsys, changes, what
+):
+    other = scene_with(tmp_path, "other.xml", **changes)
+    out = tmp_path / "v"
+    rc, stdout, err = run(
+        capsys, "run", frame, "--scene", other, "--calib", calib, *FAST, "-o", out
+    )
+    refused(rc, stdout, err, "other.xml", str(calib), what, "--allow-optics-mismatch")
+    assert not out.exists()
+
+
+def test_optics_mismatch_can_be_allowed(calib, frame, tmp_path, capsys):
+    from lfsim.io import read_json
+
+    other = scene_with(tmp_path, "na025.xml", na=0.25)
+    out = tmp_path / "v"
+    args = ["run", frame, "--scene", other, "--calib", calib, *FAST, "-o", out]
+    rc, _, err = run(capsys, *args, "--allow-optics-mismatch", quiet=False)
+    assert rc == 0, err
+    assert "recon: warning: scene" in err and "na 0.25 (scene) vs 0.2 (calibration)" in err
+    assert read_json(out / "recon.json")["optics"]["na"] == 0.25
+
+
+def test_tiny_differences_are_accepted(calib, frame, tmp_path, capsys):
+    scene = scene_with(tmp_path, "same.xml", pixel_um=100 / 15 * (1 + 1e-9))
+    rc, _, err = run(
+        capsys, "run", frame, "--scene", scene, "--calib", calib, *FAST, "-o", tmp_path / "v"
+    )
+    assert rc == 0, err
+
+
+def test_calibration_of_another_sensor_is_refused(base_frame, backend, tmp_path, capsys):
+    """A calibration of the paper's 1280 × 800 px camera used with the small scene (whose
+    axis lies 250 µm away in object space) was accepted before."""
+    from lfsim import paper_optics
+    from recon.calibration import LensletGrid
+
+    calib = tmp_path / "paper_calib.json"
+    grid = LensletGrid(15.0, 0.0, (637.5, 397.5), (800, 1280))
+    calib.write_text(json.dumps({"grid": grid.to_dict(), "optics": paper_optics().to_dict()}))
+    big = tmp_path / "big.tif"
+    tifffile.imwrite(big, base_frame.repeat(3, axis=0)[:800].repeat(5, axis=1)[:, :1280])
+    out = tmp_path / "v"
+    rc, stdout, err = run(capsys, "run", big, "--scene", SCENE, "--calib", calib, *FAST, "-o", out)
+    refused(rc, stdout, err, "sensor_px [300, 300] (scene) vs [1280, 800] (calibration)")
+    assert not out.exists()
+    # A bare grid file (no optics): its image size is still checked against the sensor.
+    bare = tmp_path / "grid.json"
+    grid.save(bare)
+    rc, stdout, err = run(capsys, "run", big, "--scene", SCENE, "--calib", bare, *FAST, "-o", out)
+    refused(rc, stdout, err, "grid.json", "sensor 300 × 300 px (scene) vs 1280 × 800 px images")
+    assert not out.exists()
+
+
+# -- glass lenslets, failed starts ----------------------------------------------------------
+def test_glass_scene_is_reconstructed_with_ideal_lenslets(calib, frame, tmp_path, capsys):
+    """A scene with the glass lenslet mesh is reconstructed with the ideal lenslets of the
+    same optics: the same volumes as with the ideal scene, and a warning."""
+    import numpy as np
+
+    from lfsim.io import read_json, read_tiff
+
+    glass = ROOT / "scenes" / "small_glass.xml"
+    out_glass, out_ideal = tmp_path / "glass", tmp_path / "ideal"
+    args = [frame, "--calib", calib, *FAST]
+    rc, _, err = run(capsys, "run", *args, "--scene", glass, "-o", out_glass, quiet=False)
+    assert rc == 0, err
+    assert err.count("recon: warning:") == 1 and "glass mesh" in err and "ideal lenslets" in err
+    meta = read_json(out_glass / "recon.json")
+    assert meta["optics"]["mla_kind"] == "ideal" and meta["scene_mla_kind"] == "glass"
+    rc, _, err = run(capsys, "run", *args, "--scene", SCENE, "-o", out_ideal)
+    assert rc == 0, err
+    assert read_json(out_ideal / "recon.json")["scene_mla_kind"] == "ideal"
+    a, b = read_tiff(out_glass / "000000.tif")[0], read_tiff(out_ideal / "000000.tif")[0]
+    assert a.max() > 0 and np.array_equal(a, b)
+    # Same model, same settings: the ideal scene resumes the glass scene's folder.
+    rc, stdout, err = run(capsys, "run", *args, "--scene", SCENE, "-o", out_glass, quiet=False)
+    assert rc == 0 and "0 volume(s) reconstructed, 1 already done" in stdout, err
+
+
+def test_failed_start_leaves_nothing_in_the_way(calib, frame, tmp_path, capsys, monkeypatch):
+    import recon.pipeline
+    from lfsim.errors import ConfigError
+
+    def broken(*a, **k):
+        raise ConfigError("PSF model failed")
+
+    out = tmp_path / "new" / "v"
+    args = ["run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out]
+    with monkeypatch.context() as m:
+        m.setattr(recon.pipeline, "compute_psf_bank", broken)
+        refused(*run(capsys, *args), "PSF model failed")
+        assert not out.exists()
+        # A folder the user made is kept, empty.
+        out.mkdir(parents=True)
+        refused(*run(capsys, *args), "PSF model failed")
+        assert out.is_dir() and not any(out.iterdir())
+
+        def interrupted(*a, **k):
+            raise KeyboardInterrupt
+
+        m.setattr(recon.pipeline, "compute_psf_bank", interrupted)
+        assert run(capsys, *args)[0] == 130
+        assert out.is_dir() and not any(out.iterdir())
+    # The same command, now working, needs no --overwrite.
+    rc, _, err = run(capsys, *args)
+    assert rc == 0, err
+    assert (out / "000000.tif").is_file()
+
+
+def test_record_without_volumes_does_not_block(calib, frame, tmp_path, capsys):
+    """A recon.json left by a run that wrote no volume (e.g. by an older version that failed
+    in the PSF model) is replaced, even with other settings, without --overwrite."""
+    out = tmp_path / "v"
+    out.mkdir()
+    (out / "recon.json").write_text(json.dumps({"fingerprint": "0" * 64, "status": "incomplete"}))
+    rc, _, err = run(capsys, "run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out)
+    assert rc == 0, err
+    assert json.loads((out / "recon.json").read_text())["status"] == "complete"
