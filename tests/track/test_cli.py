@@ -124,7 +124,7 @@ def test_existing_results_are_protected(clouds, linked, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "match"),
     [
-        ("", "file is empty"),
+        ("", "is empty; expected a header"),
         ("x_um,y_um,z_um\n1,2,3\n1,nan,3\n", "line 3"),
         ("x_um,y_um\n1,2\n", "missing column"),
     ],
