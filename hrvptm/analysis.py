@@ -165,13 +165,13 @@ def _ratio_failure(where: str, ratio: float, reasons: list) -> list[str]:
 
 def _track_failures(paths: VariantPaths) -> dict[int, str]:
     """Pairs ``track`` could not link or grid, by deformed frame, from its ``summary.json``."""
-    from track.errors import TrackError
+    from hrvbase.errors import HrvError
     from track.io import read_json
 
     path = paths.track / "summary.json"
     try:
         summary = read_json(path)
-    except TrackError as exc:
+    except HrvError as exc:
         raise StageError(f"{path}: {exc}") from None
     out: dict[int, str] = {}
     for inc in summary.get("increments", []):

@@ -25,6 +25,7 @@ are relative to the TOML file's folder. Lengths in µm::
     rays_per_pattern = 200000
 
     [track]                        # track.detect.DetectSettings / track.series.SeriesSettings
+                                   #   (their defaults are the defaults here)
     mode = "incremental"           # incremental | cumulative
     target_nodes = 50000           # nodes of the gridded displacement and strain fields
     threshold = 0.25               # fraction of the intensity range (paper), or "auto"
@@ -57,6 +58,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from track.detect import DetectSettings
+from track.errors import TrackError
+from track.fields import GridSettings
+from track.series import SeriesSettings
 
 from .errors import StudyConfigError
 
@@ -172,15 +178,20 @@ class ReconSpec:
 
 @dataclass(frozen=True)
 class TrackSpec:
-    """The ``[track]`` section: detection, linking and gridding of the study."""
+    """The ``[track]`` section: detection, linking and gridding of the study.
 
-    mode: str = "incremental"
-    target_nodes: int = 50_000
-    threshold: float | str = 0.25
-    deconvolution_iterations: int = 5
-    edge_margin_um: float = 0.0
-    method: str = "radial"
-    smoothing: float | str = "gcv"
+    The defaults are those of :class:`track.detect.DetectSettings`,
+    :class:`track.series.SeriesSettings` and :class:`track.fields.GridSettings`
+    (:meth:`detect_settings` and :meth:`series_settings` build them).
+    """
+
+    mode: str = SeriesSettings.mode
+    target_nodes: int = GridSettings.target_nodes
+    threshold: float | str = DetectSettings.threshold
+    deconvolution_iterations: int = DetectSettings.deconvolution_iterations
+    edge_margin_um: float = DetectSettings.edge_margin_um
+    method: str = DetectSettings.method
+    smoothing: float | str = GridSettings.smoothing
 
     def __post_init__(self) -> None:
         if not (self.smoothing == "gcv" or (_num(self.smoothing) and self.smoothing >= 0)):
@@ -208,27 +219,30 @@ class TrackSpec:
             )
         if self.method not in ("radial", "centroid"):
             raise StudyConfigError(f"method must be 'radial' or 'centroid', got {self.method!r}")
+        try:  # track's own checks (e.g. the largest target_nodes)
+            self.detect_settings()
+            self.series_settings()
+        except TrackError as exc:
+            raise StudyConfigError(str(exc)) from None
 
-    def detect_argv(self) -> list[str]:
-        """The detection options of the ``track`` command line."""
-        argv = ["--threshold", str(self.threshold), "--method", self.method]
-        argv += ["--edge-margin-um", repr(float(self.edge_margin_um))]
-        if self.deconvolution_iterations == 0:
-            argv.append("--no-deconvolution")
-        else:
-            argv += ["--deconvolution-iterations", str(self.deconvolution_iterations)]
-        return argv
+    def detect_settings(self) -> DetectSettings:
+        """The :class:`track.detect.DetectSettings` of the study (numbers as floats, as the
+        ``track`` command line parses them)."""
+        thr = self.threshold if self.threshold == "auto" else float(self.threshold)
+        return DetectSettings(
+            deconvolution_iterations=int(self.deconvolution_iterations),
+            threshold=thr,
+            edge_margin_um=float(self.edge_margin_um),
+            method=self.method,
+        )
 
-    def link_argv(self) -> list[str]:
-        """The linking and gridding options of ``track run``."""
-        return [
-            "--mode",
-            self.mode,
-            "--target-nodes",
-            str(self.target_nodes),
-            "--smoothing",
-            self.smoothing if self.smoothing == "gcv" else repr(float(self.smoothing)),
-        ]
+    def series_settings(self) -> SeriesSettings:
+        """The :class:`track.series.SeriesSettings` of the study (linking and gridding)."""
+        from track.matching import LinkSettings
+
+        smoothing = self.smoothing if self.smoothing == "gcv" else float(self.smoothing)
+        grid = GridSettings(target_nodes=int(self.target_nodes), smoothing=smoothing)
+        return SeriesSettings(mode=self.mode, grid=grid, link=LinkSettings())
 
 
 @dataclass(frozen=True)

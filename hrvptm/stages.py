@@ -1,4 +1,4 @@
-"""The pipeline stages of a study, each run through the tool a user would run.
+"""The pipeline stages of a study, each run through the library of the tool a user would run.
 
 For each variant (``mismatched``: rendered with the experiment's scene — glass lenslets —
 and reconstructed with ``recon_scene``; ``matched``: rendered with ``recon_scene`` itself)::
@@ -6,7 +6,8 @@ and reconstructed with ``recon_scene``; ``matched``: rendered with ``recon_scene
     REPORT/<variant>/dataset/   lfsim.generate_dataset       (white.tif, frames/, truth/)
     REPORT/<variant>/calib.json recon.calibrate_white of white.tif
     REPORT/<variant>/volumes/   recon.pipeline.reconstruct_series
-    REPORT/<variant>/track/     ``track detect`` (localization, pairs) or ``track run`` (series)
+    REPORT/<variant>/track/     track.pipeline.track_volumes (detection only for localization
+                                and pairs; detect → link → fields for a series)
 
 Every stage resumes by itself: lfsim and recon keep per-frame records and fingerprints, and
 ``track`` skips volumes whose checksum it has seen. A stage whose inputs or settings changed
@@ -15,8 +16,6 @@ is redone (each tool replaces only the files it wrote).
 
 from __future__ import annotations
 
-import contextlib
-import io
 import logging
 import time
 from dataclasses import dataclass
@@ -112,22 +111,25 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
 
 
 def track_stage(study, paths: VariantPaths, *, progress: bool = True) -> float:
-    """Detect (and, for a series, link and grid) with the ``track`` command line.
-    Returns seconds spent."""
-    from track.cli import main as track_main
+    """Detect (and, for a series, link and grid) with :func:`track.pipeline.track_volumes`,
+    as ``track detect`` / ``track run`` would. Failed frames are kept (partial results
+    allowed): the analysis counts them and fails the study. Returns seconds spent."""
+    from hrvbase.errors import HrvError
+    from track.pipeline import track_volumes
 
     t0 = time.perf_counter()
-    command = "run" if study.study.kind == "series" else "detect"
-    # Failed frames are kept (--allow-partial): the analysis counts them and fails the study.
-    argv = [command, str(paths.volumes), "-o", str(paths.track), "--overwrite", "--allow-partial"]
-    argv += study.track.detect_argv()
-    if command == "run":
-        argv += study.track.link_argv()
-    argv += [] if progress else ["--no-progress"]
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err) if not progress else contextlib.nullcontext():
-        rc = track_main([*argv, "-q"])
-    if rc != 0:
-        msg = err.getvalue().strip() or f"track {command} failed with status {rc}"
-        raise StageError(f"tracking {paths.volumes}: {msg}")
+    series = study.track.series_settings() if study.study.kind == "series" else None
+    try:
+        track_volumes(
+            paths.volumes,
+            paths.track,
+            detect=study.track.detect_settings(),
+            series=series,
+            overwrite=True,  # inside the report: replace only an outdated run of this study
+            allow_partial=True,
+            progress=progress,
+            provenance={"caller": "hrvptm"},
+        )
+    except HrvError as exc:
+        raise StageError(f"tracking {paths.volumes}: {exc}") from None
     return time.perf_counter() - t0

@@ -8,6 +8,11 @@ displacement/strain fields (DESIGN.md §2 conventions: µm, x/y/z order, tensors
 
 Public API
 ----------
+Pipeline (:mod:`track.pipeline`)
+    :func:`track_volumes` (detect → link → fields from a folder of volumes, resumable),
+    :func:`track_clouds` (link point clouds), returning a :class:`TrackResult`
+    (:class:`FrameDetections`, :class:`PairOutcome`) and writing the results folder;
+    :class:`FailedFramesError` when frames fail and partial results are not allowed.
 Detection (:mod:`track.detect`, :mod:`track.psf_estimate`)
     :class:`DetectSettings`, :class:`Detection`, :func:`detect_particles`,
     :func:`estimate_psf`.
@@ -26,10 +31,10 @@ Series (:mod:`track.series`)
 Files (:mod:`track.io`)
     point/match/track CSV tables, ``.npz`` and ``.vti`` fields, volume series.
 Command line (:mod:`track.cli`)
-    ``track run | detect | link``.
+    ``track run | detect | link``, a thin layer over the pipeline.
 
-Detection and linking are imported on first use (``track.detect_particles`` etc.), so
-``import track`` stays light.
+Detection, linking and the pipeline are imported on first use (``track.detect_particles``,
+``track.track_volumes`` etc.), so ``import track`` stays light.
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from .errors import InputError, TrackError, TrackingError
+from .errors import FailedFramesError, InputError, TrackError, TrackingError
 from .fields import (
     GridField,
     GridSettings,
@@ -67,6 +72,11 @@ _LAZY = {
     "LinkSettings": "matching",
     "LinkResult": "matching",
     "link_pair": "matching",
+    "FrameDetections": "pipeline",
+    "PairOutcome": "pipeline",
+    "TrackResult": "pipeline",
+    "track_clouds": "pipeline",
+    "track_volumes": "pipeline",
 }
 
 
@@ -82,16 +92,20 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "DetectSettings",
     "Detection",
+    "FailedFramesError",
+    "FrameDetections",
     "GridField",
     "GridSettings",
     "InputError",
     "LinkResult",
     "LinkSettings",
     "LocalFitSettings",
+    "PairOutcome",
     "ParticleStrain",
     "SeriesResult",
     "SeriesSettings",
     "TrackError",
+    "TrackResult",
     "TrackingError",
     "__version__",
     "cumulate_eulerian",
@@ -107,5 +121,7 @@ __all__ = [
     "link_pair",
     "link_tracks",
     "particle_deformation_gradient",
+    "track_clouds",
     "track_series",
+    "track_volumes",
 ]

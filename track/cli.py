@@ -1,5 +1,9 @@
 """The ``track`` command line: detect particles, link them, grid displacement and strain.
 
+A thin layer over :mod:`track.pipeline` (:func:`~track.pipeline.track_volumes`,
+:func:`~track.pipeline.track_clouds`): options → settings dataclasses (whose defaults are the
+options' defaults) → pipeline → exit status and a one-line summary.
+
 Commands::
 
     track run VOLDIR -o RESULTS [--mode incremental|cumulative] [--grid-spacing-um X]
@@ -47,17 +51,12 @@ linked, tracking ratio ≥ 0.96, 6 fields, 12.3 s``.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import hashlib
-import json
 import logging
 import math
-import shutil
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 import numpy as np
 
@@ -65,20 +64,11 @@ from hrvbase.errors import HrvError
 
 from . import __version__
 from . import io as tio
-from .errors import InputError
+from .errors import FailedFramesError
 from .fields import GridSettings
-from .series import (
-    MAX_GRID_NODES,
-    MODES,
-    SeriesSettings,
-    check_grid,
-    link_pairs,
-    track_series,
-)
+from .series import MAX_GRID_NODES, MODES, SeriesSettings, check_grid
 
 log = logging.getLogger("track.cli")
-
-SUMMARY = "summary.json"
 
 #: Exit status of a run that finished with failed frames (without ``--allow-partial``).
 EXIT_FAILED = 3
@@ -169,13 +159,16 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _detect_options(p: argparse.ArgumentParser) -> None:
+    from .detect import DetectSettings
+
+    d = DetectSettings()
     g = p.add_argument_group("detection")
     g.add_argument(
         "--threshold",
         type=_threshold,
-        default=0.25,
-        help="binarisation threshold: fraction of the intensity range (default and paper: "
-        "0.25) or 'auto'",
+        default=d.threshold,
+        help=f"binarisation threshold: fraction of the intensity range (default: "
+        f"{d.threshold}, the paper's 0.25) or 'auto'",
     )
     g.add_argument(
         "--no-deconvolution", action="store_true", help="skip the secondary deconvolution"
@@ -183,23 +176,28 @@ def _detect_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--deconvolution-iterations",
         type=_count,
-        default=5,
+        default=d.deconvolution_iterations,
         metavar="N",
-        help="Richardson-Lucy iterations of the secondary deconvolution (default 5)",
+        help="Richardson-Lucy iterations of the secondary deconvolution "
+        f"(default {d.deconvolution_iterations})",
     )
-    g.add_argument("--blob-min-vox", type=_count, default=None, metavar="N")
-    g.add_argument("--blob-max-vox", type=_count, default=None, metavar="N")
-    g.add_argument("--method", choices=("radial", "centroid"), default="radial")
-    g.add_argument("--edge-margin-um", type=float, default=0.0, metavar="UM")
+    g.add_argument("--blob-min-vox", type=_count, default=d.blob_min_vox, metavar="N")
+    g.add_argument("--blob-max-vox", type=_count, default=d.blob_max_vox, metavar="N")
+    g.add_argument("--method", choices=("radial", "centroid"), default=d.method)
+    g.add_argument("--edge-margin-um", type=float, default=d.edge_margin_um, metavar="UM")
 
 
 def _link_options(p: argparse.ArgumentParser) -> None:
+    from .matching import LinkSettings
+    from .pipeline import VTI_ENCODINGS
+
+    grid, series = GridSettings(), SeriesSettings()
     g = p.add_argument_group("linking and fields")
-    g.add_argument("--mode", choices=MODES, default="incremental")
+    g.add_argument("--mode", choices=MODES, default=series.mode)
     g.add_argument(
         "--grid-spacing-um",
         type=_positive_float,
-        default=None,
+        default=grid.spacing_um,
         metavar="UM",
         help="node spacing of the gridded fields (default: about --target-nodes nodes); "
         "refused when it gives more than 10 × --target-nodes nodes",
@@ -207,25 +205,26 @@ def _link_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--target-nodes",
         type=_int_in(8, MAX_GRID_NODES),
-        default=GridSettings.target_nodes,
+        default=grid.target_nodes,
         metavar="N",
-        help=f"nodes of the default grid (default {GridSettings.target_nodes}, "
-        f"at most {MAX_GRID_NODES})",
+        help=f"nodes of the default grid (default {grid.target_nodes}, at most {MAX_GRID_NODES})",
     )
     g.add_argument(
-        "--interpolation", choices=("rbf", "linear"), default="rbf", help="gridding method"
+        "--interpolation", choices=("rbf", "linear"), default=grid.method, help="gridding method"
     )
     g.add_argument(
         "--smoothing",
         type=_smoothing,
-        default="gcv",
+        default=grid.smoothing,
         metavar="gcv|LAMBDA",
         help="RBF smoothing of the gridded fields: 'gcv' (default: chosen per displacement "
         "component by generalised cross-validation) or a number >= 0 (0: exact interpolation)",
     )
     g.add_argument("--no-fields", action="store_true", help="only link; no gridded fields")
-    g.add_argument("--vti-encoding", choices=("binary", "ascii"), default="binary")
-    g.add_argument("--seed", type=_count, default=0, help="seed of the linker's RANSAC")
+    g.add_argument("--vti-encoding", choices=VTI_ENCODINGS, default=VTI_ENCODINGS[0])
+    g.add_argument(
+        "--seed", type=_count, default=LinkSettings().seed, help="seed of the linker's RANSAC"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -252,65 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-# -- results folder --------------------------------------------------------------------------
-def _fingerprint(obj: Any) -> str:
-    text = json.dumps(obj, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _our_outputs(out: Path) -> list[Path]:
-    """Files and folders ``track`` writes in a results folder."""
-    items = [out / "particles", out / "fields", out / "tracks.csv", out / SUMMARY]
-    items += sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv"))
-    return [p for p in items if p.exists()]
-
-
-def _open_results(out: Path, fingerprint: str, overwrite: bool) -> dict | None:
-    """Check the results folder; return the previous summary to resume from, if any."""
-    if out.exists() and not out.is_dir():
-        raise InputError(f"results folder {out} is a file")
-    if not out.exists() or not any(out.iterdir()):
-        return None
-    summary = out / SUMMARY
-    prev = None
-    if summary.is_file():
-        try:
-            prev = tio.read_json(summary)
-        except InputError:
-            prev = None
-    if not isinstance(prev, dict) or prev.get("tool") != "track":
-        raise InputError(
-            f"results folder {out} is not empty and holds no {SUMMARY} written by track; "
-            "choose a new folder (nothing was written)"
-        )
-    if prev.get("fingerprint") == fingerprint:
-        return prev
-    if not overwrite:
-        raise InputError(
-            f"results folder {out} holds results made from other inputs or settings; "
-            "use a new folder or --overwrite (nothing was written)"
-        )
-    for p in _our_outputs(out):
-        if p.is_dir():
-            shutil.rmtree(p)
-        else:
-            p.unlink()
-    log.info("%s: previous results removed (--overwrite)", out)
-    return None
-
-
-def _clear_derived(out: Path) -> None:
-    """Remove the linking outputs of an earlier run (they are recomputed)."""
-    for p in sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv")):
-        p.unlink()
-    if (out / "tracks.csv").exists():
-        (out / "tracks.csv").unlink()
-    if (out / "fields").is_dir():
-        shutil.rmtree(out / "fields")
-
-
-# -- detection -------------------------------------------------------------------------------
-def _detect_settings(args):
+# -- options → settings ----------------------------------------------------------------------
+def detect_settings(args: argparse.Namespace):
+    """The :class:`~track.detect.DetectSettings` of parsed ``run``/``detect`` options."""
     from .detect import DetectSettings
 
     iters = 0 if args.no_deconvolution else args.deconvolution_iterations
@@ -324,89 +267,8 @@ def _detect_settings(args):
     )
 
 
-def _settings_dict(obj) -> dict:
-    return {k: v for k, v in dataclasses.asdict(obj).items()}
-
-
-def _first_psf(vol, info, settings):
-    """PSF of the first volume, used for the whole sequence (paper §3.2)."""
-    from .errors import TrackingError
-    from .psf_estimate import estimate_psf
-
-    if settings.deconvolution_iterations == 0:
-        return None, "not used (deconvolution off)"
-    try:
-        psf = estimate_psf(
-            vol, info.voxel_size_um, n_particles=settings.psf_particles, box_um=settings.psf_box_um
-        )
-    except (TrackingError, InputError) as exc:
-        log.warning("no PSF from the first volume (%s); each volume estimates its own", exc)
-        return None, f"not available from the first volume: {exc}"
-    return psf, f"estimated from {info.path.name}, shape {list(psf.shape)}"
-
-
-def _detect_all(args, out: Path, summary: dict, prev: dict | None) -> list[np.ndarray]:
-    from .detect import detect_particles
-
-    vols = tio.scan_volumes(args.voldir)
-    settings = _detect_settings(args)
-    prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
-    frames = []
-    for v in vols:
-        frames.append(
-            {"index": v.index, "input": str(v.path), "input_sha256": tio.sha256_file(v.path)}
-        )
-    summary["frames"] = frames
-    summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
-    clouds: list[np.ndarray | None] = [None] * len(vols)
-    for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
-        old = prev_frames.get(v.index)
-        part = tio.numbered(out / "particles", v.index, ".csv")
-        if old and old.get("input_sha256") == f["input_sha256"] and part.is_file():
-            clouds[i] = tio.read_points_csv(part)
-            frames[i] = {**old, **f, "reused": True}
-    todo = [i for i in range(len(vols)) if clouds[i] is None]
-    if todo:
-        log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
-    else:
-        log.info("all %d volumes already detected; detection skipped", len(vols))
-    psf = None
-    psf_note = (prev or {}).get("psf", "")
-    t_det = time.perf_counter()
-    if todo:
-        vol0 = tio.read_volume(vols[0])
-        psf, psf_note = _first_psf(vol0, vols[0], settings)
-        bar = _progress(todo, args, "detect", "volume")
-        for i in bar:
-            v = vols[i]
-            t0 = time.perf_counter()
-            vol = vol0 if i == 0 else tio.read_volume(v)
-            det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_um=v.origin_um)
-            part = tio.numbered(out / "particles", v.index, ".csv")
-            tio.write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
-            clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
-            frames[i].update(
-                {
-                    "particles": str(part.relative_to(out)),
-                    "n_particles": int(clouds[i].shape[0]),
-                    "voxel_size_um": list(v.voxel_size_um),
-                    "origin_um": list(v.origin_um),
-                    "seconds": time.perf_counter() - t0,
-                    "report": det.report,
-                }
-            )
-            if clouds[i].shape[0] == 0:
-                log.info("volume %s: no particle found", v.path.name)
-            summary["psf"] = psf_note
-            tio.write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
-    summary["psf"] = psf_note
-    summary["timings"]["detect_s"] = time.perf_counter() - t_det
-    summary["frame_ids"] = [v.index for v in vols]
-    return [c for c in clouds if c is not None]
-
-
-# -- linking and outputs ---------------------------------------------------------------------
-def _series_settings(args) -> SeriesSettings:
+def series_settings(args: argparse.Namespace) -> SeriesSettings:
+    """The :class:`~track.series.SeriesSettings` of parsed ``run``/``link`` options."""
     from .matching import LinkSettings
 
     grid = GridSettings(
@@ -423,275 +285,100 @@ def _series_settings(args) -> SeriesSettings:
     )
 
 
-def _link_and_write(args, out: Path, summary: dict, clouds, frame_ids) -> None:
-    settings = _series_settings(args)
-    summary["fields_requested"] = settings.compute_fields
-    summary["parameters"]["series"] = {
-        "mode": settings.mode,
-        "min_particles": settings.min_particles,
-        "grid": _settings_dict(settings.grid),
-        "link": _settings_dict(settings.link),
-    }
-    if len(clouds) < 2:
-        raise InputError(f"linking needs at least 2 frames, got {len(clouds)}")
-    if settings.compute_fields and clouds[0].shape[0] >= settings.min_particles:
-        _check_grid_option(args, np.ptp(clouds[0], axis=0), "frame 0's particles")
-    _clear_derived(out)
-    t0 = time.perf_counter()
-    n_pairs = len(clouds) - 1
-    with _progress(n_pairs, args, "link", "pair") as bar:
-        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update())
-    t1 = time.perf_counter()
-    with _progress(n_pairs if settings.compute_fields else 0, args, "fields", "field") as bar:
-        res = track_series(clouds, settings, pairs=pairs, on_field=lambda _k: bar.update())
-    t2 = time.perf_counter()
-    increments = []
-    for k, pair in enumerate(res.pairs):
-        ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
-        mfile = out / f"matches_{def_id:06d}.csv"
-        tio.write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
-        entry = {
-            "ref_frame": ref_id,
-            "def_frame": def_id,
-            "status": pair.status,
-            "n_ref": int(clouds[pair.ref_frame].shape[0]),
-            "n_def": int(clouds[pair.def_frame].shape[0]),
-            "n_matches": int(pair.matches.shape[0]),
-            "tracking_ratio": pair.tracking_ratio,
-            "iterations": pair.iterations,
-            "matches": mfile.name,
-            "field_status": res.field_status[k],
-            "field": None,
-            "smoothing_xyz": None if res.smoothing[k] is None else list(res.smoothing[k]),
-        }
-        if not pair.ok:  # reported once at the end (_finish)
-            log.info("frames %d → %d %s", ref_id, def_id, pair.status)
-        fld = res.total_fields[k]
-        if fld is not None:
-            base = out / "fields" / f"{def_id:06d}"
-            tio.write_field_npz(base.with_suffix(".npz"), fld, overwrite=True)
-            tio.write_field_vti(
-                base.with_suffix(".vti"), fld, encoding=args.vti_encoding, overwrite=True
-            )
-            entry["field"] = f"fields/{def_id:06d}"
-            entry["mask_fraction"] = float(fld.mask.mean())
-        inc = res.increment_fields[k]
-        if inc is not None:
-            p = out / "fields" / f"increment_{def_id:06d}.npz"
-            tio.write_field_npz(p, inc, overwrite=True)
-            entry["increment_field"] = str(p.relative_to(out))
-        increments.append(entry)
-    tracks = res.tracks
-    ids = np.asarray(frame_ids, dtype=np.int64)
-    tracks = dataclasses.replace(tracks, frame=ids[tracks.frame])
-    tio.write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
-    summary["increments"] = increments
-    summary["counts"] = {
-        "frames": len(clouds),
-        "particles_per_frame": [int(c.shape[0]) for c in clouds],
-        "pairs_linked": sum(p.ok for p in res.pairs),
-        "pairs_skipped": sum(not p.ok for p in res.pairs),
-        "tracks": int(np.unique(tracks.track_id).size),
-    }
-    if res.axes is not None:
-        summary["grid"] = {
-            "shape_zyx": list(res.axes.shape),
-            "spacing_um": list(res.axes.spacing_um),
-            "origin_um": list(res.axes.origin_um),
-        }
-    summary["timings"]["link_s"] = t1 - t0
-    summary["timings"]["fields_s"] = t2 - t1
-    summary["timings"]["write_s"] = time.perf_counter() - t2
-
-
-def _progress(items, args, desc: str, unit: str):
-    """tqdm bar on stderr over ``items`` (an iterable, or a total count for ``update()``);
-    off with ``--no-progress`` or ``-q``, and when stderr is not a terminal."""
-    from tqdm.auto import tqdm
-
-    disable = True if (args.no_progress or args.quiet) else None
-    if isinstance(items, int):
-        disable = True if items == 0 else disable
-        return tqdm(total=items, desc=desc, unit=unit, disable=disable, file=sys.stderr)
-    return tqdm(items, desc=desc, unit=unit, disable=disable, file=sys.stderr)
-
-
 def _check_grid_option(args, extent_xyz_um, where: str) -> None:
-    """Refuse a ``--grid-spacing-um`` that gives too many nodes, or a single cell."""
-    if getattr(args, "no_fields", False):
+    """Refuse a ``--grid-spacing-um`` that gives too many nodes, or a single cell (before
+    the pipeline does, so that the message names the options)."""
+    if args.no_fields:
         return
     check_grid(
         extent_xyz_um,
-        _series_settings(args).grid,
+        series_settings(args).grid,
         where=where,
         spacing_name="--grid-spacing-um",
         target_name="--target-nodes",
     )
 
 
-def _volume_extent(vols) -> np.ndarray:
-    """Size (x, y, z) in µm spanned by the voxel centres of a volume series."""
-    shape = np.asarray(vols[0].shape, dtype=float)  # (nz, ny, nx)
-    vs = np.asarray(vols[0].voxel_size_um, dtype=float)  # (dz, dy, dx)
-    return ((shape - 1) * vs)[::-1]
-
-
-# -- failures and the closing line -----------------------------------------------------------
-def _failures(summary: dict) -> list[str]:
-    """One message per failed frame or pair of a finished run (empty: all worked)."""
-    out = []
-    if summary["command"] == "detect":
-        for f in summary.get("frames", []):
-            if f.get("n_particles", 1) == 0:
-                out.append(f"volume {Path(f['input']).name}: no particle found")
-    for inc in summary.get("increments", []):
-        where = f"frames {inc['ref_frame']} → {inc['def_frame']}"
-        if inc["status"] != "ok":
-            out.append(f"{where}: {inc['status']}")
-        elif summary.get("fields_requested", True) and inc["field_status"] != "ok":
-            out.append(f"{where}: field {inc['field_status']}")
-    return out
-
-
-def _failure_line(failures: list[str], summary: dict) -> str:
-    what = "pair" if summary.get("increments") else "volume"
-    more = len(failures) - 1
-    extra = f"; and {more} more {what}{'s' if more > 1 else ''} failed" if more else ""
-    where = f" (results kept, see {SUMMARY}; " if more else " ("
-    return f"{failures[0]}{extra}{where}use --allow-partial to keep partial results)"
-
-
-def _results_line(summary: dict) -> str:
-    """``RESULTS: 7 volumes, 24–25 particles/frame, 6/6 pairs linked, ...`` (one line)."""
-    frames = summary.get("frames", [])
-    kind = "clouds" if summary["command"] == "link" else "volumes"
-    parts = [f"{len(frames)} {kind}"]
-    counts = [f["n_particles"] for f in frames if "n_particles" in f]
-    if counts:
-        lo, hi = min(counts), max(counts)
-        parts.append(f"{lo}–{hi} particles/frame" if lo != hi else f"{lo} particles/frame")
-    incs = summary.get("increments")
-    if incs is not None:
-        linked = [i for i in incs if i["status"] == "ok"]
-        parts.append(f"{len(linked)}/{len(incs)} pairs linked")
-        ratios = [i["tracking_ratio"] for i in linked if i["tracking_ratio"] is not None]
-        if ratios:
-            parts.append(f"tracking ratio ≥ {math.floor(100 * min(ratios)) / 100:.2f}")
-        if summary.get("fields_requested", True):
-            parts.append(f"{sum(i['field'] is not None for i in incs)} fields")
-        else:
-            parts.append("no fields")
-    parts.append(f"{summary['timings'].get('total_s', 0.0):.1f} s")
-    status = summary["status"]
-    return "RESULTS: " + ", ".join(parts) + ("" if status == "complete" else f" ({status.upper()})")
-
-
-def _finish(args, out: Path, summary: dict, t0: float) -> int:
-    """Set the status, write ``summary.json``, print the closing lines; the exit status."""
-    failures = _failures(summary)
-    summary["failures"] = failures
-    summary["allow_partial"] = bool(args.allow_partial)
-    if not failures:
-        summary["status"] = "complete"
-    else:
-        summary["status"] = "partial" if args.allow_partial else "failed"
-    summary["timings"]["total_s"] = time.perf_counter() - t0
-    tio.write_json(out / SUMMARY, summary, overwrite=True)
-    log.info("results in %s", out)
-    if not args.quiet:
-        sys.stdout.write(_results_line(summary) + "\n")
-        sys.stdout.flush()
-    if not failures:
-        return 0
-    if args.allow_partial:
-        for f in failures:
-            log.warning("%s (kept: --allow-partial)", f)
-        return 0
-    sys.stderr.write(f"track: error: {_failure_line(failures, summary)}\n")
-    return EXIT_FAILED
-
-
-def _new_summary(args, command: str, fingerprint: str, parameters: dict) -> dict:
+def _common_kwargs(args) -> dict:
     return {
-        "tool": "track",
-        "version": __version__,
-        "command": command,
-        "argv": list(args.argv),
-        "fingerprint": fingerprint,
-        "status": "incomplete",
-        "parameters": parameters,
-        "timings": {},
+        "overwrite": args.overwrite,
+        "allow_partial": args.allow_partial,
+        "progress": not (args.no_progress or args.quiet),
+        "provenance": {"argv": list(args.argv)},
     }
 
 
-def _detect_fingerprint(args) -> tuple[str, dict]:
-    settings = _detect_settings(args)
-    params = {"detect": _settings_dict(settings)}
-    fp = _fingerprint({"voldir": str(args.voldir.resolve()), **params})
-    return fp, params
+# -- commands --------------------------------------------------------------------------------
+def _report(args, call) -> int:
+    """Run a pipeline call; print the RESULTS line (unless -q); the exit status."""
+    from .pipeline import failure_message
+
+    try:
+        result = call()
+    except FailedFramesError as exc:
+        if not args.quiet and exc.result is not None:
+            sys.stdout.write(exc.result.results_line() + "\n")
+            sys.stdout.flush()
+        line = failure_message(exc.failures, hint="--allow-partial")
+        sys.stderr.write(f"track: error: {line}\n")
+        return EXIT_FAILED
+    if not args.quiet:
+        sys.stdout.write(result.results_line() + "\n")
+    return 0
 
 
-def cmd_detect(args, *, then_link: bool = False) -> int:
-    """``track detect`` (and the detection stage of ``track run``)."""
-    t0 = time.perf_counter()
-    if not args.voldir.is_dir():
-        raise InputError(f"volume folder {args.voldir} does not exist or is not a folder")
-    tio.scan_volumes(args.voldir)  # validate the series before touching RESULTS
-    fp, params = _detect_fingerprint(args)
-    out = args.output
-    prev = _open_results(out, fp, args.overwrite)
-    summary = _new_summary(args, "run" if then_link else "detect", fp, params)
-    out.mkdir(parents=True, exist_ok=True)
-    clouds = _detect_all(args, out, summary, prev)
-    if then_link:
-        _link_and_write(args, out, summary, clouds, summary["frame_ids"])
-    return _finish(args, out, summary, t0)
+def cmd_detect(args) -> int:
+    """``track detect``: detect particles in every volume."""
+    from .pipeline import track_volumes
+
+    settings = detect_settings(args)
+    return _report(
+        args,
+        lambda: track_volumes(
+            args.voldir, args.output, detect=settings, series=None, **_common_kwargs(args)
+        ),
+    )
 
 
 def cmd_run(args) -> int:
     """``track run``: detect, link, grid."""
-    _series_settings(args)  # validate before any work
-    if args.voldir.is_dir():
-        vols = tio.scan_volumes(args.voldir)
-        _check_grid_option(args, _volume_extent(vols), "the volume")
-    return cmd_detect(args, then_link=True)
+    from .pipeline import track_volumes, volume_extent_um
+
+    detect, series = detect_settings(args), series_settings(args)  # validate before any work
+    vols = tio.scan_volumes(args.voldir)
+    _check_grid_option(args, volume_extent_um(vols[0]), "the volume")
+    return _report(
+        args,
+        lambda: track_volumes(
+            args.voldir,
+            args.output,
+            detect=detect,
+            series=series,
+            vti_encoding=args.vti_encoding,
+            **_common_kwargs(args),
+        ),
+    )
 
 
 def cmd_link(args) -> int:
     """``track link``: link point clouds given as CSV files."""
-    t0 = time.perf_counter()
-    if len(args.clouds) < 2:
-        raise InputError(f"link needs at least 2 point clouds, got {len(args.clouds)}")
-    _series_settings(args)
-    clouds = [tio.read_points_csv(p) for p in args.clouds]
-    if clouds[0].shape[0] >= 2:
-        _check_grid_option(args, np.ptp(clouds[0], axis=0), "frame 0's particles")
-    checks = [tio.sha256_file(p) for p in args.clouds]
-    params = {"sources": [str(p.resolve()) for p in args.clouds]}
-    fp = _fingerprint({**params, "sha256": checks})
-    out = args.output
-    _open_results(out, fp, args.overwrite)
-    summary = _new_summary(args, "link", fp, {})
-    summary["inputs"] = [
-        {"path": str(p), "sha256": s} for p, s in zip(args.clouds, checks, strict=True)
-    ]
-    out.mkdir(parents=True, exist_ok=True)
-    frames = []
-    for i, (p, c) in enumerate(zip(args.clouds, clouds, strict=True)):
-        part = tio.numbered(out / "particles", i, ".csv")
-        tio.write_points_csv(part, c, overwrite=True)
-        frames.append(
-            {
-                "index": i,
-                "input": str(p),
-                "particles": str(part.relative_to(out)),
-                "n_particles": int(c.shape[0]),
-            }
-        )
-    summary["frames"] = frames
-    tio.write_json(out / SUMMARY, summary, overwrite=True)
-    _link_and_write(args, out, summary, clouds, list(range(len(clouds))))
-    return _finish(args, out, summary, t0)
+    from .pipeline import track_clouds
+
+    series = series_settings(args)
+    if len(args.clouds) >= 2:
+        first = tio.read_points_csv(args.clouds[0])
+        if first.shape[0] >= 2:
+            _check_grid_option(args, np.ptp(first, axis=0), "frame 0's particles")
+    return _report(
+        args,
+        lambda: track_clouds(
+            args.clouds,
+            args.output,
+            series=series,
+            vti_encoding=args.vti_encoding,
+            **_common_kwargs(args),
+        ),
+    )
 
 
 class _Formatter(logging.Formatter):
@@ -739,4 +426,4 @@ if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
 
 
-__all__ = ["build_parser", "main"]
+__all__ = ["EXIT_FAILED", "build_parser", "detect_settings", "main", "series_settings"]

@@ -76,14 +76,16 @@ def _fake_variant(tmp: Path, study, bias, noise_um, seed=0, drop=(), keep_n=None
 
 
 def _link(tmp: Path, paths, frames: int) -> None:
-    """Link the (already detected) clouds with the track command line, as a study would
-    (failed pairs are kept: the analysis counts them)."""
-    from track.cli import main as track_main
+    """Link the (already detected) clouds with the track library, as a study would (failed
+    pairs are kept: the analysis counts them)."""
+    from track.fields import GridSettings
+    from track.pipeline import track_clouds
+    from track.series import SeriesSettings
 
-    clouds = [str(paths.track / "particles" / f"{k:06d}.csv") for k in range(frames)]
+    clouds = [paths.track / "particles" / f"{k:06d}.csv" for k in range(frames)]
     link_dir = tmp / "linked"
-    argv = ["link", *clouds, "-o", str(link_dir), "--target-nodes", "4000", "-q"]
-    assert track_main([*argv, "--allow-partial"]) == 0
+    series = SeriesSettings(grid=GridSettings(target_nodes=4000))
+    track_clouds(clouds, link_dir, series=series, allow_partial=True)
     for name in ("tracks.csv", "fields", "summary.json"):
         (link_dir / name).rename(paths.track / name)
 

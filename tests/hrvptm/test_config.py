@@ -103,16 +103,24 @@ def test_missing_and_invalid_files(tmp_path):
         load_study(bad)
 
 
-def test_track_options_reach_the_track_command_line(tmp_path):
-    s = load_study(_write(tmp_path, "[track]\nsmoothing = 1e4\ntarget_nodes = 900\n"))
-    argv = s.track.link_argv()
-    assert argv[argv.index("--smoothing") + 1] == "10000.0"
-    assert argv[argv.index("--target-nodes") + 1] == "900"
-    from track.cli import build_parser
+def test_track_options_become_track_settings(tmp_path):
+    from track.detect import DetectSettings
+    from track.fields import GridSettings
+    from track.series import SeriesSettings
 
-    args = build_parser().parse_args(["run", "v", "-o", "r", *s.track.detect_argv(), *argv])
-    assert args.smoothing == 1e4 and args.target_nodes == 900 and args.threshold == 0.25
-    default = load_study(_write(tmp_path, "")).track.link_argv()  # default: GCV, as track's
-    assert default[default.index("--smoothing") + 1] == "gcv"
-    args = build_parser().parse_args(["run", "v", "-o", "r", *default])
-    assert args.smoothing == "gcv" == build_parser().parse_args(["run", "v", "-o", "r"]).smoothing
+    s = load_study(_write(tmp_path, "[track]\nsmoothing = 10000\ntarget_nodes = 900\n"))
+    series = s.track.series_settings()
+    assert isinstance(series, SeriesSettings) and series.mode == "incremental"
+    assert series.grid.smoothing == 1e4 and isinstance(series.grid.smoothing, float)
+    assert series.grid.target_nodes == 900 and series.grid.spacing_um is None
+    det = s.track.detect_settings()
+    assert det == DetectSettings()  # every default is track's own
+    t = load_study(_write(tmp_path, "[track]\nthreshold = 'auto'\ndeconvolution_iterations = 0\n"))
+    det = t.track.detect_settings()
+    assert det.threshold == "auto" and det.deconvolution_iterations == 0
+    default = load_study(_write(tmp_path, "")).track
+    assert default.series_settings().grid == GridSettings()  # GCV smoothing, 50 000 nodes
+    assert default.series_settings().mode == SeriesSettings().mode
+    # track's own limits reach the study file, named
+    with pytest.raises(StudyConfigError, match="target_nodes must be at most 2000000"):
+        load_study(_write(tmp_path, "[track]\ntarget_nodes = 3000000\n"))

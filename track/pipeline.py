@@ -1,0 +1,789 @@
+"""The ``track`` pipeline as a library: detect → link → fields, into a results folder.
+
+:func:`track_volumes` detects the particles of a series of volumes and, given
+:class:`~track.series.SeriesSettings`, links them and grids the displacement and strain
+fields; :func:`track_clouds` links point clouds from any localisation source. Both write the
+results folder that ``track run | detect | link`` writes (the command line is a thin layer
+over them, :mod:`track.cli`) and return a :class:`TrackResult` with the same data in memory.
+
+Results folder ``out_dir``::
+
+    particles/NNNNNN.csv      x_um, y_um, z_um, intensity of each frame's particles
+    matches_NNNNNN.csv        one per linked pair (NNNNNN = deformed frame)
+    tracks.csv                frame, track_id, x_um, y_um, z_um
+    fields/NNNNNN.npz, .vti   total field from frame 0 to frame NNNNNN (reference grid)
+    fields/increment_NNNNNN.npz   incremental mode: the increment's field
+    summary.json              parameters, input checksums, counts, tracking ratio and
+                              status of every pair, failures, timings
+
+Every file is written atomically. Resuming: the SHA-256 of each volume is recorded and the
+detection of volumes whose particle table exists with the same checksum is skipped; linking
+and fields are recomputed. A folder made from other inputs or detection settings is refused
+unless ``overwrite`` (which then deletes only files ``track`` writes); a non-empty folder
+without a ``summary.json`` written by ``track`` is always refused.
+
+Failures: a pair that cannot be linked (fewer than ``min_particles`` particles, no
+consistent matches), a field that cannot be gridded or (detection only) a volume without
+particles is a *failure*. Everything that worked is written and ``summary.json`` lists the
+failures; its status is ``"failed"`` and :class:`~track.errors.FailedFramesError` is raised
+(carrying the :class:`TrackResult`), or, with ``allow_partial=True``, ``"partial"`` with a
+warning per failure. An explicit grid spacing that gives more than
+``min(10 × target_nodes, 2 000 000)`` nodes, or a single cell, is refused
+(:func:`track.series.check_grid`) before any work when the box is known (the volume's, or
+frame 0's particles).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import os
+import shutil
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hrvbase.errors import HrvError
+
+from . import io as tio
+from .errors import FailedFramesError, InputError, TrackingError
+from .fields import GridAxes, GridField
+from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, track_series
+
+log = logging.getLogger(__name__)
+
+#: The record of a results folder.
+SUMMARY = "summary.json"
+#: Encodings of the ``.vti`` field files.
+VTI_ENCODINGS = ("binary", "ascii")
+
+
+# -- results ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FrameDetections:
+    """The particles of one frame.
+
+    Attributes
+    ----------
+    index : int
+        Frame number: ``NNNNNN`` of the volume file, or the position of the point cloud.
+    source : str
+        The input (volume or CSV path; ``"array <i>"`` for an array).
+    positions_um : ndarray, shape (N, 3)
+        Particle centres, columns x, y, z (µm).
+    particles : Path
+        Their table in the results folder (``particles/NNNNNN.csv``).
+    reused : bool
+        Detection skipped: the volume's checksum and table were found (resume).
+    report : dict
+        Detection report (counts per stage, threshold, ...; see
+        :attr:`track.detect.Detection.report`); empty when reused or for point clouds.
+    """
+
+    index: int
+    source: str
+    positions_um: np.ndarray
+    particles: Path
+    reused: bool = False
+    report: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of particles."""
+        return int(self.positions_um.shape[0])
+
+
+@dataclass(frozen=True)
+class PairOutcome:
+    """One linked pair of a series and its field.
+
+    Attributes
+    ----------
+    ref_frame, def_frame : int
+        Frame numbers (reference, deformed).
+    status : str
+        ``"ok"`` or ``"skipped: <reason>"`` (linking).
+    field_status : str
+        ``"ok"``, ``"skipped: fields not requested"`` or ``"skipped: <reason>"``.
+    matches : ndarray of int, shape (K, 2)
+        Rows ``[row_ref, row_def]`` into the two frames' particle tables.
+    displacement_um : ndarray, shape (K, 3)
+        Displacement of each matched particle (µm, x, y, z).
+    tracking_ratio : float
+        Fraction of reference particles matched (NaN when not linked).
+    field : GridField or None
+        Total field from frame 0 to ``def_frame`` on the reference grid.
+    increment_field : GridField or None
+        Incremental mode: the field of this increment.
+    smoothing_xyz : (float, float, float) or None
+        RBF smoothing λ used for ``u_x, u_y, u_z``.
+    failure : str
+        Why the pair counts as failed (empty when it does not).
+    """
+
+    ref_frame: int
+    def_frame: int
+    status: str
+    field_status: str
+    matches: np.ndarray
+    displacement_um: np.ndarray
+    tracking_ratio: float = math.nan
+    field: GridField | None = None
+    increment_field: GridField | None = None
+    smoothing_xyz: tuple[float, float, float] | None = None
+    failure: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """Whether the pair was linked (and, when requested, its field gridded)."""
+        return not self.failure
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """What :func:`track_volumes` or :func:`track_clouds` did (the results folder in memory).
+
+    Attributes
+    ----------
+    out_dir : Path
+    command : {"run", "detect", "link"}
+        The command line this corresponds to (recorded in ``summary.json``).
+    frames : tuple of FrameDetections
+    pairs : tuple of PairOutcome
+        One per frame ``i ≥ 1``; empty for detection only.
+    tracks : Tracks or None
+        Trajectories, :attr:`Tracks.frame` holding frame numbers; None for detection only.
+    grid : GridAxes or None
+        Reference grid of the fields.
+    summary : dict
+        The content of ``summary.json``.
+    failures : tuple of str
+        One message per failed frame or pair (empty: everything worked).
+    """
+
+    out_dir: Path
+    command: str
+    frames: tuple[FrameDetections, ...]
+    pairs: tuple[PairOutcome, ...] = ()
+    tracks: Tracks | None = None
+    grid: GridAxes | None = None
+    summary: dict = field(default_factory=dict)
+    failures: tuple[str, ...] = ()
+
+    @property
+    def status(self) -> str:
+        """``"complete"``, ``"partial"`` (failures allowed) or ``"failed"``."""
+        return self.summary.get("status", "incomplete")
+
+    @property
+    def timings(self) -> dict:
+        """Seconds per stage (``detect_s``, ``link_s``, ``fields_s``, ``write_s``,
+        ``total_s``)."""
+        return self.summary.get("timings", {})
+
+    def results_line(self) -> str:
+        """One line such as ``RESULTS: 7 volumes, 24–25 particles/frame, 6/6 pairs linked,
+        tracking ratio ≥ 0.96, 6 fields, 12.3 s``."""
+        return results_line(self.summary)
+
+
+# -- results folder --------------------------------------------------------------------------
+def _fingerprint(obj: Any) -> str:
+    text = json.dumps(obj, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _our_outputs(out: Path) -> list[Path]:
+    """Files and folders ``track`` writes in a results folder."""
+    items = [out / "particles", out / "fields", out / "tracks.csv", out / SUMMARY]
+    items += sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv"))
+    return [p for p in items if p.exists()]
+
+
+def _open_results(out: Path, fingerprint: str, overwrite: bool) -> dict | None:
+    """Check the results folder; return the previous summary to resume from, if any."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"results folder {out} is a file")
+    if not out.exists() or not any(out.iterdir()):
+        return None
+    summary = out / SUMMARY
+    prev = None
+    if summary.is_file():
+        try:
+            prev = tio.read_json(summary)
+        except HrvError:
+            prev = None
+    if not isinstance(prev, dict) or prev.get("tool") != "track":
+        raise InputError(
+            f"results folder {out} is not empty and holds no {SUMMARY} written by track; "
+            "choose a new folder (nothing was written)"
+        )
+    if prev.get("fingerprint") == fingerprint:
+        return prev
+    if not overwrite:
+        raise InputError(
+            f"results folder {out} holds results made from other inputs or settings; "
+            "use a new folder or --overwrite (nothing was written)"
+        )
+    for p in _our_outputs(out):
+        if p.is_dir():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+    log.info("%s: previous results removed (overwrite)", out)
+    return None
+
+
+def _clear_derived(out: Path) -> None:
+    """Remove the linking outputs of an earlier run (they are recomputed)."""
+    for p in sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv")):
+        p.unlink()
+    if (out / "tracks.csv").exists():
+        (out / "tracks.csv").unlink()
+    if (out / "fields").is_dir():
+        shutil.rmtree(out / "fields")
+
+
+def _new_summary(command: str, fingerprint: str, parameters: dict, provenance) -> dict:
+    from . import __version__
+
+    summary = {
+        "tool": "track",
+        "version": __version__,
+        "command": command,
+        "argv": [],
+        "fingerprint": fingerprint,
+        "status": "incomplete",
+        "parameters": parameters,
+        "timings": {},
+    }
+    summary.update(dict(provenance or {}))
+    return summary
+
+
+def _bar(total: int, progress: bool, desc: str, unit: str):
+    """tqdm bar on stderr (shown on a terminal when ``progress``), advanced by ``update()``."""
+    import sys
+
+    from tqdm.auto import tqdm
+
+    disable = None if (progress and total > 0) else True
+    return tqdm(total=total, desc=desc, unit=unit, disable=disable, file=sys.stderr)
+
+
+# -- settings --------------------------------------------------------------------------------
+def _settings_dict(obj) -> dict:
+    return dict(dataclasses.asdict(obj))
+
+
+def _series(series: SeriesSettings | None) -> SeriesSettings:
+    """``series`` (default ``SeriesSettings()``) with explicit :class:`LinkSettings`."""
+    from .matching import LinkSettings
+
+    series = SeriesSettings() if series is None else series
+    if not isinstance(series, SeriesSettings):
+        raise InputError(f"series must be a SeriesSettings, got {type(series).__name__}")
+    if series.link is None:
+        series = dataclasses.replace(series, link=LinkSettings())
+    return series
+
+
+def _detect(detect):
+    from .detect import DetectSettings
+
+    detect = DetectSettings() if detect is None else detect
+    if not isinstance(detect, DetectSettings):
+        raise InputError(f"detect must be a DetectSettings, got {type(detect).__name__}")
+    return detect
+
+
+def volume_extent_um(volume: tio.VolumeInfo) -> np.ndarray:
+    """Size ``(x, y, z)`` (µm) spanned by the voxel centres of a volume."""
+    shape = np.asarray(volume.shape, dtype=float)  # (nz, ny, nx)
+    vs = np.asarray(volume.voxel_size_um, dtype=float)  # (dz, dy, dx)
+    return ((shape - 1) * vs)[::-1]
+
+
+def _check_vti(vti_encoding: str) -> None:
+    if vti_encoding not in VTI_ENCODINGS:
+        raise InputError(f"vti_encoding must be one of {VTI_ENCODINGS}, got {vti_encoding!r}")
+
+
+# -- detection -------------------------------------------------------------------------------
+def _first_psf(vol, info, settings):
+    """PSF of the first volume, used for the whole sequence (paper §3.2)."""
+    from .psf_estimate import estimate_psf
+
+    if settings.deconvolution_iterations == 0:
+        return None, "not used (deconvolution off)"
+    try:
+        psf = estimate_psf(
+            vol, info.voxel_size_um, n_particles=settings.psf_particles, box_um=settings.psf_box_um
+        )
+    except (TrackingError, InputError) as exc:
+        log.warning("no PSF from the first volume (%s); each volume estimates its own", exc)
+        return None, f"not available from the first volume: {exc}"
+    return psf, f"estimated from {info.path.name}, shape {list(psf.shape)}"
+
+
+def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, progress: bool):
+    from .detect import detect_particles
+
+    prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
+    frames = []
+    for v in vols:
+        frames.append(
+            {"index": v.index, "input": str(v.path), "input_sha256": tio.sha256_file(v.path)}
+        )
+    summary["frames"] = frames
+    summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
+    clouds: list[np.ndarray | None] = [None] * len(vols)
+    reports: list[dict] = [{} for _ in vols]
+    for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
+        old = prev_frames.get(v.index)
+        part = tio.numbered(out / "particles", v.index, ".csv")
+        if old and old.get("input_sha256") == f["input_sha256"] and part.is_file():
+            clouds[i] = tio.read_points_csv(part)
+            frames[i] = {**old, **f, "reused": True}
+    todo = [i for i in range(len(vols)) if clouds[i] is None]
+    if todo:
+        log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
+    else:
+        log.info("all %d volumes already detected; detection skipped", len(vols))
+    psf_note = (prev or {}).get("psf", "")
+    t_det = time.perf_counter()
+    if todo:
+        vol0 = tio.read_volume(vols[0])
+        psf, psf_note = _first_psf(vol0, vols[0], settings)
+        with _bar(len(todo), progress, "detect", "volume") as bar:
+            for i in todo:
+                v = vols[i]
+                t0 = time.perf_counter()
+                vol = vol0 if i == 0 else tio.read_volume(v)
+                det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_um=v.origin_um)
+                part = tio.numbered(out / "particles", v.index, ".csv")
+                tio.write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
+                clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
+                reports[i] = det.report
+                frames[i].update(
+                    {
+                        "particles": str(part.relative_to(out)),
+                        "n_particles": int(clouds[i].shape[0]),
+                        "voxel_size_um": list(v.voxel_size_um),
+                        "origin_um": list(v.origin_um),
+                        "seconds": time.perf_counter() - t0,
+                        "report": det.report,
+                    }
+                )
+                if clouds[i].shape[0] == 0:
+                    log.info("volume %s: no particle found", v.path.name)
+                summary["psf"] = psf_note
+                tio.write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
+                bar.update()
+    summary["psf"] = psf_note
+    summary["timings"]["detect_s"] = time.perf_counter() - t_det
+    summary["frame_ids"] = [v.index for v in vols]
+    return [
+        FrameDetections(
+            v.index,
+            str(v.path),
+            c,
+            out / "particles" / f"{v.index:06d}.csv",
+            bool(f.get("reused", False)),
+            r,
+        )
+        for v, c, f, r in zip(vols, clouds, frames, reports, strict=True)
+    ]
+
+
+# -- linking and outputs ---------------------------------------------------------------------
+def _link_and_write(
+    settings: SeriesSettings,
+    out: Path,
+    summary: dict,
+    frames: Sequence[FrameDetections],
+    vti_encoding: str,
+    progress: bool,
+) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
+    clouds = [f.positions_um for f in frames]
+    frame_ids = [f.index for f in frames]
+    summary["fields_requested"] = settings.compute_fields
+    summary["parameters"]["series"] = {
+        "mode": settings.mode,
+        "min_particles": settings.min_particles,
+        "grid": _settings_dict(settings.grid),
+        "link": _settings_dict(settings.link),
+    }
+    if len(clouds) < 2:
+        raise InputError(f"linking needs at least 2 frames, got {len(clouds)}")
+    if settings.compute_fields and clouds[0].shape[0] >= settings.min_particles:
+        check_grid(np.ptp(clouds[0], axis=0), settings.grid, where="frame 0's particles")
+    _clear_derived(out)
+    t0 = time.perf_counter()
+    n_pairs = len(clouds) - 1
+    with _bar(n_pairs, progress, "link", "pair") as bar:
+        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update())
+    t1 = time.perf_counter()
+    with _bar(n_pairs if settings.compute_fields else 0, progress, "fields", "field") as bar:
+        res = track_series(clouds, settings, pairs=pairs, on_field=lambda _k: bar.update())
+    t2 = time.perf_counter()
+    increments, outcomes = [], []
+    for k, pair in enumerate(res.pairs):
+        ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
+        mfile = out / f"matches_{def_id:06d}.csv"
+        tio.write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
+        lam = None if res.smoothing[k] is None else tuple(res.smoothing[k])
+        entry = {
+            "ref_frame": ref_id,
+            "def_frame": def_id,
+            "status": pair.status,
+            "n_ref": int(clouds[pair.ref_frame].shape[0]),
+            "n_def": int(clouds[pair.def_frame].shape[0]),
+            "n_matches": int(pair.matches.shape[0]),
+            "tracking_ratio": pair.tracking_ratio,
+            "iterations": pair.iterations,
+            "matches": mfile.name,
+            "field_status": res.field_status[k],
+            "field": None,
+            "smoothing_xyz": None if lam is None else list(lam),
+        }
+        if not pair.ok:  # reported once at the end (_finish)
+            log.info("frames %d → %d %s", ref_id, def_id, pair.status)
+        fld = res.total_fields[k]
+        if fld is not None:
+            base = out / "fields" / f"{def_id:06d}"
+            tio.write_field_npz(base.with_suffix(".npz"), fld, overwrite=True)
+            tio.write_field_vti(
+                base.with_suffix(".vti"), fld, encoding=vti_encoding, overwrite=True
+            )
+            entry["field"] = f"fields/{def_id:06d}"
+            entry["mask_fraction"] = float(fld.mask.mean())
+        inc = res.increment_fields[k]
+        if inc is not None:
+            p = out / "fields" / f"increment_{def_id:06d}.npz"
+            tio.write_field_npz(p, inc, overwrite=True)
+            entry["increment_field"] = str(p.relative_to(out))
+        increments.append(entry)
+        outcomes.append(
+            PairOutcome(
+                ref_id,
+                def_id,
+                pair.status,
+                res.field_status[k],
+                pair.matches,
+                pair.displacement_um,
+                pair.tracking_ratio,
+                fld,
+                inc,
+                lam,
+                _pair_failure(entry, settings.compute_fields),
+            )
+        )
+    ids = np.asarray(frame_ids, dtype=np.int64)
+    tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
+    tio.write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
+    summary["increments"] = increments
+    summary["counts"] = {
+        "frames": len(clouds),
+        "particles_per_frame": [int(c.shape[0]) for c in clouds],
+        "pairs_linked": sum(p.ok for p in res.pairs),
+        "pairs_skipped": sum(not p.ok for p in res.pairs),
+        "tracks": int(np.unique(tracks.track_id).size),
+    }
+    if res.axes is not None:
+        summary["grid"] = {
+            "shape_zyx": list(res.axes.shape),
+            "spacing_um": list(res.axes.spacing_um),
+            "origin_um": list(res.axes.origin_um),
+        }
+    summary["timings"]["link_s"] = t1 - t0
+    summary["timings"]["fields_s"] = t2 - t1
+    summary["timings"]["write_s"] = time.perf_counter() - t2
+    return outcomes, tracks, res.axes
+
+
+# -- failures and the closing line -----------------------------------------------------------
+def _pair_failure(entry: Mapping, fields_requested: bool) -> str:
+    where = f"frames {entry['ref_frame']} → {entry['def_frame']}"
+    if entry["status"] != OK:
+        return f"{where}: {entry['status']}"
+    if fields_requested and entry["field_status"] != OK:
+        return f"{where}: field {entry['field_status']}"
+    return ""
+
+
+def failures_of(summary: Mapping) -> list[str]:
+    """One message per failed frame or pair recorded in a ``summary.json`` (empty: none).
+
+    A pair that was not linked, a requested field that was not gridded and, for a detection
+    only (``command == "detect"``), a volume without particles.
+    """
+    out = []
+    if summary.get("command") == "detect":
+        for f in summary.get("frames", []):
+            if f.get("n_particles", 1) == 0:
+                out.append(f"volume {Path(f['input']).name}: no particle found")
+    requested = summary.get("fields_requested", True)
+    for inc in summary.get("increments", []):
+        if reason := _pair_failure(inc, requested):
+            out.append(reason)
+    return out
+
+
+def failure_message(failures: Sequence[str], *, hint: str = "allow_partial=True") -> str:
+    """One line: the first failure, how many others, and how to keep partial results."""
+    more = len(failures) - 1
+    what = "pair" if failures[0].startswith("frames ") else "volume"
+    extra = f"; and {more} more {what}{'s' if more > 1 else ''} failed" if more else ""
+    where = f" (results kept, see {SUMMARY}; " if more else " ("
+    return f"{failures[0]}{extra}{where}use {hint} to keep partial results)"
+
+
+def results_line(summary: Mapping) -> str:
+    """``RESULTS: 7 volumes, 24–25 particles/frame, 6/6 pairs linked, tracking ratio ≥ 0.96,
+    6 fields, 12.3 s`` from a ``summary.json`` (``(PARTIAL)``/``(FAILED)`` appended)."""
+    frames = summary.get("frames", [])
+    kind = "clouds" if summary.get("command") == "link" else "volumes"
+    parts = [f"{len(frames)} {kind}"]
+    counts = [f["n_particles"] for f in frames if "n_particles" in f]
+    if counts:
+        lo, hi = min(counts), max(counts)
+        parts.append(f"{lo}–{hi} particles/frame" if lo != hi else f"{lo} particles/frame")
+    incs = summary.get("increments")
+    if incs is not None:
+        linked = [i for i in incs if i["status"] == OK]
+        parts.append(f"{len(linked)}/{len(incs)} pairs linked")
+        ratios = [i["tracking_ratio"] for i in linked if i["tracking_ratio"] is not None]
+        ratios = [r for r in ratios if math.isfinite(r)]
+        if ratios:
+            parts.append(f"tracking ratio ≥ {math.floor(100 * min(ratios)) / 100:.2f}")
+        if summary.get("fields_requested", True):
+            parts.append(f"{sum(i['field'] is not None for i in incs)} fields")
+        else:
+            parts.append("no fields")
+    parts.append(f"{summary.get('timings', {}).get('total_s', 0.0):.1f} s")
+    status = summary.get("status", "complete")
+    return "RESULTS: " + ", ".join(parts) + ("" if status == "complete" else f" ({status.upper()})")
+
+
+def _finish(
+    out: Path,
+    summary: dict,
+    t0: float,
+    allow_partial: bool,
+    command: str,
+    frames,
+    pairs=(),
+    tracks=None,
+    grid=None,
+) -> TrackResult:
+    """Set the status, write ``summary.json``; raise on failures unless ``allow_partial``."""
+    failures = failures_of(summary)
+    summary["failures"] = failures
+    summary["allow_partial"] = bool(allow_partial)
+    if not failures:
+        summary["status"] = "complete"
+    else:
+        summary["status"] = "partial" if allow_partial else "failed"
+    summary["timings"]["total_s"] = time.perf_counter() - t0
+    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    log.info("results in %s", out)
+    result = TrackResult(
+        out, command, tuple(frames), tuple(pairs), tracks, grid, summary, tuple(failures)
+    )
+    if failures and not allow_partial:
+        raise FailedFramesError(failure_message(failures), failures, result)
+    for f in failures:
+        log.warning("%s (kept: partial results allowed)", f)
+    return result
+
+
+# -- public entry points ---------------------------------------------------------------------
+def track_volumes(
+    volumes: str | os.PathLike | Sequence[tio.VolumeInfo],
+    out_dir: str | os.PathLike,
+    *,
+    detect=None,
+    series: SeriesSettings | None = None,
+    overwrite: bool = False,
+    allow_partial: bool = False,
+    progress: bool = False,
+    vti_encoding: str = "binary",
+    provenance: Mapping[str, Any] | None = None,
+) -> TrackResult:
+    """Detect the particles of a series of volumes and, with ``series``, link and grid them.
+
+    Parameters
+    ----------
+    volumes : path or sequence of VolumeInfo
+        Folder of numbered float volumes ``NNNNNN.tif`` (see :func:`track.io.scan_volumes`),
+        or its scanned volumes.
+    out_dir : path
+        Results folder (module docstring); created.
+    detect : DetectSettings, optional
+        Detection settings (default ``DetectSettings()``); the PSF of the first volume
+        serves the whole series.
+    series : SeriesSettings, optional
+        Linking and gridding; None: detection only (``track detect``).
+    overwrite : bool
+        Replace a results folder made by ``track`` from other inputs or detection settings.
+    allow_partial : bool
+        Failed frames are warnings (status ``"partial"``) instead of an error.
+    progress : bool
+        Progress bars on stderr (on a terminal).
+    vti_encoding : {"binary", "ascii"}
+    provenance : mapping, optional
+        Extra entries of ``summary.json`` (e.g. ``{"argv": [...]}``).
+
+    Returns
+    -------
+    TrackResult
+        ``command`` is ``"run"`` with ``series``, ``"detect"`` without.
+
+    Raises
+    ------
+    InputError
+        Bad volumes, settings, results folder or grid spacing (nothing was written, except
+        for a grid spacing refused after detection on frame 0's particles).
+    FailedFramesError
+        Frames failed and ``allow_partial`` is False; the results are written and the
+        exception carries the :class:`TrackResult`.
+    """
+    t0 = time.perf_counter()
+    settings = _detect(detect)
+    series = None if series is None else _series(series)
+    _check_vti(vti_encoding)
+    if isinstance(volumes, str | os.PathLike):
+        voldir = Path(volumes)
+        vols = tio.scan_volumes(voldir)  # validate the series before touching out_dir
+        where: dict = {"voldir": str(voldir.resolve())}
+    else:
+        vols = list(volumes)
+        if not vols or not all(isinstance(v, tio.VolumeInfo) for v in vols):
+            raise InputError("volumes must be a folder or a non-empty list of VolumeInfo")
+        where = {"volumes": [str(Path(v.path).resolve()) for v in vols]}
+    if series is not None and series.compute_fields:
+        check_grid(volume_extent_um(vols[0]), series.grid, where="the volume")
+    params = {"detect": _settings_dict(settings)}
+    fp = _fingerprint({**where, **params})
+    out = Path(out_dir)
+    prev = _open_results(out, fp, overwrite)
+    command = "detect" if series is None else "run"
+    summary = _new_summary(command, fp, params, provenance)
+    out.mkdir(parents=True, exist_ok=True)
+    frames = _detect_all(vols, settings, out, summary, prev, progress)
+    if series is None:
+        return _finish(out, summary, t0, allow_partial, command, frames)
+    pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)
+    return _finish(out, summary, t0, allow_partial, command, frames, pairs, tracks, grid)
+
+
+def track_clouds(
+    clouds: Sequence[str | os.PathLike | np.ndarray],
+    out_dir: str | os.PathLike,
+    *,
+    series: SeriesSettings | None = None,
+    overwrite: bool = False,
+    allow_partial: bool = False,
+    progress: bool = False,
+    vti_encoding: str = "binary",
+    provenance: Mapping[str, Any] | None = None,
+) -> TrackResult:
+    """Link point clouds (frame 0 first) and grid their displacement and strain fields.
+
+    Parameters
+    ----------
+    clouds : sequence of (path or ndarray, shape (N_i, 3))
+        CSV tables with columns ``x_um, y_um, z_um`` (:func:`track.io.read_points_csv`) or
+        arrays of positions (µm, x, y, z); at least 2.
+    out_dir : path
+        Results folder (module docstring); created.
+    series : SeriesSettings, optional
+        Default ``SeriesSettings()``.
+    overwrite, allow_partial, progress, vti_encoding, provenance
+        As in :func:`track_volumes`.
+
+    Returns
+    -------
+    TrackResult
+        ``command == "link"``; frame numbers are the positions in ``clouds``.
+
+    Raises
+    ------
+    InputError
+        Fewer than 2 clouds, a bad table or array (the message names it), bad settings,
+        results folder or grid spacing (nothing was written).
+    FailedFramesError
+        Pairs failed and ``allow_partial`` is False (results written, see
+        :func:`track_volumes`).
+    """
+    t0 = time.perf_counter()
+    if len(clouds) < 2:
+        raise InputError(f"link needs at least 2 point clouds, got {len(clouds)}")
+    series = _series(series)
+    _check_vti(vti_encoding)
+    points, sources, checks, names = [], [], [], []
+    for i, c in enumerate(clouds):
+        if isinstance(c, str | os.PathLike):
+            points.append(tio.read_points_csv(c))
+            checks.append(tio.sha256_file(c))
+            sources.append(str(Path(c).resolve()))
+            names.append(str(c))
+        else:
+            a = np.asarray(c, dtype=float)
+            if a.ndim != 2 or a.shape[1] != 3 or not np.all(np.isfinite(a)):
+                raise InputError(
+                    f"point cloud {i} must be a finite (N, 3) array (x, y, z µm), got "
+                    f"shape {a.shape}"
+                )
+            points.append(np.ascontiguousarray(a))
+            checks.append(hashlib.sha256(points[-1].tobytes()).hexdigest())
+            sources.append(f"array {i}")
+            names.append(f"array {i}")
+    if series.compute_fields and points[0].shape[0] >= 2:
+        check_grid(np.ptp(points[0], axis=0), series.grid, where="frame 0's particles")
+    fp = _fingerprint({"sources": sources, "sha256": checks})
+    out = Path(out_dir)
+    _open_results(out, fp, overwrite)
+    summary = _new_summary("link", fp, {}, provenance)
+    summary["inputs"] = [{"path": p, "sha256": s} for p, s in zip(names, checks, strict=True)]
+    out.mkdir(parents=True, exist_ok=True)
+    entries, frames = [], []
+    for i, (name, c) in enumerate(zip(names, points, strict=True)):
+        part = tio.numbered(out / "particles", i, ".csv")
+        tio.write_points_csv(part, c, overwrite=True)
+        entries.append(
+            {
+                "index": i,
+                "input": name,
+                "particles": str(part.relative_to(out)),
+                "n_particles": int(c.shape[0]),
+            }
+        )
+        frames.append(FrameDetections(i, name, c, part))
+    summary["frames"] = entries
+    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)
+    return _finish(out, summary, t0, allow_partial, "link", frames, pairs, tracks, grid)
+
+
+__all__ = [
+    "SUMMARY",
+    "VTI_ENCODINGS",
+    "FrameDetections",
+    "PairOutcome",
+    "TrackResult",
+    "failure_message",
+    "failures_of",
+    "results_line",
+    "track_clouds",
+    "track_volumes",
+    "volume_extent_um",
+]
