@@ -15,10 +15,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
+import re
 import sys
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NoReturn
 
 from .errors import HrvError
@@ -153,6 +155,93 @@ def run_main(
             lg.setLevel(old)
 
 
+# -- options that set fields of a settings dataclass ---------------------------------------
+@dataclasses.dataclass(frozen=True)
+class SettingOption:
+    """A command-line option that sets one field of a settings dataclass.
+
+    The option's default is the dataclass field's own (the option is left unset, ``None``, so
+    the dataclass applies it); its help text is ``help`` plus that default, so neither can
+    drift from the library.
+    """
+
+    field: str
+    flags: tuple[str, ...]
+    help: str
+    type: Callable[[str], Any] | None = None
+    metavar: str | None = None
+    choices: tuple | None = None
+
+
+def _default_text(value: Any, derived: str) -> str:
+    if value is None:
+        return derived
+    if isinstance(value, float) and value.is_integer():
+        return f"{int(value)}"
+    return f"{value}"
+
+
+def add_setting_options(
+    parser: argparse.ArgumentParser | Any,
+    cls: type,
+    options: Sequence[SettingOption],
+    *,
+    derived: str = "automatic",
+) -> None:
+    """Add ``options`` (fields of the dataclass ``cls``) to ``parser`` (or an argument group).
+
+    ``derived`` is shown as the default of fields whose dataclass default is ``None``.
+    """
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    for opt in options:
+        if opt.field not in defaults:
+            raise KeyError(f"{cls.__name__} has no field {opt.field!r}")
+        kw: dict[str, Any] = {"dest": f"setting_{opt.field}", "default": None}
+        if opt.type is not None:
+            kw["type"] = opt.type
+        if opt.metavar is not None:
+            kw["metavar"] = opt.metavar
+        if opt.choices is not None:
+            kw["choices"] = opt.choices
+        text = _default_text(defaults[opt.field], derived)
+        parser.add_argument(*opt.flags, help=f"{opt.help} (default: {text})", **kw)
+
+
+def rename_fields(message: str, names: Mapping[str, str]) -> str:
+    """``message`` with dataclass field names replaced by the options the user typed."""
+    for name, flag in names.items():
+        if len(name) < 3:  # "s": too likely to be an ordinary word or unit in a message
+            continue
+        message = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w-])", flag, message)
+    return message
+
+
+def settings_from_args(
+    cls: type,
+    args: argparse.Namespace,
+    options: Sequence[SettingOption],
+    *,
+    extra: Mapping[str, Any] | None = None,
+    names: Mapping[str, str] | None = None,
+):
+    """Build ``cls`` from the options the user gave (the others keep the dataclass defaults).
+
+    Errors raised by the dataclass name the option (``--z-step``), not the field.
+    """
+    values = {
+        o.field: getattr(args, f"setting_{o.field}")
+        for o in options
+        if getattr(args, f"setting_{o.field}", None) is not None
+    }
+    values.update(extra or {})
+    flags = {o.field: o.flags[-1] for o in options}
+    flags.update(names or {})
+    try:
+        return cls(**values)
+    except HrvError as exc:
+        raise type(exc)(rename_fields(str(exc), flags)) from None
+
+
 class _Formatter(logging.Formatter):
     def __init__(self, prog: str) -> None:
         super().__init__()
@@ -165,9 +254,13 @@ class _Formatter(logging.Formatter):
 __all__ = [
     "EXIT_INTERNAL",
     "Parser",
+    "SettingOption",
+    "add_setting_options",
     "common_options",
     "log_level",
     "one_line",
+    "rename_fields",
     "run_main",
+    "settings_from_args",
     "show_progress",
 ]

@@ -16,23 +16,27 @@ are relative to the TOML file's folder. Lengths in µm::
     time_step_s = 0.002            # frame interval, for time axes (Fig. 7); default: none
     group_size = 2                 # pairs: frames per group of identical shots (Fig. 4c: 3)
 
-    [recon]                        # recon.pipeline.ReconSettings
-    z_range_um = [40, 460]
+    [recon]                        # recon.settings.ReconSettings: its fields, defaults
+    z_min_um = 40                  #   and checks (unset: derived from the optics)
+    z_max_um = 460
     z_step_um = 5
     s = 5
     iterations = 3
-    lanczos_a = 2                  # 0 = no anti-aliasing filter
-    rays_per_pattern = 200000
 
-    [track]                        # track.detect.DetectSettings / track.series.SeriesSettings
-                                   #   (their defaults are the defaults here)
+    [track]                        # track.series.SeriesSettings
     mode = "incremental"           # incremental | cumulative
-    target_nodes = 50000           # nodes of the gridded displacement and strain fields
+
+    [track.detect]                 # track.detect.DetectSettings
     threshold = 0.25               # fraction of the intensity range (paper), or "auto"
-    deconvolution_iterations = 5
-    edge_margin_um = 0
-    method = "radial"              # radial | centroid
-    smoothing = "gcv"              # RBF smoothing of the gridded fields: "gcv" or λ (0: exact)
+
+    [track.grid]                   # track.fields.GridSettings
+    target_nodes = 50000           # nodes of the gridded displacement and strain fields
+    smoothing = "gcv"              # RBF smoothing: "gcv" or λ (0: exact)
+
+    [track.link]                   # track.matching.LinkSettings
+
+Every key of ``[recon]`` and ``[track…]`` is a field of the named settings dataclass, which
+defines its default and its check once for the library, the command line and this file.
 
 Kinds of study (what the truth is compared with):
 
@@ -59,9 +63,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from recon.settings import ReconSettings
 from track.detect import DetectSettings
-from track.errors import TrackError
 from track.fields import GridSettings
+from track.matching import LinkSettings
 from track.series import SeriesSettings
 
 from .errors import StudyConfigError
@@ -125,124 +130,25 @@ class StudySpec:
             object.__setattr__(self, "recon_scene", Path(self.recon_scene))
 
 
-@dataclass(frozen=True)
-class ReconSpec:
-    """The ``[recon]`` section: :class:`recon.pipeline.ReconSettings` of the study."""
-
-    z_range_um: tuple[float, float] = (-80.0, 720.0)
-    z_step_um: float = 5.0
-    s: int = 5
-    iterations: int = 3
-    lanczos_a: float = 2.0
-    rays_per_pattern: int = 200_000
-
-    def __post_init__(self) -> None:
-        zr = self.z_range_um
-        if (
-            not isinstance(zr, list | tuple)
-            or len(zr) != 2
-            or not all(_num(v) for v in zr)
-            or zr[0] >= zr[1]
-        ):
-            raise StudyConfigError(
-                f"z_range_um must be [z_min, z_max] µm with z_min < z_max: {zr!r}"
-            )
-        object.__setattr__(self, "z_range_um", (float(zr[0]), float(zr[1])))
-        if not _num(self.z_step_um) or self.z_step_um <= 0:
-            raise StudyConfigError(f"z_step_um must be a number > 0 (µm), got {self.z_step_um!r}")
-        if not _int(self.s) or not 1 <= self.s <= 64:
-            raise StudyConfigError(f"s must be an integer in 1..64, got {self.s!r}")
-        if not _int(self.iterations) or self.iterations < 1:
-            raise StudyConfigError(f"iterations must be an integer >= 1, got {self.iterations!r}")
-        if not _num(self.lanczos_a) or self.lanczos_a < 0:
-            raise StudyConfigError(f"lanczos_a must be a number >= 0, got {self.lanczos_a!r}")
-        if not _int(self.rays_per_pattern) or self.rays_per_pattern < 1000:
-            raise StudyConfigError(
-                f"rays_per_pattern must be an integer >= 1000, got {self.rays_per_pattern!r}"
-            )
-
-    def settings(self):
-        """The :class:`recon.pipeline.ReconSettings`."""
-        from recon.pipeline import ReconSettings
-
-        return ReconSettings(
-            z_min_um=self.z_range_um[0],
-            z_max_um=self.z_range_um[1],
-            z_step_um=float(self.z_step_um),
-            s=int(self.s),
-            iterations=int(self.iterations),
-            lanczos_a=float(self.lanczos_a) if self.lanczos_a > 0 else None,
-            rays_per_pattern=int(self.rays_per_pattern),
-        )
+#: Sub-tables of ``[track]`` and the settings dataclass each one builds (its keys are the
+#: dataclass's fields; ``[track]`` itself holds the scalar fields of SeriesSettings).
+TRACK_TABLES = {"detect": DetectSettings, "grid": GridSettings, "link": LinkSettings}
 
 
 @dataclass(frozen=True)
 class TrackSpec:
-    """The ``[track]`` section: detection, linking and gridding of the study.
+    """The ``[track]`` section: the track settings of the study.
 
-    The defaults are those of :class:`track.detect.DetectSettings`,
-    :class:`track.series.SeriesSettings` and :class:`track.fields.GridSettings`
-    (:meth:`detect_settings` and :meth:`series_settings` build them).
+    Attributes
+    ----------
+    detect : track.detect.DetectSettings
+        ``[track.detect]``.
+    series : track.series.SeriesSettings
+        ``[track]`` (``mode``, ``min_particles``) with ``[track.grid]`` and ``[track.link]``.
     """
 
-    mode: str = SeriesSettings.mode
-    target_nodes: int = GridSettings.target_nodes
-    threshold: float | str = DetectSettings.threshold
-    deconvolution_iterations: int = DetectSettings.deconvolution_iterations
-    edge_margin_um: float = DetectSettings.edge_margin_um
-    method: str = DetectSettings.method
-    smoothing: float | str = GridSettings.smoothing
-
-    def __post_init__(self) -> None:
-        if not (self.smoothing == "gcv" or (_num(self.smoothing) and self.smoothing >= 0)):
-            raise StudyConfigError(
-                f"smoothing must be 'gcv' or a number >= 0, got {self.smoothing!r}"
-            )
-        if self.mode not in ("incremental", "cumulative"):
-            raise StudyConfigError(f"mode must be 'incremental' or 'cumulative', got {self.mode!r}")
-        if not _int(self.target_nodes) or self.target_nodes < 8:
-            raise StudyConfigError(
-                f"target_nodes must be an integer >= 8, got {self.target_nodes!r}"
-            )
-        if not (self.threshold == "auto" or (_num(self.threshold) and 0 < self.threshold < 1)):
-            raise StudyConfigError(
-                f"threshold must be 'auto' or a fraction in (0, 1), got {self.threshold!r}"
-            )
-        if not _int(self.deconvolution_iterations) or self.deconvolution_iterations < 0:
-            raise StudyConfigError(
-                "deconvolution_iterations must be an integer >= 0, got "
-                f"{self.deconvolution_iterations!r}"
-            )
-        if not _num(self.edge_margin_um) or self.edge_margin_um < 0:
-            raise StudyConfigError(
-                f"edge_margin_um must be a number >= 0 (µm), got {self.edge_margin_um!r}"
-            )
-        if self.method not in ("radial", "centroid"):
-            raise StudyConfigError(f"method must be 'radial' or 'centroid', got {self.method!r}")
-        try:  # track's own checks (e.g. the largest target_nodes)
-            self.detect_settings()
-            self.series_settings()
-        except TrackError as exc:
-            raise StudyConfigError(str(exc)) from None
-
-    def detect_settings(self) -> DetectSettings:
-        """The :class:`track.detect.DetectSettings` of the study (numbers as floats, as the
-        ``track`` command line parses them)."""
-        thr = self.threshold if self.threshold == "auto" else float(self.threshold)
-        return DetectSettings(
-            deconvolution_iterations=int(self.deconvolution_iterations),
-            threshold=thr,
-            edge_margin_um=float(self.edge_margin_um),
-            method=self.method,
-        )
-
-    def series_settings(self) -> SeriesSettings:
-        """The :class:`track.series.SeriesSettings` of the study (linking and gridding)."""
-        from track.matching import LinkSettings
-
-        smoothing = self.smoothing if self.smoothing == "gcv" else float(self.smoothing)
-        grid = GridSettings(target_nodes=int(self.target_nodes), smoothing=smoothing)
-        return SeriesSettings(mode=self.mode, grid=grid, link=LinkSettings())
+    detect: DetectSettings = field(default_factory=DetectSettings)
+    series: SeriesSettings = field(default_factory=lambda: SeriesSettings(link=LinkSettings()))
 
 
 @dataclass(frozen=True)
@@ -253,14 +159,16 @@ class Study:
     ----------
     experiment : lfsim.experiment.Experiment
         Rendered as given (the no-inverse-crime dataset when its scene has glass lenslets).
-    study, recon, track : StudySpec, ReconSpec, TrackSpec
+    study : StudySpec
+    recon : recon.settings.ReconSettings
+    track : TrackSpec
     source : Path or None
         The TOML file.
     """
 
     experiment: Any
     study: StudySpec = field(default_factory=StudySpec)
-    recon: ReconSpec = field(default_factory=ReconSpec)
+    recon: ReconSettings = field(default_factory=ReconSettings)
     track: TrackSpec = field(default_factory=TrackSpec)
     source: Path | None = None
 
@@ -303,16 +211,26 @@ class Study:
         return {
             "experiment": self.experiment.to_dict(),
             "study": clean(dataclasses.asdict(self.study)) | {"recon_scene": str(self.recon_scene)},
-            "recon": {**dataclasses.asdict(self.recon), "z_range_um": list(self.recon.z_range_um)},
+            "recon": self.recon.to_dict(),
             "track": dataclasses.asdict(self.track),
         }
 
 
-def _section(cls, where: str, name: str, table: Mapping | None, base: Path):
-    if table is None:
-        return cls()
-    allowed = tuple(f.name for f in dataclasses.fields(cls))
-    tab = dict(_check_keys(where, name, table, allowed))
+def _settings(cls, where: str, name: str, table: Mapping | None, skip=(), **extra):
+    """The settings dataclass ``cls`` from a TOML table: its keys are the dataclass's fields
+    (``skip`` excepted), its defaults and checks the dataclass's own."""
+    from hrvbase.errors import HrvError
+
+    allowed = tuple(f.name for f in dataclasses.fields(cls) if f.name not in skip)
+    tab = dict(_check_keys(where, name, table or {}, allowed))
+    try:
+        return cls(**tab, **extra)
+    except (HrvError, TypeError) as exc:  # TypeError: a value the dataclass cannot take
+        raise StudyConfigError(f"{where}: [{name}] {exc}") from None
+
+
+def _study_spec(where: str, table: Mapping, base: Path) -> StudySpec:
+    tab = dict(table)
     if "recon_scene" in tab:
         p = Path(tab["recon_scene"])
         tab["recon_scene"] = p if p.is_absolute() else (base / p).resolve()
@@ -320,12 +238,25 @@ def _section(cls, where: str, name: str, table: Mapping | None, base: Path):
             raise StudyConfigError(
                 f"{where}: [study] recon_scene {str(tab['recon_scene'])!r} does not exist"
             )
-    try:
-        return cls(**tab)
-    except StudyConfigError as exc:
-        raise StudyConfigError(f"{where}: [{name}] {exc}") from None
-    except TypeError as exc:  # wrong value types the dataclass cannot take
-        raise StudyConfigError(f"{where}: [{name}] {exc}") from None
+    return _settings(StudySpec, where, "study", tab)
+
+
+def _track_spec(where: str, table: Mapping | None) -> TrackSpec:
+    table = dict(table or {})
+    sub = {k: table.pop(k) for k in TRACK_TABLES if k in table}
+    detect = _settings(DetectSettings, where, "track.detect", sub.get("detect"))
+    grid = _settings(GridSettings, where, "track.grid", sub.get("grid"))
+    link = _settings(LinkSettings, where, "track.link", sub.get("link"))
+    series = _settings(
+        SeriesSettings,
+        where,
+        "track",
+        table,
+        skip=("grid", "link", "compute_fields"),
+        grid=grid,
+        link=link,
+    )
+    return TrackSpec(detect=detect, series=series)
 
 
 def study_from_dict(
@@ -348,9 +279,9 @@ def study_from_dict(
         spec = {**spec, "kind": "series" if exp.motion is not None else "localization"}
     if spec is None:
         spec = {"kind": "series" if exp.motion is not None else "localization"}
-    st = _section(StudySpec, where, "study", spec, base)
-    rc = _section(ReconSpec, where, "recon", data.get("recon"), base)
-    tr = _section(TrackSpec, where, "track", data.get("track"), base)
+    st = _study_spec(where, spec, base)
+    rc = _settings(ReconSettings, where, "recon", data.get("recon"))
+    tr = _track_spec(where, data.get("track"))
     if st.kind == "pairs" and exp.frames % st.group_size:
         raise StudyConfigError(
             f"{where}: a 'pairs' study needs a multiple of group_size = {st.group_size} frames "

@@ -126,6 +126,23 @@ def _num(v, unit: str = "um") -> str:
     return f"{v:.3g}"
 
 
+def _recon_line(rc: dict) -> str:
+    """The reconstruction settings in words (``None``: derived from the optics)."""
+
+    def v(key: str, fmt=lambda x: f"{x}") -> str:
+        return "from the optics" if rc.get(key) is None else fmt(rc[key])
+
+    z = (
+        "from the optics"
+        if rc.get("z_min_um") is None
+        else f"[{float(rc['z_min_um'])}, {float(rc['z_max_um'])}] µm"
+    )
+    return (
+        f"z {z}, step {v('z_step_um', lambda x: f'{float(x):g} µm')}, s = {v('s')}, "
+        f"{rc['iterations']} iterations"
+    )
+
+
 def markdown(study_dict: dict, result: dict) -> str:
     """``summary.md`` text from the ``summary.json`` content."""
     st = study_dict["study"]
@@ -137,9 +154,7 @@ def markdown(study_dict: dict, result: dict) -> str:
         "",
         f"- kind: {st['kind']}; frames: {exp['frames']}; rendered with "
         f"`{Path(exp['scene']).name}`, reconstructed with `{Path(st['recon_scene']).name}`",
-        f"- reconstruction: z {study_dict['recon']['z_range_um']} µm, step "
-        f"{study_dict['recon']['z_step_um']} µm, s = {study_dict['recon']['s']}, "
-        f"{study_dict['recon']['iterations']} iterations",
+        f"- reconstruction: {_recon_line(study_dict['recon'])}",
         f"- command: `{result.get('command', '')}`",
         "",
     ]

@@ -98,7 +98,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
             paths.volumes,
             optics=optics,
             grid=grid,
-            settings=study.recon.settings(),
+            settings=study.recon,
             # The black level is estimated (median) and modelled, as `recon run` does.
             preprocess=Preprocess(background="auto"),
             overwrite=True,  # inside the report: replace only an outdated run of this study
@@ -118,12 +118,12 @@ def track_stage(study, paths: VariantPaths, *, progress: bool = True) -> float:
     from track.pipeline import track_volumes
 
     t0 = time.perf_counter()
-    series = study.track.series_settings() if study.study.kind == "series" else None
+    series = study.track.series if study.study.kind == "series" else None
     try:
         track_volumes(
             paths.volumes,
             paths.track,
-            detect=study.track.detect_settings(),
+            detect=study.track.detect,
             series=series,
             overwrite=True,  # inside the report: replace only an outdated run of this study
             allow_partial=True,

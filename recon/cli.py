@@ -48,13 +48,16 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+
+from hrvbase.cli import SettingOption, add_setting_options, settings_from_args
 
 from . import __version__
 from .calibration import calibrate_white
 from .errors import InputError, ReconError
+from .projector import PROJECTORS
+from .settings import BACKGROUND_MODELS, ReconSettings
 
 log = logging.getLogger("recon.cli")
 
@@ -77,47 +80,76 @@ def _threads(text: str) -> int:
 
 
 def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
-    """Options accepted both before and after the command name.
+    """``--threads`` and the shared ``-q``/``-v``, accepted before and after the command name.
 
     The copy given to the sub-parsers (``suppress=True``) has no defaults, so that an option
     given before the command is not reset by the sub-parser.
     """
+    from hrvbase.cli import common_options
 
-    def dflt(value: Any) -> Any:
-        return argparse.SUPPRESS if suppress else value
-
-    common = argparse.ArgumentParser(add_help=False)
+    common = argparse.ArgumentParser(add_help=False, parents=[common_options(suppress=suppress)])
     common.add_argument(
         "--threads",
         type=_threads,
         metavar="N",
-        default=dflt(None),
+        default=argparse.SUPPRESS if suppress else None,
         help="worker threads for the Dr.Jit backend of the reconstruction commands "
         "(default: all cores); calibration runs on one core",
-    )
-    common.add_argument(
-        "-v",
-        "--verbose",
-        action="count",
-        default=dflt(0),
-        help="more messages (-v: progress, -vv: debugging)",
-    )
-    common.add_argument(
-        "-q", "--quiet", action="store_true", default=dflt(False), help="only errors"
     )
     return common
 
 
+#: ``recon run`` options that set :class:`recon.settings.ReconSettings` fields (their defaults
+#: and checks are the dataclass's).
+RUN_SETTINGS = (
+    SettingOption("z_step_um", ("--z-step",), "depth step in µm", float, "UM"),
+    SettingOption("iterations", ("--iterations",), "Richardson-Lucy iterations", int, "N"),
+    SettingOption("s", ("-s", "--super-resolution"), "voxels per lenslet along x and y", int, "S"),
+    SettingOption(
+        "lanczos_a",
+        ("--lanczos",),
+        "Lanczos window a (lobes, no unit) of the depth-adaptive anti-aliasing filter; 0: off",
+        float,
+        "A",
+    ),
+    SettingOption(
+        "stop_rel_change",
+        ("--stop-rel-change",),
+        "stop early when the volume changes by less than this fraction (relative L1) in one "
+        "iteration; none: run all iterations",
+        float,
+        "X",
+    ),
+    SettingOption(
+        "rays_per_pattern", ("--rays-per-pattern",), "rays traced per PSF-bank pattern", int, "N"
+    ),
+    SettingOption(
+        "projector",
+        ("--projector",),
+        "projector implementation (auto: the fastest for the backend)",
+        choices=PROJECTORS,
+    ),
+    SettingOption(
+        "background_model",
+        ("--background-model",),
+        "subtract the black level and clip at zero, or keep it in the forward model y = Hx + b",
+        choices=BACKGROUND_MODELS,
+    ),
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``recon`` argument parser (one sub-parser per command)."""
-    parser = argparse.ArgumentParser(
+    from hrvbase.cli import Parser
+
+    parser = Parser(
         prog="recon",
         description="Light-field microscopy reconstruction (hrvptm): lenslet calibration and "
         "Richardson-Lucy volume reconstruction on Dr.Jit.",
         parents=[_common_options(suppress=False)],
     )
     parser.add_argument("--version", action="version", version=f"recon (hrvptm) {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     common = _common_options(suppress=True)
 
     cal = sub.add_parser(
@@ -212,51 +244,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--z-range",
-        default="-80:720",
-        metavar="ZMIN:ZMAX",
-        help="depths in µm (default: -80:720)",
-    )
-    run.add_argument(
-        "--z-step", type=float, default=5.0, metavar="UM", help="depth step in µm (default: 5)"
-    )
-    run.add_argument(
-        "--iterations",
-        type=int,
-        default=3,
-        metavar="N",
-        help="Richardson-Lucy iterations (default: 3)",
-    )
-    run.add_argument(
-        "-s",
-        "--super-resolution",
-        type=int,
-        default=5,
-        dest="s",
-        metavar="S",
-        help="voxels per lenslet along x and y (default: 5)",
-    )
-    run.add_argument(
-        "--lanczos",
-        type=float,
-        default=2.0,
-        metavar="A",
-        help="Lanczos window a (lobes, no unit) of the depth-adaptive anti-aliasing filter "
-        "(default: 2; 0: off)",
-    )
-    run.add_argument(
-        "--stop-rel-change",
-        type=float,
         default=None,
-        metavar="X",
-        help="stop early when the volume changes by less than this fraction (relative L1) "
-        "in one iteration (default: off, run all iterations)",
+        metavar="ZMIN:ZMAX",
+        help="depths in µm from the native focal plane (default: from the optics, "
+        "±6 lenslet-radii of defocus; ±730 for the paper's microscope)",
     )
-    run.add_argument(
-        "--rays-per-pattern",
-        type=int,
-        default=200_000,
-        metavar="N",
-        help="rays traced per PSF-bank pattern (default: 200000)",
+    add_setting_options(
+        run, ReconSettings, RUN_SETTINGS, derived="from the optics (see recon.settings)"
     )
     run.add_argument(
         "--dark",
@@ -284,19 +278,6 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("auto", "llvm", "cuda"),
         default="auto",
         help="Dr.Jit backend (default: auto, CUDA when available, else LLVM on the CPU)",
-    )
-    run.add_argument(
-        "--projector",
-        choices=("auto", "gather", "sparse"),
-        default="auto",
-        help="projector implementation (default: auto, the fastest for the backend)",
-    )
-    run.add_argument(
-        "--background-model",
-        choices=("subtract", "model"),
-        default="subtract",
-        help="subtract the black level and clip at zero (default), or keep it in the forward "
-        "model y = Hx + b",
     )
     run.add_argument(
         "-o",
@@ -434,13 +415,12 @@ def _check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: bo
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from lfsim.errors import OutputError
-    from lfsim.io import sha256_file, write_json
+    from hrvbase.io import check_output_file, sha256_file, write_json
     from lfsim.scene import read_optics
 
-    out: Path = args.output
-    if out.exists() and not args.overwrite:
-        raise OutputError(f"{out} already exists; refusing to overwrite it (pass --overwrite)")
+    out: Path = check_output_file(
+        args.output, inputs=[args.white, args.scene], overwrite=args.overwrite
+    )
     t0 = time.perf_counter()
     optics = read_optics(args.scene)
     image, grid, deviation = _calibrate(
@@ -573,25 +553,26 @@ def _dataset_optics(dataset: Path):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from hrvbase.io import guard_output
     from lfsim import init_backend
 
     from .frames import time_source
-    from .pipeline import ReconSettings, reconstruct_series
+    from .pipeline import reconstruct_series
     from .preprocess import Preprocess, read_frame
 
-    z0, z1 = _parse_range(args.z_range, "--z-range")
-    settings = ReconSettings(
-        z_min_um=z0,
-        z_max_um=z1,
-        z_step_um=args.z_step,
-        s=args.s,
-        iterations=args.iterations,
-        lanczos_a=args.lanczos if args.lanczos > 0 else None,
-        stop_rel_change=args.stop_rel_change,
-        rays_per_pattern=args.rays_per_pattern,
-        roi_px=_parse_roi(args.roi),
-        projector=args.projector,
-        background_model=args.background_model,
+    z = (
+        {}
+        if args.z_range is None
+        else dict(
+            zip(("z_min_um", "z_max_um"), _parse_range(args.z_range, "--z-range"), strict=True)
+        )
+    )
+    settings = settings_from_args(
+        ReconSettings,
+        args,
+        RUN_SETTINGS,
+        extra={**z, "roi_px": _parse_roi(args.roi)},
+        names={"z_min_um": "--z-range", "z_max_um": "--z-range", "roi_px": "--roi"},
     )
     background = None if args.background == "none" else args.background
     if background not in (None, "auto"):
@@ -603,7 +584,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             ) from None
     dark = read_frame(args.dark, what="dark frame") if args.dark else None
     pre = Preprocess(dark=dark, background=background, hot_pixels=args.hot_pixels)
+    guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
     frames, optics, grid, scene = _resolve_inputs(args)
+    guard_output(args.output, sorted({f.path for f in frames}))
     init_backend(device=args.device, threads=getattr(args, "threads", None))
     t0 = time.perf_counter()
     res = reconstruct_series(
@@ -632,53 +615,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 # -- entry point ------------------------------------------------------------------------------
-class _Formatter(logging.Formatter):
-    def format(self, record: logging.LogRecord) -> str:
-        return f"recon: {record.levelname.lower()}: {record.getMessage()}"
-
-
-def _level(args: argparse.Namespace) -> int:
-    if getattr(args, "quiet", False):
-        return logging.ERROR
-    verbose = getattr(args, "verbose", 0) or 0
-    return logging.DEBUG if verbose >= 2 else logging.INFO if verbose == 1 else logging.WARNING
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``recon``; returns the exit status (0 success, 2 user error)."""
-    from hrvbase.errors import HrvError
+    from hrvbase.cli import run_main
 
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     # "--z-range -80:720": let a negative range follow its option like a number would.
     for i, a in enumerate(argv[:-1]):
         if a == "--z-range" and argv[i + 1].startswith("-"):
             argv[i : i + 2] = [f"--z-range={argv[i + 1]}"]
             break
-    args = parser.parse_args(argv)
-    if getattr(args, "func", None) is None:
-        parser.print_help(sys.stderr)
-        return 2
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(_Formatter())
-    level = _level(args)
-    loggers = [logging.getLogger(name) for name in ("recon", "lfsim")]
-    saved = [(lg, lg.level) for lg in loggers]
-    for lg in loggers:
-        lg.setLevel(level)
-        lg.addHandler(handler)
-    try:
-        return int(args.func(args))
-    except HrvError as exc:
-        sys.stderr.write(f"recon: error: {exc}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write("recon: interrupted\n")
-        return 130
-    finally:
-        for lg, old in saved:
-            lg.removeHandler(handler)
-            lg.setLevel(old)
+    return run_main("recon", build_parser(), argv, loggers=("recon", "lfsim"))
 
 
 if __name__ == "__main__":  # pragma: no cover

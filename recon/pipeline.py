@@ -17,10 +17,9 @@ import contextlib
 import hashlib
 import json
 import logging
-import math
 import os
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,111 +27,19 @@ import numpy as np
 from .deconvolve import richardson_lucy
 from .errors import InputError, ReconError
 from .filters import DepthFilter
-from .geometry import ReconGrid, depth_range
+from .geometry import ReconGrid
 from .preprocess import Preprocess, prepare_image, read_frame
-from .projector import PROJECTORS, make_projector
+from .projector import make_projector
 from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
+from .settings import ReconSettings
 
 log = logging.getLogger(__name__)
 
 RECON_JSON = "recon.json"
-MAX_DEPTHS = 4096
-
-
-#: How the black level enters the reconstruction (:class:`ReconSettings`).
-BACKGROUND_MODELS = ("subtract", "model")
 
 
 class OutputExistsError(ReconError):
     """The output folder holds something this run must not overwrite."""
-
-
-@dataclass(frozen=True)
-class ReconSettings:
-    """Reconstruction parameters (lengths in µm).
-
-    Parameters
-    ----------
-    z_min_um, z_max_um, z_step_um : float
-        Depth planes ``z_min, z_min + step, …, ≤ z_max`` (paper: −80 … 720 µm, 5 µm).
-    s : int
-        Voxels per lenslet along x and y. Default 5: 5 µm voxels for the paper's optics
-        (25 µm lenslets in object space), isotropic with the 5 µm z step and three voxels
-        across a 15 µm particle — what sub-voxel localisation needs — at 1/9 the cost of the
-        full factor 15.
-    iterations : int
-        Richardson–Lucy iterations (paper: 3).
-    lanczos_a : float or None
-        Window of the depth-adaptive anti-aliasing filter (paper: "Lanczos filter width" 2);
-        ``None`` disables the filter.
-    stop_rel_change : float or None
-        Stop early when the volume changes by less than this (relative L1).
-    rays_per_pattern : int
-        Rays traced per PSF-bank pattern.
-    roi_px : tuple of int or None
-        ``(x0, x1, y0, y1)``: reconstruct only lenslets whose images lie inside these pixels.
-    projector : {"auto", "gather", "sparse"}
-        ``"auto"``: the fastest for the backend (:func:`recon.projector.make_projector`).
-    background_model : {"subtract", "model"}
-        ``"subtract"`` (default): subtract the black level and clip at zero; ``"model"``: keep
-        it in the data and in the forward model, ``y ≈ Hx + b`` (no clipping bias, but RL
-        clears the background slowly: on a paper-size frame after 3 iterations the particles
-        were localised less well, 0.53/0.45/5.2 µm RMS against 0.25/0.25/3.8 µm).
-    """
-
-    z_min_um: float = -80.0
-    z_max_um: float = 720.0
-    z_step_um: float = 5.0
-    s: int = 5
-    iterations: int = 3
-    lanczos_a: float | None = 2.0
-    stop_rel_change: float | None = None
-    rays_per_pattern: int = 200_000
-    roi_px: tuple | None = None
-    projector: str = "auto"
-    background_model: str = "subtract"
-
-    def __post_init__(self) -> None:
-        if self.background_model not in BACKGROUND_MODELS:
-            raise InputError(
-                f"background_model must be one of {BACKGROUND_MODELS}, "
-                f"got {self.background_model!r}"
-            )
-        if self.projector not in PROJECTORS:
-            raise InputError(f"projector must be one of {PROJECTORS}, got {self.projector!r}")
-        for name in ("z_min_um", "z_max_um", "z_step_um"):
-            v = getattr(self, name)
-            if not isinstance(v, int | float) or not math.isfinite(v):
-                raise InputError(f"{name} must be a finite number, got {v!r}")
-        if self.z_step_um <= 0:
-            raise InputError(f"z step must be > 0 µm, got {self.z_step_um!r}")
-        if self.z_max_um < self.z_min_um:
-            raise InputError(f"z range {self.z_min_um}:{self.z_max_um} is empty (min > max)")
-        n = math.floor((self.z_max_um - self.z_min_um) / self.z_step_um + 1e-9) + 1
-        if n > MAX_DEPTHS:
-            raise InputError(f"{n} depth planes requested; at most {MAX_DEPTHS} are supported")
-        if int(self.s) != self.s or not 1 <= self.s <= 64:
-            raise InputError(f"s must be an integer in 1..64, got {self.s!r}")
-        if int(self.iterations) != self.iterations or self.iterations < 1:
-            raise InputError(f"iterations must be a positive integer, got {self.iterations!r}")
-        if self.lanczos_a is not None and not self.lanczos_a > 0:
-            raise InputError(f"lanczos_a must be > 0 or None, got {self.lanczos_a!r}")
-        if self.rays_per_pattern < 1000:
-            raise InputError(f"rays_per_pattern must be >= 1000, got {self.rays_per_pattern!r}")
-        if self.roi_px is not None:
-            roi = tuple(int(v) for v in self.roi_px)
-            if len(roi) != 4 or roi[0] >= roi[1] or roi[2] >= roi[3] or min(roi) < 0:
-                raise InputError(f"roi_px must be (x0, x1, y0, y1) with x0 < x1, y0 < y1: {roi}")
-            object.__setattr__(self, "roi_px", roi)
-
-    @property
-    def depths_um(self) -> np.ndarray:
-        return depth_range(self.z_min_um, self.z_max_um, self.z_step_um)
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["roi_px"] = list(self.roi_px) if self.roi_px else None
-        return d
 
 
 def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> None:
@@ -304,7 +211,7 @@ def reconstruct_series(
     from .frames import FrameReader, FrameRef, check_frames, frame_checksums
     from .rectify import rectify
 
-    st = settings or ReconSettings()
+    st = (settings or ReconSettings()).resolved(optics)
     pp = preprocess or Preprocess()
     scene_mla_kind = optics.mla_kind
     optics = model_optics(optics)
@@ -402,8 +309,8 @@ def reconstruct_series(
             )
             projector = make_projector(bank, (nx, ny), st.projector)
             filt = (
-                DepthFilter.for_optics(ropt, depths, st.s, st.lanczos_a)
-                if st.lanczos_a is not None
+                DepthFilter.for_optics(ropt, depths, st.s, st.filter_window)
+                if st.filter_window is not None
                 else None
             )
             meta["psf_seconds"] = time.perf_counter() - t0

@@ -21,7 +21,8 @@ def test_missing_study_file_is_a_one_line_error(tmp_path, capsys):
 def test_bad_key_is_named(tmp_path, capsys):
     src = (EXPERIMENTS / "demo_simple_shear.toml").read_text(encoding="utf-8")
     bad = tmp_path / "bad.toml"
-    text = src.replace("[track]\n", "[track]\ntarget_node = 5\n")
+    text = src.replace("[track.grid]\n", "[track.grid]\ntarget_node = 5\n")
+    assert text != src
     text = text.replace('"../', f'"{EXPERIMENTS.parent.as_posix()}/')
     bad.write_text(text, encoding="utf-8")
     rc = main(["study", str(bad), "-o", str(tmp_path / "r")])

@@ -61,8 +61,11 @@ def test_defaults_when_no_study_sections(tmp_path):
     s = load_study(_write(tmp_path, ""))
     assert s.study.kind == "localization"  # no motion
     assert not s.is_crime_free and list(s.variants()) == ["matched"]
-    assert s.recon.z_range_um == (-80.0, 720.0)
-    assert s.track.threshold == 0.25
+    from recon.settings import ReconSettings
+    from track.detect import DetectSettings
+
+    assert s.recon == ReconSettings()  # the library's defaults: depths from the optics
+    assert s.track.detect == DetectSettings()
 
 
 @pytest.mark.parametrize(
@@ -72,11 +75,16 @@ def test_defaults_when_no_study_sections(tmp_path):
         ("[study]\nkind = 'movie'\n", "kind must be one of"),
         ("[study]\nkind = 'pairs'\ngroup_size = 3\n", "multiple of group_size = 3"),
         ("[study]\nrecon_scene = 'nope.xml'\n", "recon_scene .*nope.xml.* does not exist"),
-        ("[recon]\nz_range_um = [400, 100]\n", "z_min < z_max"),
-        ("[recon]\ns = 0\n", "s must be an integer"),
-        ("[track]\nthreshold = 1.5\n", "threshold must be 'auto' or a fraction"),
-        ("[track]\nmode = 'batch'\n", "mode must be"),
-        ("[track]\nsmoothing = -1\n", "smoothing must be .gcv. or a number >= 0"),
+        ("[recon]\nz_min_um = 400\nz_max_um = 100\n", r"\[recon\] z range 400.0:100.0 is empty"),
+        ("[recon]\nz_range_um = [1, 2]\n", r"\[recon\] unknown key 'z_range_um'"),
+        ("[recon]\ns = 0\n", r"\[recon\] s must be an integer in 1..64"),
+        ("[recon]\nlanczos_a = -1\n", r"\[recon\] lanczos_a must be >= 0"),
+        ("[recon]\nstop_rel_change = -0.1\n", r"\[recon\] stop_rel_change must be >= 0"),
+        ("[track.detect]\nthreshold = 1.5\n", r"\[track.detect\] threshold must be"),
+        ("[track]\nmode = 'batch'\n", r"\[track\] mode must be"),
+        ("[track]\nthreshold = 0.3\n", r"\[track\] unknown key 'threshold'"),
+        ("[track.grid]\nsmoothing = -1\n", r"\[track.grid\] smoothing"),
+        ("[track.link]\ndescriptor_ratio = 2\n", r"\[track.link\] descriptor_ratio"),
         (
             "[stdy]\nkind = 'series'\n",
             r"unknown section or key \[stdy\] \(did you mean \[study\]\?\)",
@@ -108,19 +116,30 @@ def test_track_options_become_track_settings(tmp_path):
     from track.fields import GridSettings
     from track.series import SeriesSettings
 
-    s = load_study(_write(tmp_path, "[track]\nsmoothing = 10000\ntarget_nodes = 900\n"))
-    series = s.track.series_settings()
+    s = load_study(_write(tmp_path, "[track.grid]\nsmoothing = 10000\ntarget_nodes = 900\n"))
+    series = s.track.series
     assert isinstance(series, SeriesSettings) and series.mode == "incremental"
-    assert series.grid.smoothing == 1e4 and isinstance(series.grid.smoothing, float)
+    assert series.grid.smoothing == 1e4
     assert series.grid.target_nodes == 900 and series.grid.spacing_um is None
-    det = s.track.detect_settings()
-    assert det == DetectSettings()  # every default is track's own
-    t = load_study(_write(tmp_path, "[track]\nthreshold = 'auto'\ndeconvolution_iterations = 0\n"))
-    det = t.track.detect_settings()
-    assert det.threshold == "auto" and det.deconvolution_iterations == 0
+    assert s.track.detect == DetectSettings()  # every default is track's own
+    t = load_study(
+        _write(tmp_path, "[track.detect]\nthreshold = 'auto'\ndeconvolution_iterations = 0\n")
+    )
+    assert t.track.detect.threshold == "auto" and t.track.detect.deconvolution_iterations == 0
     default = load_study(_write(tmp_path, "")).track
-    assert default.series_settings().grid == GridSettings()  # GCV smoothing, 50 000 nodes
-    assert default.series_settings().mode == SeriesSettings().mode
+    assert default.series.grid == GridSettings()  # GCV smoothing, 50 000 nodes
+    assert default.series.mode == SeriesSettings().mode
     # track's own limits reach the study file, named
     with pytest.raises(StudyConfigError, match="target_nodes must be at most 2000000"):
-        load_study(_write(tmp_path, "[track]\ntarget_nodes = 3000000\n"))
+        load_study(_write(tmp_path, "[track.grid]\ntarget_nodes = 3000000\n"))
+
+
+def test_every_section_key_is_a_settings_field():
+    """The study file's [recon] and [track.*] keys are the settings dataclasses' fields: one
+    source for every default and check (no copy in hrvptm)."""
+    import dataclasses
+
+    from hrvptm import config
+
+    assert not hasattr(config, "ReconSpec")
+    assert {f.name for f in dataclasses.fields(config.TrackSpec)} == {"detect", "series"}

@@ -69,6 +69,18 @@ def test_existing_output_is_kept(tmp_path, capsys, white_tif):
     assert json.loads(out.read_text())["format"] == CALIBRATION_FORMAT
 
 
+def test_output_never_replaces_an_input(tmp_path, capsys):
+    """`recon calibrate white.tif -o white.tif --overwrite` once replaced the white image."""
+    white = _white(tmp_path / "white.tif")
+    scene = tmp_path / "scene.xml"
+    scene.write_bytes(SCENE.read_bytes())
+    saved = {p: p.read_bytes() for p in (white, scene)}
+    for out in (white, scene):
+        rc, _, err = _run(capsys, "calibrate", white, "--scene", scene, "-o", out, "--overwrite")
+        assert rc == 2 and "is an input" in err and err.count("\n") == 1, err
+    assert {p: p.read_bytes() for p in saved} == saved
+
+
 def test_missing_white(tmp_path, capsys):
     missing = tmp_path / "no_such_white.tif"
     out = tmp_path / "calib.json"
@@ -149,10 +161,7 @@ def test_verbosity_options(tmp_path, capsys, white_tif):
 def test_usage_errors(capsys):
     rc, _, err = _run(capsys)
     assert rc == 2 and "calibrate" in err
-    with pytest.raises(SystemExit) as exc:
-        main(["calibrate", "white.tif"])  # --scene and -o are required
-    assert exc.value.code == 2
-    with pytest.raises(SystemExit) as exc:
-        main(["--threads", "0", "calibrate"])
-    assert exc.value.code == 2
-    capsys.readouterr()
+    assert main(["calibrate", "white.tif"]) == 2  # --scene and -o are required
+    assert "--scene" in capsys.readouterr().err
+    assert main(["--threads", "0", "calibrate"]) == 2
+    assert capsys.readouterr().err.startswith("recon: error: argument --threads")

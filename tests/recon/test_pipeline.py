@@ -199,7 +199,7 @@ def test_bad_inputs(dataset, tmp_path, capsys):
     )
     assert rc == 2 and "missing.tif" in err
     rc, _, err = run(capsys, "run", dataset, "--z-step", "0", "-o", tmp_path / "v5")
-    assert rc == 2 and "z step" in err
+    assert rc == 2 and "--z-step must be > 0" in err
     for d in ("v1", "v2", "v3", "v4", "v5"):
         assert not (tmp_path / d).exists() or not any((tmp_path / d).iterdir())
 
