@@ -6,7 +6,7 @@ Public API (everything else is internal):
   continuous pixel coordinates: pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``,
   as in :mod:`lfsim`), with JSON ``save``/``load``.
 - :func:`calibrate_white` — fit the grid of a white image (robust to vignetting, dark
-  lenslets, noise and hot pixels); :func:`synthetic_white` — analytic white images for tests.
+  lenslets, noise and hot pixels).
 - :func:`rectify`, :class:`RectifiedGeometry` — resample an image onto a whole number of
   pixels per lenslet, aligned with the array (the reconstruction works on rectified images).
 - :mod:`recon.errors` — :class:`ReconError`, :class:`CalibrationError`, :class:`InputError`.
@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 
 from . import errors
-from .calibration import LensletGrid, calibrate_white, synthetic_white
+from .calibration import LensletGrid, calibrate_white
 from .errors import CalibrationError, InputError, ReconError
 from .rectify import RectifiedGeometry, rectify
 
@@ -39,5 +39,4 @@ __all__ = [
     "calibrate_white",
     "errors",
     "rectify",
-    "synthetic_white",
 ]
