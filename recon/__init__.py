@@ -1,19 +1,35 @@
-"""recon — light-field reconstruction for hrvptm: lenslet calibration and rectification.
+"""recon — light-field reconstruction for hrvptm: lenslet calibration, rectification, and
+Richardson–Lucy deconvolution of time series into volumes.
 
 Public API (everything else is internal):
 
-- :class:`LensletGrid` — the square lenslet grid on the sensor (pitch, rotation, origin, in
-  continuous pixel coordinates: pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``,
-  as in :mod:`lfsim`), with JSON ``save``/``load``.
-- :func:`calibrate_white` — fit the grid of a white image (robust to vignetting, dark
-  lenslets, noise and hot pixels); :func:`synthetic_white` — analytic white images for tests.
-- :func:`rectify`, :class:`RectifiedGeometry` — resample an image onto a whole number of
-  pixels per lenslet, aligned with the array (the reconstruction works on rectified images).
-- :mod:`recon.errors` — :class:`ReconError`, :class:`CalibrationError`, :class:`InputError`.
-- the ``recon`` command line (:mod:`recon.cli`): ``recon calibrate WHITE.tif --scene
-  SCENE.xml -o calib.json``.
+Calibration and rectification
+    :class:`LensletGrid` — the square lenslet grid on the sensor (pitch, rotation, origin, in
+    continuous pixel coordinates: pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``,
+    as in :mod:`lfsim`), with JSON ``save``/``load`` (:mod:`recon.lenslet_grid`);
+    :func:`calibrate_white` — fit the grid of a white image (robust to vignetting, dark
+    lenslets, noise and hot pixels); :func:`rectify`, :class:`RectifiedGeometry` — resample
+    an image onto a whole number of pixels per lenslet, aligned with the array (the
+    reconstruction works on rectified images).
+Reconstruction
+    :func:`compute_psf_bank`, :class:`PSFBank` — the light-field PSF of every depth and
+    sub-lenslet position, traced with :mod:`lfsim` and cached; :func:`make_projector`,
+    :class:`LightFieldProjector` (Dr.Jit gathers, the GPU path), :class:`SparseProjector`
+    (scipy.sparse, the CPU path) — the forward model ``H`` and its transpose;
+    :func:`richardson_lucy`, :class:`RLResult` — the deconvolution, in the projector's array
+    world; :class:`DepthFilter` — the depth-adaptive anti-aliasing filter; :class:`ReconGrid`
+    — depths, voxels and object-space coordinates of the volume.
+Series
+    :class:`ReconSettings`, :func:`reconstruct_series`, :class:`SeriesResult` — a time series
+    of frames into volumes, resumable, with provenance (what ``recon run`` does).
+Errors
+    :mod:`recon.errors` — :class:`ReconError`, :class:`CalibrationError`, :class:`InputError`.
+Command line
+    :mod:`recon.cli`: ``recon calibrate WHITE.tif --scene SCENE.xml -o calib.json``,
+    ``recon run``.
 
-Importing :mod:`recon` never sets a Mitsuba variant (DESIGN.md §2).
+Importing :mod:`recon` never sets a Mitsuba variant (DESIGN.md §2) and imports neither
+Dr.Jit nor Mitsuba: they load when a PSF bank is traced or a Dr.Jit projector is built.
 """
 
 from __future__ import annotations
@@ -21,8 +37,14 @@ from __future__ import annotations
 import logging
 
 from . import errors
-from .calibration import LensletGrid, calibrate_white, synthetic_white
+from .calibration import LensletGrid, calibrate_white
+from .deconvolve import RLResult, richardson_lucy
 from .errors import CalibrationError, InputError, ReconError
+from .filters import DepthFilter
+from .geometry import ReconGrid
+from .pipeline import ReconSettings, SeriesResult, reconstruct_series
+from .projector import LightFieldProjector, SparseProjector, make_projector
+from .psf import PSFBank, compute_psf_bank
 from .rectify import RectifiedGeometry, rectify
 
 __version__ = "0.1.0"
@@ -31,13 +53,24 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
     "CalibrationError",
+    "DepthFilter",
     "InputError",
     "LensletGrid",
+    "LightFieldProjector",
+    "PSFBank",
+    "RLResult",
     "ReconError",
+    "ReconGrid",
+    "ReconSettings",
     "RectifiedGeometry",
+    "SeriesResult",
+    "SparseProjector",
     "__version__",
     "calibrate_white",
+    "compute_psf_bank",
     "errors",
+    "make_projector",
+    "reconstruct_series",
     "rectify",
-    "synthetic_white",
+    "richardson_lucy",
 ]

@@ -10,8 +10,10 @@ algorithm). Pixels where ``H x`` is (numerically) zero contribute nothing instea
 up, and voxels no pixel sees (``Hᵀ 1 = 0``) stay zero. After each update the depth-adaptive
 anti-aliasing filter of Stefanoiu et al. (2019) may be applied (:mod:`recon.filters`).
 
-Projections run on Dr.Jit (LLVM on CPU, CUDA on GPU); the filter and the bookkeeping use
-numpy on the host.
+Everything runs in the projector's array world (``projector.arrays``, :mod:`recon.arrays`):
+numpy with the scipy.sparse projector on the CPU, Dr.Jit with the gather projector (CUDA on a
+GPU). The image enters that world once and the volume leaves it once; projections, update,
+filter and bookkeeping in between stay there.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .arrays import NUMPY
 from .errors import InputError
 
 log = logging.getLogger(__name__)
@@ -53,11 +56,7 @@ class RLResult:
 
 def kl_divergence(y: np.ndarray, model: np.ndarray) -> float:
     """``Σ y log(y / m) − y + m`` over pixels (0 log 0 = 0; m = 0 with y > 0 gives inf)."""
-    y = np.asarray(y, dtype=np.float64)
-    m = np.asarray(model, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(y > 0, y * np.log(y / m), 0.0) - y + m
-    return float(np.sum(t))
+    return NUMPY.kl(y, model)
 
 
 def richardson_lucy(
@@ -79,7 +78,8 @@ def richardson_lucy(
     image : ndarray, shape (ny·n, nx·n)
         Rectified, non-negative image (photons or DN): either background-subtracted
         (``background = 0``) or raw with its background level given in ``background``.
-    projector : recon.projector.LightFieldProjector
+    projector : recon.projector.LightFieldProjector or recon.projector.SparseProjector
+        Its array world (``projector.arrays``) is where the iterations compute.
     iterations : int
         Maximum number of updates (paper: 3).
     depth_filter : recon.filters.DepthFilter, optional
@@ -91,6 +91,8 @@ def richardson_lucy(
     track_kl : bool
         Compute the KL divergence each iteration (one extra forward projection at the end).
     callback : callable(iteration, volume), optional
+        Called after every update with the volume as a numpy array (a copy out of the
+        projector's world each iteration: for monitoring, not for speed).
     background : float
         Constant background ``b`` per rectified pixel in the forward model ``y ≈ H x + b``
         (Poisson RL with a known background). Passing the raw image with its black level
@@ -102,9 +104,6 @@ def richardson_lucy(
     -------
     RLResult
     """
-    import drjit as dr
-    import mitsuba as mi
-
     y = np.asarray(image, dtype=np.float32)
     if y.shape != projector.image_shape:
         raise InputError(
@@ -122,55 +121,56 @@ def richardson_lucy(
     b = float(background)
     if int(iterations) != iterations or iterations < 0:
         raise InputError(f"iterations must be a non-negative integer, got {iterations!r}")
-    Float = mi.Float
-    yd = Float(projector.image_to_polyphase(y))
-    ht1 = projector.backward_dr(dr.full(Float, 1.0, dr.width(yd)))
-    dr.eval(ht1)
-    inv_ht1 = dr.select(ht1 > 0, dr.rcp(ht1), 0.0)
+    if x0 is not None and np.shape(x0) != projector.volume_shape:
+        raise InputError(f"x0 shape {np.shape(x0)} != {projector.volume_shape}")
+    xp = projector.arrays  # every array below lives in the projector's world
+    filt = None
+    if depth_filter is not None and depth_filter.active:
+        filt = depth_filter.channel_filter(projector)
+    yd = xp.from_numpy(projector.image_to_polyphase(y))
+    ht1 = projector.backward_flat(xp.full(1.0, projector.n_res * projector.nx * projector.ny))
+    xp.eval(ht1)
+    inv_ht1 = xp.reciprocal_or_zero(ht1)
     if x0 is None:
         total = max(float(y.sum()) - b * y.size, 1e-6 * float(y.sum()))
-        n_seen = float(dr.count(ht1 > 0)[0]) if dr.width(ht1) else 0.0
         # Constant start whose forward projection has the image's total flux.
-        x = dr.select(ht1 > 0, total / max(float(dr.sum(ht1)[0]), 1e-30), 0.0)
-        del n_seen
+        x = xp.where_positive(ht1, total / max(xp.sum(ht1), 1e-30))
     else:
-        if x0.shape != projector.volume_shape:
-            raise InputError(f"x0 shape {x0.shape} != {projector.volume_shape}")
-        x = Float(projector.volume_to_channels(x0))
-    dr.eval(x)
+        x = xp.from_numpy(projector.volume_to_channels(x0))
+    xp.eval(x)
     tiny = 1e-12 * max(float(y.max()), 1e-30)
     if b > 0:
         tiny = 0.0  # the background keeps the model positive everywhere
     result = RLResult(volume=np.empty(0, np.float32), iterations=0)
     for it in range(int(iterations)):
         t0 = time.perf_counter()
-        hx = projector.forward_dr(x) + b
-        dr.eval(hx)
+        hx = projector.forward_flat(x)
+        if b > 0:
+            hx = xp.add_scalar(hx, b)
+        xp.eval(hx)
         if track_kl:
-            result.kl.append(kl_divergence(y, projector.polyphase_to_image(hx.numpy())))
-        ratio = dr.select(hx > tiny, yd / hx, 0.0)
-        upd = x * projector.backward_dr(ratio) * inv_ht1
-        dr.eval(upd)
-        new = upd
-        if depth_filter is not None and depth_filter.active:
-            vol = depth_filter(projector.channels_to_volume(upd.numpy()))
-            new = Float(projector.volume_to_channels(vol))
-        prev = x.numpy()
-        cur = new.numpy()
-        denom = float(np.abs(prev).sum())
-        rel = float(np.abs(cur - prev).sum() / denom) if denom > 0 else 0.0
+            result.kl.append(xp.kl(yd, hx))
+        ratio = xp.ratio(yd, hx, tiny)
+        new = xp.multiply(x, projector.backward_flat(ratio), inv_ht1)
+        xp.eval(new)
+        if filt is not None:
+            new = filt(new)
+        change, norm = xp.l1_change(new, x)
+        rel = change / norm if norm > 0 else 0.0
         x = new
         result.rel_change.append(rel)
         result.seconds.append(time.perf_counter() - t0)
         result.iterations = it + 1
         log.info("RL iteration %d: relative change %.3g (%.2f s)", it + 1, rel, result.seconds[-1])
         if callback is not None:
-            callback(it + 1, projector.channels_to_volume(cur))
+            callback(it + 1, projector.channels_to_volume(xp.to_numpy(x)))
         if stop_rel_change is not None and rel < stop_rel_change:
             break
     if track_kl:
-        hx = projector.forward_dr(x) + b
-        dr.eval(hx)
-        result.kl.append(kl_divergence(y, projector.polyphase_to_image(hx.numpy())))
-    result.volume = projector.channels_to_volume(x.numpy())
+        hx = projector.forward_flat(x)
+        if b > 0:
+            hx = xp.add_scalar(hx, b)
+        xp.eval(hx)
+        result.kl.append(xp.kl(yd, hx))
+    result.volume = projector.channels_to_volume(xp.to_numpy(x))
     return result

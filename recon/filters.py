@@ -97,7 +97,10 @@ class DepthFilter:
         return any(k is not None for k in self.kernels)
 
     def __call__(self, volume: np.ndarray) -> np.ndarray:
-        """Filter in place-safe fashion; negative ringing is clipped to keep the volume ≥ 0."""
+        """Filter a volume ``(nz, ny, nx)`` (a new array; the input is left as it is).
+
+        Negative ringing is clipped to keep the volume ≥ 0.
+        """
         vol = np.asarray(volume, dtype=np.float32)
         if vol.ndim != 3 or vol.shape[0] != len(self.kernels):
             raise InputError(
@@ -105,9 +108,118 @@ class DepthFilter:
             )
         out = vol.copy()
         for k, h in enumerate(self.kernels):
+            if h is not None:
+                out[k] = self._filter_plane(vol[k], h)
+        return out
+
+    @staticmethod
+    def _filter_plane(plane: np.ndarray, h: np.ndarray) -> np.ndarray:
+        sl = ndimage.correlate1d(plane, h, axis=0, mode="nearest")
+        sl = ndimage.correlate1d(sl, h, axis=1, mode="nearest")
+        return np.maximum(sl, 0.0, out=sl)
+
+    def channel_filter(self, projector):
+        """This filter on flat volume channels, in the projector's array world.
+
+        Parameters
+        ----------
+        projector : recon.projector.LightFieldProjector or recon.projector.SparseProjector
+            Gives the channel layout (``[c, v, u]`` with ``c = k s² + b s + a``, voxel
+            ``(k, v·s + b, u·s + a)``; see :meth:`~recon.projector.LightFieldProjector.
+            volume_to_channels`) and the array world (``projector.arrays``).
+
+        Returns
+        -------
+        callable
+            ``f(channels) -> channels``: flat float32 arrays of ``projector.arrays``
+            (numpy: scipy.ndimage per depth; Dr.Jit: gathers on the projector's backend),
+            equal to :meth:`__call__` on the volume to float32 rounding. The input is left
+            as it is.
+        """
+        if len(self.kernels) != projector.nz:
+            raise InputError(
+                f"the filter has {len(self.kernels)} depths, the projector {projector.nz}"
+            )
+        layout = (projector.nz, projector.s, projector.ny, projector.nx)
+        if projector.arrays.name == "numpy":
+            return lambda flat: self._filter_channels_numpy(flat, *layout)
+        return _DrJitChannelFilter(self.kernels, layout, projector.arrays)
+
+    def _filter_channels_numpy(self, flat, nz: int, s: int, ny: int, nx: int) -> np.ndarray:
+        ch = np.asarray(flat, dtype=np.float32).reshape(nz, s, s, ny, nx)
+        out = np.empty_like(ch)
+        for k, h in enumerate(self.kernels):
             if h is None:
+                out[k] = ch[k]
                 continue
-            sl = ndimage.correlate1d(vol[k], h, axis=0, mode="nearest")
-            sl = ndimage.correlate1d(sl, h, axis=1, mode="nearest")
-            out[k] = np.maximum(sl, 0.0)
+            # channels (b, a, v, u) of depth k -> plane (v·s + b, u·s + a) and back
+            plane = ch[k].transpose(2, 0, 3, 1).reshape(ny * s, nx * s)
+            sl = self._filter_plane(plane, h)
+            out[k] = sl.reshape(ny, s, nx, s).transpose(1, 3, 0, 2)
+        return out.ravel()
+
+
+class _DrJitChannelFilter:
+    """The separable per-depth filter as two Dr.Jit gather passes over flat channels.
+
+    One thread per voxel sums its depth's kernel over neighbours along y, then along x, with
+    indices clamped at the edges (scipy.ndimage's ``mode="nearest"``); depths without a
+    kernel get ``[1]`` (an exact copy). Negative values are clipped at the end.
+    """
+
+    def __init__(self, kernels, layout, arrays):
+        self.nz, self.s, self.ny, self.nx = layout
+        self.arrays = arrays
+        full = [np.ones(1) if h is None else h for h in kernels]
+        lengths = np.array([len(h) for h in full])
+        self._w = arrays.Float(np.concatenate(full).astype(np.float32))
+        self._off = arrays.UInt32(np.r_[0, np.cumsum(lengths)].astype(np.uint32))
+        self._half = arrays.Int32((lengths // 2).astype(np.int32))
+
+    def _pass(self, src, along_y: bool):
+        a = self.arrays
+        dr, Float, UInt32, Int32 = a.dr, a.Float, a.UInt32, a.Int32
+        s, ny, nx = self.s, self.ny, self.nx
+        plane = ny * nx
+        s2 = s * s
+        tid = dr.arange(UInt32, self.nz * s2 * plane)
+        c = tid // plane
+        rem = tid - c * plane
+        v = rem // nx
+        u = rem - v * nx
+        k = c // s2
+        b = (c - k * s2) // s
+        ai = c - k * s2 - b * s
+        start = dr.gather(UInt32, self._off, k)
+        end = dr.gather(UInt32, self._off, k + 1)
+        half = dr.gather(Int32, self._half, k)
+        if along_y:
+            pos, size = Int32(v * s + b), ny * s
+        else:
+            pos, size = Int32(u * s + ai), nx * s
+        base = k * s2
+
+        def cond(i, acc):
+            return i < end
+
+        def body(i, acc):
+            q = UInt32(dr.clip(pos + Int32(i - start) - half, 0, size - 1))
+            q_lens = q // s
+            q_sub = q - q_lens * s
+            if along_y:
+                idx = (base + q_sub * s + ai) * plane + q_lens * nx + u
+            else:
+                idx = (base + b * s + q_sub) * plane + v * nx + q_lens
+            acc = dr.fma(dr.gather(Float, self._w, i), dr.gather(Float, src, idx), acc)
+            return i + 1, acc
+
+        _, acc = dr.while_loop((start, dr.zeros(Float, dr.width(tid))), cond, body)
+        return acc
+
+    def __call__(self, flat):
+        dr = self.arrays.dr
+        tmp = self._pass(flat, along_y=True)
+        dr.eval(tmp)
+        out = dr.maximum(self._pass(tmp, along_y=False), 0.0)
+        dr.eval(out)
         return out

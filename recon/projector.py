@@ -1,4 +1,4 @@
-"""Forward and backward light-field projection on Dr.Jit, exploiting lenslet periodicity.
+"""Forward and backward light-field projection, exploiting lenslet periodicity.
 
 With the image in *polyphase* layout ``Y[r, v, u]`` (pixel ``(v·n + ry, u·n + rx)`` of
 lenslet ``(u, v)``, residue ``r = ry·n + rx``) and the volume as channels ``V[c, v, u]``
@@ -19,7 +19,9 @@ Entries are packed as ``c | (qy + 128) << 16 | (qx + 128) << 24`` in one 32-bit 
 (``c < 65 536`` channels, shifts within ±127 lenslets).
 
 Two implementations of these same terms, chosen per backend by measurement
-(``benchmarks/bench_projectors.py``; :func:`make_projector` picks):
+(``benchmarks/bench_projectors.py``; :func:`make_projector` picks). Each computes in its own
+array world (``projector.arrays``, :mod:`recon.arrays`), in which Richardson–Lucy then keeps
+all its arrays:
 
 - :class:`LightFieldProjector` — Dr.Jit gathers, one thread per output element; runs on the
   LLVM and CUDA backends. On a GPU this is the projector.
@@ -29,7 +31,7 @@ Two implementations of these same terms, chosen per backend by measurement
   the volume channels shifted by every ``q`` — contiguous rows of ``nx · ny`` values, which
   the CPU streams with SIMD instead of gathering element by element; ``Hᵀ`` uses ``A_kᵀ``
   and adds the shifted rows back. Same terms, so the same operator to rounding (tested),
-  and about 4× faster than the gathers on a 2-core CPU.
+  and about 4× faster than the gathers on a 2-core CPU. Numpy arrays throughout.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ import logging
 
 import numpy as np
 
+from .arrays import NUMPY, drjit_arrays
 from .errors import InputError
 from .psf import PSFBank
 
@@ -45,18 +48,21 @@ log = logging.getLogger(__name__)
 
 
 def _dr_types():
-    import drjit as dr
-    import mitsuba as mi
-
-    from lfsim.backend import backend_info, init_backend
-
-    if backend_info() is None:
-        init_backend()
-    return dr, mi.Float, mi.UInt32, mi.Int32
+    """The Dr.Jit module and the current backend's ``Float``, ``UInt32``, ``Int32`` types."""
+    arrays = drjit_arrays()
+    return arrays.dr, arrays.Float, arrays.UInt32, arrays.Int32
 
 
 class _ProjectorBase:
-    """Shapes, layouts and the numpy interface shared by the projectors."""
+    """Shapes, layouts and the numpy interface shared by the projectors.
+
+    A projector computes in one array world, :attr:`arrays` (:mod:`recon.arrays`):
+    :meth:`forward_flat` and :meth:`backward_flat` take and return flat arrays of that world
+    in the internal layouts; :meth:`forward` and :meth:`backward` wrap them for numpy volumes
+    and images.
+    """
+
+    arrays = NUMPY
 
     def _init_common(self, bank: PSFBank, n_lenslets: tuple[int, int]) -> None:
         self.bank = bank
@@ -109,26 +115,33 @@ class _ProjectorBase:
         a = np.asarray(flat, dtype=np.float32).reshape(n, n, self.ny, self.nx)
         return np.ascontiguousarray(a.transpose(2, 0, 3, 1)).reshape(self.image_shape)
 
+    # -- the operator in the projector's own array world -----------------------------------
+    def forward_flat(self, channels):
+        """``H``: flat volume channels → flat polyphase image, both in :attr:`arrays`."""
+        raise NotImplementedError
+
+    def backward_flat(self, polyphase):
+        """``Hᵀ``: flat polyphase image → flat volume channels, both in :attr:`arrays`."""
+        raise NotImplementedError
+
     # -- numpy interface -------------------------------------------------------------------
     def forward(self, volume: np.ndarray) -> np.ndarray:
         """``H x``: volume ``(nz, ny·s, nx·s)`` → light-field image ``(ny·n, nx·n)``."""
         vol = np.asarray(volume)
         if vol.shape != self.volume_shape:
             raise InputError(f"volume shape {vol.shape} != projector's {self.volume_shape}")
-        dr, Float, _, _ = _dr_types()
-        out = self.forward_dr(Float(self.volume_to_channels(vol)))
-        dr.eval(out)
-        return self.polyphase_to_image(out.numpy())
+        a = self.arrays
+        out = self.forward_flat(a.from_numpy(self.volume_to_channels(vol)))
+        return self.polyphase_to_image(a.to_numpy(out))
 
     def backward(self, image: np.ndarray) -> np.ndarray:
         """``Hᵀ y``: image ``(ny·n, nx·n)`` → volume ``(nz, ny·s, nx·s)``."""
         img = np.asarray(image)
         if img.shape != self.image_shape:
             raise InputError(f"image shape {img.shape} != projector's {self.image_shape}")
-        dr, Float, _, _ = _dr_types()
-        out = self.backward_dr(Float(self.image_to_polyphase(img)))
-        dr.eval(out)
-        return self.channels_to_volume(out.numpy())
+        a = self.arrays
+        out = self.backward_flat(a.from_numpy(self.image_to_polyphase(img)))
+        return self.channels_to_volume(a.to_numpy(out))
 
 
 class LightFieldProjector(_ProjectorBase):
@@ -143,14 +156,17 @@ class LightFieldProjector(_ProjectorBase):
     Notes
     -----
     Volumes are ``(nz, ny·s, nx·s)`` float32 and images ``(ny·n, nx·n)`` float32 numpy
-    arrays at the interface; :meth:`forward_dr` / :meth:`backward_dr` work on flat Dr.Jit
-    arrays in the internal layouts and are what the iterative solvers call.
+    arrays at the interface; :meth:`forward_flat` / :meth:`backward_flat` (alias
+    :meth:`forward_dr` / :meth:`backward_dr`) work on flat Dr.Jit arrays of the current
+    backend (``arrays``: :class:`recon.arrays.DrJitArrays`) in the internal layouts and are
+    what the iterative solvers call.
     """
 
     def __init__(self, bank: PSFBank, n_lenslets: tuple[int, int]):
         self._init_common(bank, n_lenslets)
         if self.n_channels >= 1 << 16 or self.n_res >= 1 << 16:
             raise InputError("PSF bank too large for the packed projector (>= 65 536 channels)")
+        self.arrays = drjit_arrays()
         _, Float, UInt32, _ = _dr_types()
         c, r, qy, qx = self._terms()
         if max(np.abs(qy).max(initial=0), np.abs(qx).max(initial=0)) > 127:
@@ -210,9 +226,18 @@ class LightFieldProjector(_ProjectorBase):
         """``Hᵀ``: flat polyphase image (Dr.Jit Float) → flat volume channels."""
         return self._project(polyphase, self._b_word, self._b_w, self._b_off, self.n_channels, +1)
 
+    def forward_flat(self, channels):
+        return self.forward_dr(channels)
+
+    def backward_flat(self, polyphase):
+        return self.backward_dr(polyphase)
+
 
 class SparseProjector(_ProjectorBase):
     """``H`` and ``Hᵀ`` as per-depth sparse × dense products (CPU; see the module docstring).
+
+    Works in the numpy world (``arrays``: :data:`recon.arrays.NUMPY`): flat float32 numpy
+    arrays in, flat float32 numpy arrays out, no Dr.Jit.
 
     Parameters
     ----------
@@ -260,7 +285,7 @@ class SparseProjector(_ProjectorBase):
         hx = int(np.abs(shifts[:, 1]).max())
         return hy, hx
 
-    def forward_np(self, channels: np.ndarray) -> np.ndarray:
+    def forward_flat(self, channels: np.ndarray) -> np.ndarray:
         """``H``: flat channels → flat polyphase image (numpy float32)."""
         ny, nx = self.ny, self.nx
         v = np.asarray(channels, np.float32).reshape(self.n_channels, ny, nx)
@@ -276,7 +301,7 @@ class SparseProjector(_ProjectorBase):
             y += a @ b.reshape(len(shifts) * ng, ny * nx)
         return y.ravel()
 
-    def backward_np(self, polyphase: np.ndarray) -> np.ndarray:
+    def backward_flat(self, polyphase: np.ndarray) -> np.ndarray:
         """``Hᵀ``: flat polyphase image → flat channels (numpy float32)."""
         ny, nx = self.ny, self.nx
         yr = np.asarray(polyphase, np.float32).reshape(self.n_res, ny * nx)
@@ -289,14 +314,6 @@ class SparseProjector(_ProjectorBase):
                 acc[:, hy - sy : hy - sy + ny, hx - sx : hx - sx + nx] += z[i]
             out[c0 : c0 + ng] += acc[:, hy : hy + ny, hx : hx + nx]
         return out.ravel()
-
-    def forward_dr(self, channels):
-        _, Float, _, _ = _dr_types()
-        return Float(self.forward_np(channels.numpy()))
-
-    def backward_dr(self, polyphase):
-        _, Float, _, _ = _dr_types()
-        return Float(self.backward_np(polyphase.numpy()))
 
 
 PROJECTORS = ("auto", "gather", "sparse")

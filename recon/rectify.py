@@ -8,7 +8,7 @@ lenslet periodicity with integer-pixel patterns (one PSF per position inside a l
 is what makes the light-field PSF bank small and the convolutions exact.
 
 Mapping (continuous pixel coordinates, pixel ``(i, j)`` centred at ``(j + 0.5, i + 0.5)``, see
-:mod:`recon.calibration`): the output pixel ``(r, c)`` samples the input at::
+:mod:`recon.lenslet_grid`): the output pixel ``(r, c)`` samples the input at::
 
     xy = origin + p · ((u0 − ½ + (c + ½)/n) e_u + (v0 − ½ + (r + ½)/n) e_v)
 
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from .calibration import LensletGrid, as_image
 from .errors import InputError
+from .lenslet_grid import LensletGrid, as_image
 
 log = logging.getLogger(__name__)
 

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon import CalibrationError, InputError, LensletGrid, calibrate_white, synthetic_white
+from recon import CalibrationError, InputError, LensletGrid, calibrate_white
+
+from .synthetic import synthetic_white
 
 ROOT = Path(__file__).resolve().parents[2]
 

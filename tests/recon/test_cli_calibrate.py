@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 import tifffile
 
-from recon import LensletGrid, __version__, synthetic_white
+from recon import LensletGrid, __version__
 from recon.cli import CALIBRATION_FORMAT, main
+
+from .synthetic import synthetic_white
 
 SCENE = Path(__file__).resolve().parents[2] / "scenes" / "small.xml"
 

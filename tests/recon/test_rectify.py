@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from recon import InputError, LensletGrid, RectifiedGeometry, calibrate_white, rectify
-from recon import synthetic_white as white
+
+from .synthetic import synthetic_white as white
 
 
 def test_identity_crop_odd_pitch():
