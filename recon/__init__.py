@@ -42,10 +42,11 @@ from .deconvolve import RLResult, richardson_lucy
 from .errors import CalibrationError, InputError, ReconError
 from .filters import DepthFilter
 from .geometry import ReconGrid
-from .pipeline import ReconSettings, SeriesResult, reconstruct_series
+from .pipeline import SeriesResult, reconstruct_series
 from .projector import LightFieldProjector, SparseProjector, make_projector
 from .psf import PSFBank, compute_psf_bank
 from .rectify import RectifiedGeometry, rectify
+from .settings import ReconSettings
 
 __version__ = "0.1.0"
 

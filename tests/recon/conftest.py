@@ -61,7 +61,9 @@ def psf_cache(tmp_path_factory):
 @pytest.fixture(scope="session")
 def base_frame() -> np.ndarray:
     """Integer light-field-like pixels (uint16) of the small scene's 300 × 300 px sensor."""
-    from recon import LensletGrid, synthetic_white
+    from recon import LensletGrid
+
+    from .synthetic import synthetic_white
 
     grid = LensletGrid(15.0, 0.0, (157.5, 157.5), (300, 300))
     img = synthetic_white((300, 300), grid, noise_sigma=0.02, rng=5)
