@@ -78,7 +78,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
     from hrvbase.errors import HrvError
     from lfsim.scene import read_optics
     from recon.calibration import calibrate_white
-    from recon.cli import read_white
+    from recon.calibration_file import read_white
     from recon.pipeline import reconstruct_series
     from recon.preprocess import Preprocess
 

@@ -42,31 +42,28 @@ print ``recon: error: <message>`` on stderr and exit with status 2, without a tr
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import logging
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
 from hrvbase.cli import SettingOption, add_setting_options, settings_from_args
 
 from . import __version__
-from .calibration import calibrate_white
-from .errors import InputError, ReconError
+from .calibration_file import (
+    CALIBRATION_FORMAT,
+    calibrate_white_file,
+    calibration_record,
+    check_optics,
+    dataset_optics,
+    read_calibration,
+)
+from .errors import InputError
 from .projector import PROJECTORS
 from .settings import BACKGROUND_MODELS, ReconSettings
 
 log = logging.getLogger("recon.cli")
-
-#: Relative difference between fitted and nominal lenslet pitch above which a calibration is
-#: refused (``--allow-pitch-mismatch``: a warning).
-PITCH_MISMATCH_FRACTION = 0.05
-
-#: ``"format"`` entry of the calibration files ``recon calibrate`` writes.
-CALIBRATION_FORMAT = "hrvptm.recon.calibration"
 
 
 def _threads(text: str) -> int:
@@ -298,124 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # -- commands ---------------------------------------------------------------------------------
-def read_white(path: Path) -> np.ndarray:
-    """Read a white image: one 2-D TIFF of integer or real pixels (as float32).
-
-    Raises
-    ------
-    InputError
-        Missing or unreadable file, a stack or colour image, a non-numeric dtype or
-        non-finite pixels (names the file).
-    """
-    from .preprocess import read_frame
-
-    return read_frame(path, what="white image")
-
-
-def _calibrate(white: Path, optics, scene: Path, *, allow_pitch_mismatch: bool, allow_flag: str):
-    """Read a white image, check it against the scene's sensor and fit its lenslet grid.
-
-    Returns
-    -------
-    image : ndarray, float32, shape (height, width)
-    grid : LensletGrid
-    deviation : float
-        Fitted pitch / nominal pitch − 1.
-
-    Raises
-    ------
-    InputError
-        The white image's size differs from the scene's sensor.
-    CalibrationError
-        No lenslet grid, or a fitted pitch more than :data:`PITCH_MISMATCH_FRACTION` off the
-        scene's (unless ``allow_pitch_mismatch``: then a warning).
-    """
-    from .errors import CalibrationError
-
-    image = read_white(white)
-    h, w = image.shape
-    sw, sh = optics.sensor_px
-    if (w, h) != (sw, sh):
-        raise InputError(
-            f"white image {str(white)!r} is {w} × {h} px but the sensor of scene "
-            f"{str(scene)!r} is {sw} × {sh} px; use a white image of this camera or the "
-            "scene of the camera that took it"
-        )
-    nominal = optics.px_per_lenslet
-    try:
-        grid = calibrate_white(image, expected_pitch_px=nominal)
-    except ReconError as exc:
-        raise type(exc)(f"{white}: {exc}") from None
-    deviation = grid.pitch_px / nominal - 1.0
-    if abs(deviation) > PITCH_MISMATCH_FRACTION:
-        msg = (
-            f"fitted lenslet pitch {grid.pitch_px:.4f} px differs by {100 * deviation:+.1f} % "
-            f"from the scene's optics ({nominal:.4f} px = mla_pitch_um / pixel_um); check that "
-            f"{white} belongs to {scene}"
-        )
-        if not allow_pitch_mismatch:
-            raise CalibrationError(f"{msg} (or pass {allow_flag} to accept it)")
-        log.warning("%s", msg)
-    return image, grid, deviation
-
-
-def _read_calibration(path: Path):
-    """A calibration file's lenslet grid, and the optics and scene file recorded with it.
-
-    A bare grid file (:meth:`recon.calibration.LensletGrid.save`) records neither: None.
-
-    Raises
-    ------
-    InputError
-        Unreadable file, invalid grid or optics (names the file).
-    """
-    import json
-
-    from lfsim.errors import ConfigError
-    from lfsim.optics import Optics
-
-    from .calibration import LensletGrid
-
-    grid = LensletGrid.load(path)
-    data = json.loads(Path(path).read_text(encoding="utf-8"))
-    optics, scene = None, None
-    if isinstance(data, dict) and data.get("optics") is not None:
-        try:
-            optics = Optics.from_dict(data["optics"])
-        except (ConfigError, TypeError) as exc:
-            raise InputError(f"{path}: invalid optics record: {exc}") from None
-        scene = (data.get("scene") or {}).get("path")
-    return grid, optics, scene
-
-
-def _check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: bool) -> None:
-    """Refuse a scene whose optics differ from those the calibration was made with.
-
-    ``recorded`` are the calibration's optics (None for a bare grid file: only the image
-    size is checked); ``source`` names the calibration in messages.
-    """
-    from .pipeline import optics_differences
-
-    diffs = [] if recorded is None else optics_differences(optics, recorded)
-    h, w = grid.image_shape
-    sw, sh = optics.sensor_px
-    if (w, h) != (sw, sh) and not any(d.startswith("sensor_px") for d in diffs):
-        diffs.append(f"sensor {sw} × {sh} px (scene) vs {w} × {h} px images (calibration)")
-    if recorded is None:
-        log.info("%s records no optics; only its image size was checked against %s", source, scene)
-    if not diffs:
-        return
-    msg = f"scene {str(scene)!r} does not match {source}: {'; '.join(diffs)}"
-    if not allow:
-        raise InputError(
-            f"{msg}; use the scene the calibration was made with, or pass "
-            "--allow-optics-mismatch to reconstruct with the scene's optics anyway"
-        )
-    log.warning("%s; reconstructing with the scene's optics (--allow-optics-mismatch)", msg)
-
-
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from hrvbase.io import check_output_file, sha256_file, write_json
+    from hrvbase.io import check_output_file, write_json
     from lfsim.scene import read_optics
 
     out: Path = check_output_file(
@@ -423,33 +304,17 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     )
     t0 = time.perf_counter()
     optics = read_optics(args.scene)
-    image, grid, deviation = _calibrate(
+    image, grid, deviation = calibrate_white_file(
         args.white,
         optics,
         args.scene,
         allow_pitch_mismatch=args.allow_pitch_mismatch,
         allow_flag="--allow-pitch-mismatch",
     )
-    nominal = optics.px_per_lenslet
-    h, w = image.shape
-    record = {
-        "format": CALIBRATION_FORMAT,
-        "format_version": 1,
-        "grid": grid.to_dict(),
-        "optics": optics.to_dict(),
-        "nominal_pitch_px": nominal,
-        "pitch_deviation": deviation,
-        "white_image": {
-            "path": str(args.white.resolve()),
-            "sha256": sha256_file(args.white),
-            "shape": [h, w],
-            "dtype": str(image.dtype),
-        },
-        "scene": {"path": str(args.scene.resolve()), "sha256": sha256_file(args.scene)},
-        "tool": {"name": "recon", "version": __version__, "command": "calibrate"},
-        "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "elapsed_s": round(time.perf_counter() - t0, 3),
-    }
+    record = calibration_record(
+        grid, optics, image, white=args.white, scene=args.scene, deviation=deviation
+    )
+    record["elapsed_s"] = round(time.perf_counter() - t0, 3)
     write_json(out, record, overwrite=args.overwrite)
     if not getattr(args, "quiet", False):
         sys.stdout.write(
@@ -519,37 +384,22 @@ def _resolve_inputs(args: argparse.Namespace):
     optics = read_optics(scene)
     allow = args.allow_optics_mismatch
     if args.calib is not None:
-        grid, recorded, made_with = _read_calibration(args.calib)
+        grid, recorded, made_with = read_calibration(args.calib)
         source = f"calibration {str(args.calib)!r}"
         if made_with:
             source += f" (made with {made_with})"
     elif dataset is not None and (dataset / "white.tif").is_file():
         white = dataset / "white.tif"
         log.info("calibrating the lenslet grid from %s", white)
-        _, grid, _ = _calibrate(
+        _, grid, _ = calibrate_white_file(
             white, optics, scene, allow_pitch_mismatch=allow, allow_flag="--allow-optics-mismatch"
         )
-        recorded = _dataset_optics(dataset)
+        recorded = dataset_optics(dataset)
         source = f"the optics dataset {str(dataset)!r} was rendered with"
     else:
         raise InputError("--calib is required (make one with `recon calibrate`)")
-    _check_optics(optics, grid, recorded, scene=scene, source=source, allow=allow)
+    check_optics(optics, grid, recorded, scene=scene, source=source, allow=allow)
     return frames, optics, grid, scene
-
-
-def _dataset_optics(dataset: Path):
-    """The optics recorded in an lfsim dataset's ``dataset.json`` (None if absent)."""
-    from lfsim.errors import ConfigError
-    from lfsim.io import read_json
-    from lfsim.optics import Optics
-
-    record = read_json(dataset / "dataset.json")
-    if not isinstance(record, dict) or record.get("optics") is None:
-        return None
-    try:
-        return Optics.from_dict(record["optics"])
-    except (ConfigError, TypeError) as exc:
-        raise InputError(f"{dataset / 'dataset.json'}: invalid optics record: {exc}") from None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -632,4 +482,4 @@ if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
 
 
-__all__ = ["CALIBRATION_FORMAT", "build_parser", "main", "read_white"]
+__all__ = ["CALIBRATION_FORMAT", "build_parser", "main"]
