@@ -187,16 +187,19 @@ def add_setting_options(
     options: Sequence[SettingOption],
     *,
     derived: str = "automatic",
+    prefix: str = "setting_",
 ) -> None:
     """Add ``options`` (fields of the dataclass ``cls``) to ``parser`` (or an argument group).
 
-    ``derived`` is shown as the default of fields whose dataclass default is ``None``.
+    ``derived`` is shown as the default of fields whose dataclass default is ``None``;
+    ``prefix`` keeps the destinations of two dataclasses with a field of the same name apart
+    (give :func:`settings_from_args` the same).
     """
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
     for opt in options:
         if opt.field not in defaults:
             raise KeyError(f"{cls.__name__} has no field {opt.field!r}")
-        kw: dict[str, Any] = {"dest": f"setting_{opt.field}", "default": None}
+        kw: dict[str, Any] = {"dest": f"{prefix}{opt.field}", "default": None}
         if opt.type is not None:
             kw["type"] = opt.type
         if opt.metavar is not None:
@@ -223,15 +226,16 @@ def settings_from_args(
     *,
     extra: Mapping[str, Any] | None = None,
     names: Mapping[str, str] | None = None,
+    prefix: str = "setting_",
 ):
     """Build ``cls`` from the options the user gave (the others keep the dataclass defaults).
 
     Errors raised by the dataclass name the option (``--z-step``), not the field.
     """
     values = {
-        o.field: getattr(args, f"setting_{o.field}")
+        o.field: getattr(args, f"{prefix}{o.field}")
         for o in options
-        if getattr(args, f"setting_{o.field}", None) is not None
+        if getattr(args, f"{prefix}{o.field}", None) is not None
     }
     values.update(extra or {})
     flags = {o.field: o.flags[-1] for o in options}

@@ -56,11 +56,18 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 
-from hrvbase.errors import HrvError
+from hrvbase.cli import (
+    Parser,
+    SettingOption,
+    add_setting_options,
+    common_options,
+    run_main,
+    settings_from_args,
+    show_progress,
+)
 
 from . import __version__
 from . import io as tio
@@ -72,14 +79,6 @@ log = logging.getLogger("track.cli")
 
 #: Exit status of a run that finished with failed frames (without ``--allow-partial``).
 EXIT_FAILED = 3
-
-
-class _Parser(argparse.ArgumentParser):
-    """Argument parser whose errors are one line ``track: error: ...`` (exit 2)."""
-
-    def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"track: error: {message}\n")
-        raise SystemExit(2)
 
 
 def _positive_float(text: str) -> float:
@@ -141,110 +140,155 @@ _threshold = _keyword_or_number("auto", lambda v: 0 < v < 1, "a fraction in (0, 
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", required=True, type=Path, metavar="RESULTS")
+    p.add_argument(
+        "-o", "--output", required=True, type=Path, metavar="RESULTS", help="results folder"
+    )
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace a RESULTS folder made by track from other inputs or settings",
+        help="replace a RESULTS folder made by track from other inputs or settings "
+        "(default: refuse)",
     )
     p.add_argument(
         "--allow-partial",
         action="store_true",
-        help="keep going when frames fail (warnings, exit 0, summary status 'partial') "
-        "instead of exit status 3",
+        help="keep going when frames fail (warnings, exit 0, summary status 'partial'; "
+        "default: exit status 3)",
     )
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.add_argument("-v", "--verbose", action="count", default=0, help="more messages")
-    p.add_argument("-q", "--quiet", action="store_true", help="errors only")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars (default: shown)")
+
+
+#: Options of the detection settings (:class:`track.detect.DetectSettings`).
+DETECT_OPTIONS = (
+    SettingOption(
+        "threshold",
+        ("--threshold",),
+        "binarisation threshold: a fraction of the intensity range (the paper's 0.25) or 'auto'",
+        _threshold,
+        "auto|F",
+    ),
+    SettingOption(
+        "deconvolution_iterations",
+        ("--deconvolution-iterations",),
+        "Richardson-Lucy iterations of the secondary deconvolution",
+        _count,
+        "N",
+    ),
+    SettingOption("blob_min_vox", ("--blob-min-vox",), "smallest blob in voxels", _count, "N"),
+    SettingOption("blob_max_vox", ("--blob-max-vox",), "largest blob in voxels", _count, "N"),
+    SettingOption(
+        "method", ("--method",), "sub-voxel localisation", choices=("radial", "centroid")
+    ),
+    SettingOption(
+        "edge_margin_um",
+        ("--edge-margin-um",),
+        "margin in µm a blob must keep from the faces of the volume",
+        float,
+        "UM",
+    ),
+)
+
+#: Options of the gridded fields (:class:`track.fields.GridSettings`).
+GRID_OPTIONS = (
+    SettingOption(
+        "spacing_um",
+        ("--grid-spacing-um",),
+        "node spacing of the gridded fields in µm (refused when it gives more than "
+        "10 × --target-nodes nodes)",
+        _positive_float,
+        "UM",
+    ),
+    SettingOption(
+        "target_nodes",
+        ("--target-nodes",),
+        f"nodes of the automatic grid (at most {MAX_GRID_NODES})",
+        _int_in(8, MAX_GRID_NODES),
+        "N",
+    ),
+    SettingOption("method", ("--interpolation",), "gridding method", choices=("rbf", "linear")),
+    SettingOption(
+        "smoothing",
+        ("--smoothing",),
+        "RBF smoothing of the gridded fields: 'gcv' (chosen per displacement component by "
+        "generalised cross-validation) or a number >= 0 (0: exact interpolation)",
+        _smoothing,
+        "gcv|LAMBDA",
+    ),
+)
+
+#: Options of the series (:class:`track.series.SeriesSettings`).
+SERIES_OPTIONS = (
+    SettingOption(
+        "mode", ("--mode",), "link each frame to the previous one or to frame 0", choices=MODES
+    ),
+)
+
+#: Options of the linker (:class:`track.matching.LinkSettings`).
+LINK_OPTIONS = (SettingOption("seed", ("--seed",), "seed of the linker's RANSAC", _count, "N"),)
 
 
 def _detect_options(p: argparse.ArgumentParser) -> None:
     from .detect import DetectSettings
 
-    d = DetectSettings()
     g = p.add_argument_group("detection")
+    add_setting_options(g, DetectSettings, DETECT_OPTIONS, prefix="detect_")
     g.add_argument(
-        "--threshold",
-        type=_threshold,
-        default=d.threshold,
-        help=f"binarisation threshold: fraction of the intensity range (default: "
-        f"{d.threshold}, the paper's 0.25) or 'auto'",
+        "--no-deconvolution",
+        action="store_true",
+        help="skip the secondary deconvolution (default: on)",
     )
-    g.add_argument(
-        "--no-deconvolution", action="store_true", help="skip the secondary deconvolution"
-    )
-    g.add_argument(
-        "--deconvolution-iterations",
-        type=_count,
-        default=d.deconvolution_iterations,
-        metavar="N",
-        help="Richardson-Lucy iterations of the secondary deconvolution "
-        f"(default {d.deconvolution_iterations})",
-    )
-    g.add_argument("--blob-min-vox", type=_count, default=d.blob_min_vox, metavar="N")
-    g.add_argument("--blob-max-vox", type=_count, default=d.blob_max_vox, metavar="N")
-    g.add_argument("--method", choices=("radial", "centroid"), default=d.method)
-    g.add_argument("--edge-margin-um", type=float, default=d.edge_margin_um, metavar="UM")
 
 
 def _link_options(p: argparse.ArgumentParser) -> None:
     from .matching import LinkSettings
     from .pipeline import VTI_ENCODINGS
 
-    grid, series = GridSettings(), SeriesSettings()
     g = p.add_argument_group("linking and fields")
-    g.add_argument("--mode", choices=MODES, default=series.mode)
+    add_setting_options(g, SeriesSettings, SERIES_OPTIONS, prefix="series_")
+    add_setting_options(g, GridSettings, GRID_OPTIONS, prefix="grid_", derived="automatic")
+    add_setting_options(g, LinkSettings, LINK_OPTIONS, prefix="link_")
     g.add_argument(
-        "--grid-spacing-um",
-        type=_positive_float,
-        default=grid.spacing_um,
-        metavar="UM",
-        help="node spacing of the gridded fields (default: about --target-nodes nodes); "
-        "refused when it gives more than 10 × --target-nodes nodes",
+        "--no-fields", action="store_true", help="only link; no gridded fields (default: off)"
     )
     g.add_argument(
-        "--target-nodes",
-        type=_int_in(8, MAX_GRID_NODES),
-        default=grid.target_nodes,
-        metavar="N",
-        help=f"nodes of the default grid (default {grid.target_nodes}, at most {MAX_GRID_NODES})",
-    )
-    g.add_argument(
-        "--interpolation", choices=("rbf", "linear"), default=grid.method, help="gridding method"
-    )
-    g.add_argument(
-        "--smoothing",
-        type=_smoothing,
-        default=grid.smoothing,
-        metavar="gcv|LAMBDA",
-        help="RBF smoothing of the gridded fields: 'gcv' (default: chosen per displacement "
-        "component by generalised cross-validation) or a number >= 0 (0: exact interpolation)",
-    )
-    g.add_argument("--no-fields", action="store_true", help="only link; no gridded fields")
-    g.add_argument("--vti-encoding", choices=VTI_ENCODINGS, default=VTI_ENCODINGS[0])
-    g.add_argument(
-        "--seed", type=_count, default=LinkSettings().seed, help="seed of the linker's RANSAC"
+        "--vti-encoding",
+        choices=VTI_ENCODINGS,
+        default=VTI_ENCODINGS[0],
+        help=f"encoding of the ParaView .vti files (default: {VTI_ENCODINGS[0]})",
     )
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``track`` argument parser."""
-    p = _Parser(prog="track", description="Particle tracking and strain from volumes.")
-    p.add_argument("--version", action="version", version=f"track {__version__}")
-    sub = p.add_subparsers(dest="command", parser_class=_Parser)
-    r = sub.add_parser("run", help="detect → link → fields for a folder of volumes")
-    r.add_argument("voldir", type=Path, metavar="VOLDIR")
+    p = Parser(
+        prog="track",
+        description="Particle tracking and strain from volumes.",
+        parents=[common_options(suppress=False)],
+    )
+    p.add_argument("--version", action="version", version=f"track (hrvptm) {__version__}")
+    sub = p.add_subparsers(dest="command", parser_class=Parser)
+    common = common_options(suppress=True)
+    r = sub.add_parser(
+        "run", parents=[common], help="detect → link → fields for a folder of volumes"
+    )
+    r.add_argument("voldir", type=Path, metavar="VOLDIR", help="folder of NNNNNN.tif volumes")
     _common(r)
     _detect_options(r)
     _link_options(r)
     r.set_defaults(func=cmd_run)
-    d = sub.add_parser("detect", help="detect particles in a folder of volumes")
-    d.add_argument("voldir", type=Path, metavar="VOLDIR")
+    d = sub.add_parser("detect", parents=[common], help="detect particles in a folder of volumes")
+    d.add_argument("voldir", type=Path, metavar="VOLDIR", help="folder of NNNNNN.tif volumes")
     _common(d)
     _detect_options(d)
     d.set_defaults(func=cmd_detect)
-    k = sub.add_parser("link", help="link point clouds (CSV) and compute fields")
-    k.add_argument("clouds", type=Path, nargs="+", metavar="CSV")
+    k = sub.add_parser("link", parents=[common], help="link point clouds (CSV) and compute fields")
+    k.add_argument(
+        "clouds",
+        type=Path,
+        nargs="+",
+        metavar="CSV",
+        help="point clouds with columns x_um,y_um,z_um, frame 0 first",
+    )
     _common(k)
     _link_options(k)
     k.set_defaults(func=cmd_link)
@@ -256,32 +300,22 @@ def detect_settings(args: argparse.Namespace):
     """The :class:`~track.detect.DetectSettings` of parsed ``run``/``detect`` options."""
     from .detect import DetectSettings
 
-    iters = 0 if args.no_deconvolution else args.deconvolution_iterations
-    return DetectSettings(
-        deconvolution_iterations=iters,
-        threshold=args.threshold,
-        blob_min_vox=args.blob_min_vox or None,
-        blob_max_vox=args.blob_max_vox or None,
-        method=args.method,
-        edge_margin_um=args.edge_margin_um,
-    )
+    extra = {"deconvolution_iterations": 0} if args.no_deconvolution else {}
+    return settings_from_args(DetectSettings, args, DETECT_OPTIONS, extra=extra, prefix="detect_")
 
 
 def series_settings(args: argparse.Namespace) -> SeriesSettings:
     """The :class:`~track.series.SeriesSettings` of parsed ``run``/``link`` options."""
     from .matching import LinkSettings
 
-    grid = GridSettings(
-        spacing_um=args.grid_spacing_um,
-        target_nodes=int(args.target_nodes),
-        method=args.interpolation,
-        smoothing=args.smoothing,
-    )
-    return SeriesSettings(
-        mode=args.mode,
-        grid=grid,
-        link=LinkSettings(seed=int(args.seed)),
-        compute_fields=not args.no_fields,
+    grid = settings_from_args(GridSettings, args, GRID_OPTIONS, prefix="grid_")
+    link = settings_from_args(LinkSettings, args, LINK_OPTIONS, prefix="link_")
+    return settings_from_args(
+        SeriesSettings,
+        args,
+        SERIES_OPTIONS,
+        extra={"grid": grid, "link": link, "compute_fields": not args.no_fields},
+        prefix="series_",
     )
 
 
@@ -300,10 +334,13 @@ def _check_grid_option(args, extent_xyz_um, where: str) -> None:
 
 
 def _common_kwargs(args) -> dict:
+    from hrvbase.io import guard_output
+
+    guard_output(args.output, getattr(args, "clouds", None) or [args.voldir])
     return {
         "overwrite": args.overwrite,
         "allow_partial": args.allow_partial,
-        "progress": not (args.no_progress or args.quiet),
+        "progress": show_progress(args),
         "provenance": {"argv": list(args.argv)},
     }
 
@@ -381,45 +418,10 @@ def cmd_link(args) -> int:
     )
 
 
-class _Formatter(logging.Formatter):
-    def format(self, record: logging.LogRecord) -> str:
-        return f"track: {record.levelname.lower()}: {record.getMessage()}"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``track``; returns the exit status (0 success, 2 user error, 3 failed
     frames, 130 interrupted: see the module docstring)."""
-    parser = build_parser()
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help, --version, or a usage error (already printed)
-        return int(exc.code or 0)
-    if getattr(args, "func", None) is None:
-        parser.print_help(sys.stderr)
-        return 2
-    args.argv = argv
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(_Formatter())
-    level = logging.ERROR if args.quiet else (logging.WARNING, logging.INFO)[min(args.verbose, 1)]
-    if args.verbose >= 2:
-        level = logging.DEBUG
-    root = logging.getLogger("track")
-    saved = root.level
-    root.setLevel(level)
-    root.addHandler(handler)
-    try:
-        return int(args.func(args))
-    except HrvError as exc:
-        message = " ".join(str(exc).split())
-        sys.stderr.write(f"track: error: {message}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write("track: interrupted\n")
-        return 130
-    finally:
-        root.removeHandler(handler)
-        root.setLevel(saved)
+    return run_main("track", build_parser(), argv, loggers=("track",))
 
 
 if __name__ == "__main__":  # pragma: no cover
