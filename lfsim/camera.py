@@ -10,9 +10,11 @@ Three models (:data:`NOISE_MODELS`), chosen with a :class:`NoiseSpec` and applie
     The paper's model (:func:`add_gaussian_noise`): additive white Gaussian noise of a
     prescribed signal-to-noise ratio,
 
-        ``SNR = P99.9(clean image) / sigma_noise``,
+        ``SNR = S / sigma_noise``,  ``S = max(P99.9(clean), ½ · P99.9(lit pixels of clean))``
 
-    where ``P99.9`` is the 99.9th percentile of the noise-free image (DESIGN.md §2).
+    (:func:`signal_reference`): the paper's 99.9th percentile of the noise-free image, which
+    stays defined for sparse images (a single particle lights fewer than 0.1 % of the pixels,
+    and its P99.9 is 0) through the 99.9th percentile of the pixels that receive light.
 ``"camera"``
     A physical camera (:class:`CameraModel`): photon shot noise (Poisson), full-well clipping,
     Gaussian read noise, conversion gain, black-level offset, quantisation and saturation. The
@@ -41,8 +43,20 @@ log = logging.getLogger(__name__)
 NOISE_MODELS = ("none", "gaussian", "camera")
 BIT_DEPTHS = (8, 12, 16)
 
-#: Percentile of the clean image that defines the signal in the SNR (DESIGN.md §2).
+#: Percentile of the clean image that defines the signal in the SNR (the paper's P99.9).
 SNR_PERCENTILE = 99.9
+
+#: Fraction of the lit pixels' P99.9 below which the signal reference never falls: the
+#: reference of sparse images (:func:`signal_reference`). Dense images stay above it (in
+#: every experiment of ``scenes/experiments``, P99.9 is 0.64–0.89 of the lit pixels' P99.9).
+SPARSE_FRACTION = 0.5
+
+#: The SNR definition, as recorded in metadata.
+SNR_DEFINITION = (
+    "S / sigma_noise with S = max(P99.9(clean image), 0.5 * P99.9(lit pixels of the clean "
+    "image)): the 99.9th percentile of the noise-free image, or half that of its pixels "
+    "above zero when it is higher (sparse images)"
+)
 
 #: Variance (DN²) of the rounding error of a uniform quantiser of step 1 DN.
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
@@ -128,18 +142,58 @@ def _per_value(value: Any, arr: np.ndarray) -> float | np.ndarray:
 
 
 # -- the paper's Gaussian model ------------------------------------------------------------
-def _validate_clean(clean: Any) -> tuple[np.ndarray, float, float]:
-    img = _finite_non_negative_array("clean", clean, ndim=2)
-    peak = float(img.max())
-    if peak <= 0:
-        raise ConfigError("clean must not be all zero (no signal to define an SNR against)")
+NO_SIGNAL = "no particles in the field of view"
+
+
+def _reference(img: np.ndarray) -> float:
+    """``max(P99.9(img), SPARSE_FRACTION · P99.9(img[img > 0]))`` of a non-negative image with
+    at least one positive pixel."""
     p999 = float(np.percentile(img, SNR_PERCENTILE))
-    if p999 <= 0:
-        raise ConfigError(
-            f"clean: its {SNR_PERCENTILE}th percentile is 0 (fewer than 0.1 % of the pixels are "
-            "lit), so SNR = P99.9(clean) / sigma is undefined; expected a denser image"
-        )
-    return img, peak, p999
+    lit = img[img > 0]
+    if lit.size == 0:
+        return p999
+    sparse = SPARSE_FRACTION * float(np.percentile(lit, SNR_PERCENTILE))
+    # max() returns the first argument on ties: dense images keep P99.9 exactly.
+    return max(p999, sparse)
+
+
+def signal_reference(clean: np.ndarray) -> float:
+    """The signal ``S`` of the SNR, ``SNR = S / sigma_noise``, of a noise-free image.
+
+    ``S = max(P99.9(clean), ½ · P99.9(clean[clean > 0]))``: the paper's 99.9th percentile of
+    the noise-free image, unless it is lower than half the 99.9th percentile of the lit
+    pixels (those above zero). For the paper's images (particles lighting several per cent
+    of the pixels) the first term is larger and ``S`` is exactly the paper's P99.9. When
+    fewer than 0.1 % of the pixels are lit (e.g. one particle), P99.9 is 0 and would leave
+    the SNR undefined; there ``S`` is half the robust peak of the lit pixels. The reference
+    changes continuously as particles are added or removed.
+
+    Parameters
+    ----------
+    clean : ndarray, shape (ny, nx)
+        Noise-free image, finite and non-negative (any units).
+
+    Returns
+    -------
+    float
+        ``S`` in the units of ``clean``, > 0.
+
+    Raises
+    ------
+    ConfigError
+        ``clean`` is all zero: "no particles in the field of view".
+    """
+    img, _ = _validate_clean(clean)
+    return _reference(img)
+
+
+def _validate_clean(clean: Any, name: str = "clean", ndim: int | None = 2) -> tuple:
+    """The clean image as float64 and its maximum (> 0)."""
+    img = _finite_non_negative_array(name, clean, ndim=ndim)
+    peak = float(img.max())
+    if not peak > 0:
+        raise ConfigError(f"{NO_SIGNAL}: the noise-free image ({name}) is all zero")
+    return img, peak
 
 
 def _check_fill(fill: Any) -> float:
@@ -154,7 +208,8 @@ def scale_to_dn(
     Parameters
     ----------
     clean : ndarray, shape (ny, nx)
-        Noise-free image, finite, non-negative, not all zero (arbitrary units).
+        Noise-free image, finite, non-negative, not all zero (arbitrary units); any number
+        of lit pixels (a single particle is fine).
     bit_depth : {8, 12, 16}
         Bits per pixel of the output.
     fill : float
@@ -170,7 +225,7 @@ def scale_to_dn(
     """
     bit_depth = _check_bit_depth("bit_depth", bit_depth)
     fill = _check_fill(fill)
-    img, peak, _ = _validate_clean(clean)
+    img, peak = _validate_clean(clean)
     scale = fill * _full_scale(bit_depth) / peak
     info = {
         "model": "none",
@@ -194,16 +249,17 @@ def add_gaussian_noise(
 ) -> tuple[np.ndarray, dict]:
     """Add white Gaussian noise of a given SNR to a clean image (the paper's noise model).
 
-    The SNR is defined as ``SNR = P99.9(clean image) / sigma_noise``, where ``P99.9`` is the
-    99.9th percentile of the noise-free image (DESIGN.md §2) — not its maximum or mean, so a
-    few very bright pixels do not set the noise level.
+    The SNR is defined as ``SNR = S / sigma_noise`` with ``S`` the paper's P99.9, the 99.9th
+    percentile of the noise-free image — not its maximum or mean, so a few very bright
+    pixels do not set the noise level — or, for sparse images whose P99.9 is (near) zero,
+    half the P99.9 of their lit pixels (:func:`signal_reference`).
 
     Steps:
 
     1. Scale the clean image by ``scale`` (DN per unit) so that its maximum maps to ``fill``
        of the range left above the black level: ``scale · max = fill · (full − offset)``, with
        ``full = 2**bit_depth − 1``.
-    2. ``sigma = P99.9(scale · clean) / snr`` (DN).
+    2. ``sigma = S(scale · clean) / snr`` (DN).
     3. Add a black level ``offset = offset_sigmas · sigma`` (DN). Without it, clipping at 0
        would cut the negative half of the noise in the dark background (most of a
        light-field image), roughly halving the noise there, biasing the mean upwards and
@@ -211,7 +267,7 @@ def add_gaussian_noise(
     4. Add ``N(0, sigma²)``, round to integers, clip to ``[0, full]``.
 
     Steps 1–3 are solved in closed form:
-    ``scale = fill · full / (max + fill · offset_sigmas · P99.9 / snr)``.
+    ``scale = fill · full / (max + fill · offset_sigmas · S / snr)``.
 
     Rounding adds a uniform error of variance 1/12 DN², so the noise actually present has
     standard deviation ``sqrt(sigma² + 1/12)``: negligible for ``sigma ≳ 1.5`` DN (under 2 %),
@@ -220,10 +276,10 @@ def add_gaussian_noise(
     Parameters
     ----------
     clean : ndarray, shape (ny, nx)
-        Noise-free image, finite, non-negative, not all zero (arbitrary units); at least 0.1 %
-        of its pixels must be lit so that P99.9 > 0.
+        Noise-free image, finite, non-negative, not all zero (arbitrary units); any number
+        of lit pixels (a single particle is fine).
     snr : float
-        Requested ``P99.9(clean) / sigma_noise``, positive and finite.
+        Requested ``S / sigma_noise`` (:func:`signal_reference`), positive and finite.
     rng : numpy.random.Generator or int
         Generator or seed; the same seed gives the same image.
     bit_depth : {8, 12, 16}
@@ -246,18 +302,20 @@ def add_gaussian_noise(
     Raises
     ------
     ConfigError
-        On a bad ``snr``, ``bit_depth``, ``fill``, ``offset_sigmas``, ``rng`` or ``clean``.
+        On a bad ``snr``, ``bit_depth``, ``fill``, ``offset_sigmas``, ``rng`` or ``clean``;
+        an all-zero ``clean`` gives "no particles in the field of view".
     """
     snr = _positive("snr", snr)
     bit_depth = _check_bit_depth("bit_depth", bit_depth)
     fill = _check_fill(fill)
     offset_sigmas = _non_negative("offset_sigmas", offset_sigmas)
     gen = _as_generator(rng)
-    img, peak, p999 = _validate_clean(clean)
+    img, peak = _validate_clean(clean)
+    ref = _reference(img)
 
     full = _full_scale(bit_depth)
-    scale = fill * full / (peak + fill * offset_sigmas * p999 / snr)
-    sigma = scale * p999 / snr
+    scale = fill * full / (peak + fill * offset_sigmas * ref / snr)
+    sigma = scale * ref / snr
     offset = offset_sigmas * sigma
     if sigma < 0.5:
         log.warning(
@@ -281,12 +339,13 @@ def add_gaussian_noise(
 
 
 def measure_snr(noisy_dn: np.ndarray, clean_dn: np.ndarray, offset_dn: float = 0.0) -> float:
-    """Measure ``SNR = P99.9(clean image) / sigma_noise`` of a noisy image against its truth.
+    """Measure ``SNR = S / sigma_noise`` of a noisy image against its noise-free truth.
 
-    ``P99.9`` is the 99.9th percentile of the noise-free image (DESIGN.md §2) and
-    ``sigma_noise`` the standard deviation of the residual over all pixels:
+    ``S`` is :func:`signal_reference` of the noise-free image (the paper's P99.9, or half the
+    P99.9 of the lit pixels of a sparse image) and ``sigma_noise`` the standard deviation of
+    the residual over all pixels:
 
-        ``SNR = P99.9(clean_dn) / std(noisy_dn − offset_dn − clean_dn)``.
+        ``SNR = S(clean_dn) / std(noisy_dn − offset_dn − clean_dn)``.
 
     Parameters
     ----------
@@ -314,9 +373,9 @@ def measure_snr(noisy_dn: np.ndarray, clean_dn: np.ndarray, offset_dn: float = 0
     offset = float(offset_dn)
     if not math.isfinite(offset):
         raise ConfigError(f"offset_dn must be finite, got {offset_dn!r}")
-    sigma = float(np.std(noisy - offset - clean))
-    signal = float(np.percentile(clean, SNR_PERCENTILE))
-    return math.inf if sigma == 0 else signal / sigma
+    img, _ = _validate_clean(clean, "clean_dn", ndim=None)
+    sigma = float(np.std(noisy - offset - img))
+    return math.inf if sigma == 0 else _reference(img) / sigma
 
 
 # -- a physical camera ---------------------------------------------------------------------
@@ -518,8 +577,9 @@ class CameraModel:
         value. With ``quantisation=True`` (default) the 1/12 DN² of rounding counts as noise,
         as it does in :func:`measure_snr` (EMVA 1288 convention); with ``False`` this is
         ``QE·photons / sqrt(QE·photons + read_noise_e²)``, independent of the gain. For an
-        image, the paper's ``P99.9(clean) / sigma_noise`` corresponds to ``photons`` at the
-        99.9th-percentile pixel, with that pixel's noise. Zero where the signal is zero.
+        image, the SNR ``S / sigma_noise`` corresponds to ``photons`` at the signal reference
+        ``S`` (:func:`signal_reference`: the 99.9th-percentile pixel of a dense image), with
+        that pixel's noise. Zero where the signal is zero.
 
         Parameters
         ----------
@@ -642,9 +702,10 @@ class NoiseSpec:
     model : {"none", "gaussian", "camera"}
         See the module docstring.
     snr : float or None
-        ``P99.9(clean image) / sigma_noise`` (P99.9 = 99.9th percentile of the noise-free
-        image); required for ``"gaussian"``, must be ``None`` otherwise (the camera model's
-        SNR follows from its photons).
+        ``S / sigma_noise`` with ``S`` the 99.9th percentile of the noise-free image (or, for
+        sparse images, half that of its lit pixels; :func:`signal_reference`); required for
+        ``"gaussian"``, must be ``None`` otherwise (the camera model's SNR follows from its
+        photons).
     bit_depth : {8, 12, 16} or None
         Output bits per pixel. Default 8 for ``"none"``/``"gaussian"``; for ``"camera"`` the
         camera's own bit depth (giving a different one is an error).
@@ -655,9 +716,10 @@ class NoiseSpec:
     duty_cycle : float
         Exposed fraction of the frame period, in (0, 1].
     photon_rate_per_s : float or None
-        ``"camera"`` only. Photons per second at the 99.9th-percentile pixel of the clean
-        image; when given (with ``fps``), :func:`apply_noise` treats the clean image as
-        relative and scales it so that its P99.9 pixel receives
+        ``"camera"`` only. Photons per second at the signal reference ``S`` of the clean
+        image (its 99.9th-percentile pixel; :func:`signal_reference`); when given (with
+        ``fps``), :func:`apply_noise` treats the clean image as relative and scales it so that
+        ``S`` receives
         ``photons_per_frame(photon_rate_per_s, fps, duty_cycle)`` photons. When ``None`` the
         clean image is already the expected photon count per pixel for this exposure.
     fill : float
@@ -685,7 +747,7 @@ class NoiseSpec:
 
         if self.model == "gaussian":
             if self.snr is None:
-                raise ConfigError("snr is required for model 'gaussian' (P99.9(clean)/sigma)")
+                raise ConfigError("snr is required for model 'gaussian' (S / sigma_noise)")
             set_("snr", _positive("snr", self.snr))
         elif self.snr is not None:
             raise ConfigError(
@@ -770,18 +832,19 @@ def apply_noise(
 
     - ``"none"``: :func:`scale_to_dn` (scaled to ``spec.fill`` of full scale, rounded).
     - ``"gaussian"``: :func:`add_gaussian_noise` with ``spec.snr``
-      (``SNR = P99.9(clean image) / sigma_noise``, P99.9 = 99.9th percentile of the clean
-      image).
+      (``SNR = S / sigma_noise``, ``S`` the 99.9th percentile of the clean image or, for
+      sparse images, half that of its lit pixels; :func:`signal_reference`).
     - ``"camera"``: :meth:`CameraModel.expose`. ``clean_photons`` must be the expected photon
       count per pixel for this exposure, unless ``spec.photon_rate_per_s`` and ``spec.fps``
       are set: then it is a relative image (its overall scale, e.g. photons per particle, is
-      arbitrary) rescaled so that its 99.9th-percentile pixel receives
+      arbitrary) rescaled so that its signal reference ``S`` receives
       ``photons_per_frame(spec.photon_rate_per_s, spec.fps, spec.duty_cycle)`` photons.
 
     Parameters
     ----------
     clean_photons : ndarray, shape (ny, nx)
-        Noise-free image, finite, non-negative, not all zero.
+        Noise-free image, finite, non-negative, not all zero ("no particles in the field of
+        view" otherwise).
     spec : NoiseSpec
     rng : numpy.random.Generator or int
         Generator or seed (unused, but still validated, for ``"none"``).
@@ -793,9 +856,10 @@ def apply_noise(
         Always holds ``model``, ``bit_depth``, ``offset_dn`` and ``scale_dn_per_unit`` (the
         noise-free image in DN is ``scale_dn_per_unit · clean_photons + offset_dn``, below
         saturation) and ``snr``. For ``"camera"``, ``snr`` is the theoretical
-        :meth:`CameraModel.snr` of the 99.9th-percentile pixel, and the dict adds
-        ``photons_per_unit``, ``photons_p999``, ``exposure_s`` (``None`` without ``fps``) and
-        ``camera`` (its parameters).
+        :meth:`CameraModel.snr` at the signal reference ``S``, and the dict adds
+        ``photons_per_unit``, ``photons_p999`` (the photons at ``S``: the 99.9th-percentile
+        pixel of a dense image), ``exposure_s`` (``None`` without ``fps``) and ``camera`` (its
+        parameters).
     """
     if not isinstance(spec, NoiseSpec):
         raise ConfigError(f"spec must be a NoiseSpec, got {type(spec).__name__}")
@@ -812,22 +876,16 @@ def apply_noise(
             offset_sigmas=spec.offset_sigmas,
         )
     cam = spec.camera
-    img = _finite_non_negative_array("clean_photons", clean_photons, ndim=2)
+    img, _ = _validate_clean(clean_photons, "clean_photons")
     if spec.photon_rate_per_s is not None:
-        p999 = float(np.percentile(img, SNR_PERCENTILE))
-        if p999 <= 0:
-            raise ConfigError(
-                f"clean_photons: its {SNR_PERCENTILE}th percentile is 0, so it cannot be "
-                "scaled to photon_rate_per_s; expected a denser image"
-            )
         target = photons_per_frame(spec.photon_rate_per_s, spec.fps, spec.duty_cycle)
-        per_unit = target / p999
+        per_unit = target / _reference(img)
         t_exp = exposure_s(spec.fps, spec.duty_cycle)
     else:
         per_unit = 1.0
         t_exp = None
     photons = per_unit * img
-    p999_photons = float(np.percentile(photons, SNR_PERCENTILE))
+    p999_photons = _reference(photons)
     info = {
         "model": "camera",
         "bit_depth": cam.bit_depth,

@@ -1,13 +1,16 @@
 """Noise and camera models (lfsim.camera) against theory.
 
-SNR throughout is the paper's ``P99.9(clean image) / sigma_noise`` (P99.9 = 99.9th percentile of
-the noise-free image). All random draws are seeded.
+SNR throughout is ``S / sigma_noise`` with ``S`` the paper's P99.9 (99.9th percentile of the
+noise-free image), or for sparse images half the P99.9 of the lit pixels
+(``signal_reference``). All random draws are seeded.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +25,7 @@ from lfsim.camera import (
     measure_snr,
     photons_per_frame,
     scale_to_dn,
+    signal_reference,
     snr_vs_fps,
 )
 from lfsim.errors import ConfigError
@@ -114,6 +118,114 @@ def test_scale_to_dn_no_noise(clean):
     assert info["sigma_dn"] == 0.0 and info["offset_dn"] == 0.0
     np.testing.assert_array_equal(img, np.rint(info["scale_dn_per_unit"] * clean))
     assert img.max() == round(0.7 * 4095)
+
+
+# -- the signal reference: dense images keep the paper's P99.9, sparse images work --------
+def _sha(a: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
+
+
+#: Outputs of the code before the sparse-image reference (commit 2fdc2a8) on ``spot_image()``.
+OLD_OUTPUTS = {
+    ("gaussian", 8): "b3dd4c2bcd58cf0930cfa8282db4ac03711465331afaa5dafa60ec983e3aecb1",
+    ("gaussian", 12): "ada4d69f1eca9dc2ed3b2b8372287009963f34b331a74de4281099ab5125c164",
+    ("gaussian", 16): "11cebcf4ee044a990be4ae8aa880b1e8bf3ec3ad18e613b5ab382c488d3a7800",
+    ("none", 12): "98e9ec6bba11f935720b6b958f76a18c67e26ed9da859223f6adde1143565c91",
+    ("camera", 12): "796a3beb79c7bb6eec4544e26493e7fab47fb8d6f8d4c38789344e4975eabf39",
+}
+
+
+def test_dense_images_are_unchanged_bit_for_bit(clean):
+    assert signal_reference(clean) == np.percentile(clean, 99.9)
+    for bd in (8, 12, 16):
+        noisy, info = add_gaussian_noise(clean, 17.0, 123, bit_depth=bd)
+        assert _sha(noisy) == OLD_OUTPUTS[("gaussian", bd)]
+    assert info["sigma_dn"] == 1822.5011669124733 and info["offset_dn"] == 7290.004667649893
+    assert _sha(scale_to_dn(clean, bit_depth=12)[0]) == OLD_OUTPUTS[("none", 12)]
+    spec = NoiseSpec(model="camera", camera=CAM, fps=2000.0, photon_rate_per_s=4e5)
+    img, info = apply_noise(clean, spec, 8)
+    assert _sha(img) == OLD_OUTPUTS[("camera", 12)]
+    assert info["photons_per_unit"] == 243.4377837943001
+    noisy, info = add_gaussian_noise(clean, 17.0, 123, bit_depth=12)
+    clean_dn = info["scale_dn_per_unit"] * clean
+    assert measure_snr(noisy, clean_dn, info["offset_dn"]) == 17.000073061774945
+
+
+def one_spot(shape=(500, 500), n_spots=1, seed=4) -> np.ndarray:
+    """A sparse image: fewer than 0.1 % of the pixels lit, so its P99.9 is 0."""
+    return spot_image(shape, n_spots=n_spots, seed=seed)
+
+
+def test_sparse_reference_is_half_the_lit_pixels_p999():
+    img = one_spot()
+    lit = img[img > 0]
+    assert lit.size < 0.001 * img.size and np.percentile(img, 99.9) == 0
+    assert signal_reference(img) == 0.5 * np.percentile(lit, 99.9)
+    # Adding particles moves the reference smoothly (no jump where P99.9 leaves zero).
+    refs = [signal_reference(spot_image((300, 300), n_spots=n, seed=9)) for n in range(1, 40)]
+    peaks = [spot_image((300, 300), n_spots=n, seed=9).max() for n in range(1, 40)]
+    ratios = np.array(refs) / np.array(peaks)
+    assert np.all((ratios > 0.2) & (ratios <= 1.0)), ratios
+
+
+@pytest.mark.parametrize("bit_depth", [8, 12])
+def test_sparse_image_gets_the_requested_snr(bit_depth):
+    img = one_spot()
+    noisy, info = add_gaussian_noise(img, 17.0, 5, bit_depth=bit_depth)
+    clean_dn = info["scale_dn_per_unit"] * img
+    assert info["sigma_dn"] == pytest.approx(signal_reference(clean_dn) / 17.0, rel=1e-12)
+    assert measure_snr(noisy, clean_dn, info["offset_dn"]) == pytest.approx(17.0, rel=0.05)
+    quiet, qinfo = scale_to_dn(img, bit_depth=bit_depth)
+    assert quiet.max() == round(0.7 * FULL[bit_depth]) and qinfo["sigma_dn"] == 0.0
+    spec = NoiseSpec(model="camera", camera=CAM, fps=1000.0, photon_rate_per_s=1e5)
+    _, cinfo = apply_noise(img, spec, 3)
+    assert cinfo["photons_p999"] == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda z: add_gaussian_noise(z, 17.0, 0),
+        lambda z: scale_to_dn(z),
+        lambda z: signal_reference(z),
+        lambda z: apply_noise(z, NoiseSpec(model="camera"), 0),
+        lambda z: measure_snr(z, z),
+    ],
+)
+def test_all_zero_image_means_no_particles(call):
+    with pytest.raises(ConfigError, match=r"^no particles in the field of view"):
+        call(np.zeros((20, 30)))
+
+
+def test_one_particle_renders_with_noise_and_without(backend, tmp_path, capsys):
+    """Through the command line: a single particle, Gaussian noise at SNR 17 and --noise none."""
+    from lfsim.cli import main
+    from lfsim.io import read_tiff
+    from lfsim.particles import Particles
+    from lfsim.render import render_particles
+    from lfsim.scene import load_scene
+    from lfsim.tracer import RenderSettings
+
+    small = str(Path(__file__).resolve().parents[2] / "scenes" / "small.xml")
+    one = Particles(np.array([[10.0, -20.0, 150.0]]))
+    settings = RenderSettings(rays_per_particle=80, seed=3)  # few rays: < 90 of 90 000 px lit
+    clean = render_particles(load_scene(small), one, settings).astype(np.float64)
+    assert 0 < np.count_nonzero(clean) < 0.001 * clean.size and np.percentile(clean, 99.9) == 0
+    noisy, info = add_gaussian_noise(clean, 17.0, 2, bit_depth=12)
+    measured = measure_snr(noisy, info["scale_dn_per_unit"] * clean, info["offset_dn"])
+    assert measured == pytest.approx(17.0, rel=0.1)
+
+    csv = tmp_path / "one.csv"
+    one.to_csv(csv)
+    base = ["-q", "render", small, "--particles", str(csv), "--rays", "80", "--seed", "3"]
+    assert main([*base, "--snr", "17", "-o", str(tmp_path / "g.tif")]) == 0, capsys.readouterr()
+    img, meta = read_tiff(tmp_path / "g.tif")
+    assert meta["noise"]["model"] == "gaussian" and meta["noise"]["snr"] == 17.0
+    assert img.dtype == np.uint8 and img.max() > 100
+    assert main([*base, "--noise", "none", "-o", str(tmp_path / "n.tif")]) == 0
+    img, meta = read_tiff(tmp_path / "n.tif")
+    assert meta["noise"]["model"] == "none" and img.max() == round(0.7 * 255)
+    assert 0 < np.count_nonzero(img) < 0.001 * img.size
 
 
 # -- the physical camera -------------------------------------------------------------------
