@@ -152,7 +152,7 @@ def _write_image(args, scene, img, meta) -> Path:
 
 def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
     """White and micrometer images: Gaussian noise at ``--snr``, metadata, atomic write."""
-    from .camera import add_gaussian_noise
+    from .noise import add_gaussian_noise
 
     img, info = add_gaussian_noise(
         clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
@@ -163,8 +163,8 @@ def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
 
 
 def cmd_render(args) -> int:
-    from .camera import NoiseSpec, apply_noise
     from .io import sha256_file
+    from .noise import NoiseSpec, apply_noise
     from .particles import Particles
     from .render import render_particles
     from .tracer import RenderSettings

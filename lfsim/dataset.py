@@ -42,10 +42,10 @@ import numpy as np
 from hrvbase.errors import HrvError
 from hrvbase.io import file_record, read_json, sha256_file, verify_record, write_json
 
-from .camera import SNR_DEFINITION, add_gaussian_noise, apply_noise
 from .errors import ConfigError, OutputError
 from .experiment import Experiment
 from .io import write_tiff
+from .noise import SNR_DEFINITION, add_gaussian_noise, apply_noise
 from .particles import Particles
 
 log = logging.getLogger(__name__)
