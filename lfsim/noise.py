@@ -60,7 +60,7 @@ SNR_PERCENTILE = 99.9
 
 #: Fraction of the lit pixels' P99.9 below which the signal reference never falls: the
 #: reference of sparse images (:func:`signal_reference`). Dense images stay above it (in
-#: every experiment of ``scenes/experiments``, P99.9 is 0.64–0.89 of the lit pixels' P99.9).
+#: every experiment of ``scenes/experiments``, P99.9 is 0.62–0.90 of the lit pixels' P99.9).
 SPARSE_FRACTION = 0.5
 
 #: The SNR definition, as recorded in metadata.
