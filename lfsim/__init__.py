@@ -7,7 +7,10 @@ Public API (everything else is internal):
 - :func:`load_scene`, :func:`write_scene` — Mitsuba scene files in ``scenes/``.
 - :func:`render_particles`, :class:`RenderSettings` — trace particles to a light-field image.
 - :class:`Particles` — particle tables (CSV ``x_um,y_um,z_um[,diameter_um,brightness]``).
-- camera models, motions, seeding, experiments and datasets (see their modules).
+- :class:`NoiseSpec`, :func:`apply_noise`, :func:`add_gaussian_noise`, :func:`measure_snr`,
+  :func:`signal_reference` — noise models (:mod:`lfsim.noise`; SNR = S / sigma_noise);
+  :class:`CameraModel` — the physical camera (:mod:`lfsim.camera`).
+- motions, seeding, experiments and datasets (see their modules).
 
 Importing :mod:`lfsim` never sets a Mitsuba variant.
 """
@@ -17,10 +20,12 @@ from __future__ import annotations
 import logging
 
 from .backend import BackendInfo, find_libllvm, init_backend
+from .camera import CameraModel
 from .dataset import generate_dataset
 from .errors import BackendError, ConfigError, LfsimError, OutputError, SceneError
 from .experiment import Experiment, load_experiment
 from .io import read_tiff, write_tiff
+from .noise import NoiseSpec, add_gaussian_noise, apply_noise, measure_snr, signal_reference
 from .optics import Optics, paper_optics, small_optics
 
 __version__ = "0.1.0"
@@ -30,19 +35,25 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 __all__ = [
     "BackendError",
     "BackendInfo",
+    "CameraModel",
     "ConfigError",
     "Experiment",
     "LfsimError",
+    "NoiseSpec",
     "Optics",
     "OutputError",
     "SceneError",
     "__version__",
+    "add_gaussian_noise",
+    "apply_noise",
     "find_libllvm",
     "generate_dataset",
     "init_backend",
     "load_experiment",
+    "measure_snr",
     "paper_optics",
     "read_tiff",
+    "signal_reference",
     "small_optics",
     "write_tiff",
 ]

@@ -1,48 +1,38 @@
-"""Camera and noise models: turn a noise-free light-field image into camera-like integers.
+"""The physical camera: photons in, camera-like integers out, exposure set by the frame rate.
 
-Three models (:data:`NOISE_MODELS`), chosen with a :class:`NoiseSpec` and applied by
-:func:`apply_noise`:
+:class:`CameraModel` is a linear camera: photon shot noise (Poisson, or binomial thinning of a
+tracer's photon counts), full-well clipping, Gaussian read noise, conversion gain, black-level
+offset, quantisation and saturation. The exposure time follows the frame rate
+(:func:`exposure_s`, :func:`photons_per_frame`), so at a fixed photon rate the SNR falls as the
+frame rate rises (paper Fig. 4c, 100 → 25 000 fps; :func:`snr_vs_fps`).
 
-``"none"``
-    Scale the clean image to the camera's digital range (its maximum at ``fill`` of full scale)
-    and round; no noise.
-``"gaussian"``
-    The paper's model (:func:`add_gaussian_noise`): additive white Gaussian noise of a
-    prescribed signal-to-noise ratio,
-
-        ``SNR = P99.9(clean image) / sigma_noise``,
-
-    where ``P99.9`` is the 99.9th percentile of the noise-free image (DESIGN.md §2).
-``"camera"``
-    A physical camera (:class:`CameraModel`): photon shot noise (Poisson), full-well clipping,
-    Gaussian read noise, conversion gain, black-level offset, quantisation and saturation. The
-    exposure time follows the frame rate (:func:`exposure_s`), so at a fixed photon rate the
-    SNR falls as the frame rate rises (paper Fig. 4c, 100 → 25 000 fps; :func:`snr_vs_fps`).
+The noise models that turn a rendered image into a frame — none, the paper's Gaussian noise at
+a given SNR, or this camera — are chosen and applied in :mod:`lfsim.noise`.
 
 Images are ``(y, x)`` arrays; digital values are in DN (digital numbers, ADU); charges in
-electrons (e⁻); times in seconds. Everything here is plain numpy and takes a seed or a
-:class:`numpy.random.Generator`, so the same inputs and seed give identical images.
+electrons (e⁻); photons per pixel per exposure; times in seconds. Everything here is plain
+numpy and takes a seed or a :class:`numpy.random.Generator`, so the same inputs and seed give
+identical images.
 """
 
 from __future__ import annotations
 
 import logging
-import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
 
+from hrvbase.errors import InputError
+from hrvbase.validate import nonnegative_float, positive_float
+
 from .errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-NOISE_MODELS = ("none", "gaussian", "camera")
+#: Bits per pixel of the cameras modelled (8 → uint8, 12 and 16 → uint16).
 BIT_DEPTHS = (8, 12, 16)
-
-#: Percentile of the clean image that defines the signal in the SNR (DESIGN.md §2).
-SNR_PERCENTILE = 99.9
 
 #: Variance (DN²) of the rounding error of a uniform quantiser of step 1 DN.
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
@@ -52,33 +42,33 @@ QUANTISATION_VAR_DN2 = 1.0 / 12.0
 MAX_PHOTONS_PER_PIXEL = 1e15
 
 
-# -- helpers --------------------------------------------------------------------------------
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+# -- checks and digital basics (shared with lfsim.noise) -----------------------------------
+def _checked(check: Callable[[Any, str], Any], value: Any, name: str) -> Any:
+    """``check(value, name)`` of :mod:`hrvbase.validate`, failing as :class:`ConfigError`.
 
-
-def _positive(name: str, value: Any) -> float:
-    if not _is_number(value) or not math.isfinite(value) or value <= 0:
-        raise ConfigError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
-
-
-def _non_negative(name: str, value: Any) -> float:
-    if not _is_number(value) or not math.isfinite(value) or value < 0:
-        raise ConfigError(f"{name} must be a non-negative finite number, got {value!r}")
-    return float(value)
+    lfsim's callers (experiment files, datasets) add the file and section to a
+    :class:`ConfigError`; the message, naming the parameter, is the validator's.
+    """
+    try:
+        return check(value, name)
+    except InputError as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(str(exc)) from None
 
 
 def _check_bit_depth(name: str, value: Any) -> int:
-    if not _is_number(value) or value not in BIT_DEPTHS or int(value) != value:
+    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    if not ok or value not in BIT_DEPTHS or int(value) != value:
         raise ConfigError(f"{name} must be one of {BIT_DEPTHS}, got {value!r}")
     return int(value)
 
 
 def _check_fraction(name: str, value: Any) -> float:
-    if not _is_number(value) or not math.isfinite(value) or not (0 < value <= 1):
+    v = _checked(positive_float, value, name)
+    if v > 1:
         raise ConfigError(f"{name} must lie in (0, 1], got {value!r}")
-    return float(value)
+    return v
 
 
 def _dtype_for(bit_depth: int) -> type[np.unsignedinteger]:
@@ -127,198 +117,6 @@ def _per_value(value: Any, arr: np.ndarray) -> float | np.ndarray:
     return float(arr) if np.ndim(value) == 0 else arr
 
 
-# -- the paper's Gaussian model ------------------------------------------------------------
-def _validate_clean(clean: Any) -> tuple[np.ndarray, float, float]:
-    img = _finite_non_negative_array("clean", clean, ndim=2)
-    peak = float(img.max())
-    if peak <= 0:
-        raise ConfigError("clean must not be all zero (no signal to define an SNR against)")
-    p999 = float(np.percentile(img, SNR_PERCENTILE))
-    if p999 <= 0:
-        raise ConfigError(
-            f"clean: its {SNR_PERCENTILE}th percentile is 0 (fewer than 0.1 % of the pixels are "
-            "lit), so SNR = P99.9(clean) / sigma is undefined; expected a denser image"
-        )
-    return img, peak, p999
-
-
-def _check_fill(fill: Any) -> float:
-    return _check_fraction("fill", fill)
-
-
-def scale_to_dn(
-    clean: np.ndarray, *, bit_depth: int = 8, fill: float = 0.7
-) -> tuple[np.ndarray, dict]:
-    """Scale a clean image to a camera's digital range without noise (model ``"none"``).
-
-    Parameters
-    ----------
-    clean : ndarray, shape (ny, nx)
-        Noise-free image, finite, non-negative, not all zero (arbitrary units).
-    bit_depth : {8, 12, 16}
-        Bits per pixel of the output.
-    fill : float
-        The image maximum maps to ``fill · (2**bit_depth − 1)`` DN, 0 < fill ≤ 1.
-
-    Returns
-    -------
-    image : ndarray of uint8 (8 bit) or uint16 (12, 16 bit), shape (ny, nx)
-        ``round(scale · clean)`` in DN.
-    info : dict
-        ``{"model": "none", "snr": None, "sigma_dn": 0.0, "offset_dn": 0.0,
-        "scale_dn_per_unit": scale, "bit_depth": bit_depth}``.
-    """
-    bit_depth = _check_bit_depth("bit_depth", bit_depth)
-    fill = _check_fill(fill)
-    img, peak, _ = _validate_clean(clean)
-    scale = fill * _full_scale(bit_depth) / peak
-    info = {
-        "model": "none",
-        "snr": None,
-        "sigma_dn": 0.0,
-        "offset_dn": 0.0,
-        "scale_dn_per_unit": float(scale),
-        "bit_depth": bit_depth,
-    }
-    return _quantise(scale * img, bit_depth), info
-
-
-def add_gaussian_noise(
-    clean: np.ndarray,
-    snr: float,
-    rng: np.random.Generator | int,
-    *,
-    bit_depth: int = 8,
-    fill: float = 0.7,
-    offset_sigmas: float = 4.0,
-) -> tuple[np.ndarray, dict]:
-    """Add white Gaussian noise of a given SNR to a clean image (the paper's noise model).
-
-    The SNR is defined as ``SNR = P99.9(clean image) / sigma_noise``, where ``P99.9`` is the
-    99.9th percentile of the noise-free image (DESIGN.md §2) — not its maximum or mean, so a
-    few very bright pixels do not set the noise level.
-
-    Steps:
-
-    1. Scale the clean image by ``scale`` (DN per unit) so that its maximum maps to ``fill``
-       of the range left above the black level: ``scale · max = fill · (full − offset)``, with
-       ``full = 2**bit_depth − 1``.
-    2. ``sigma = P99.9(scale · clean) / snr`` (DN).
-    3. Add a black level ``offset = offset_sigmas · sigma`` (DN). Without it, clipping at 0
-       would cut the negative half of the noise in the dark background (most of a
-       light-field image), roughly halving the noise there, biasing the mean upwards and
-       making the measured SNR higher than requested.
-    4. Add ``N(0, sigma²)``, round to integers, clip to ``[0, full]``.
-
-    Steps 1–3 are solved in closed form:
-    ``scale = fill · full / (max + fill · offset_sigmas · P99.9 / snr)``.
-
-    Rounding adds a uniform error of variance 1/12 DN², so the noise actually present has
-    standard deviation ``sqrt(sigma² + 1/12)``: negligible for ``sigma ≳ 1.5`` DN (under 2 %),
-    dominant below 0.5 DN, where a warning is logged (raise the bit depth or lower the SNR).
-
-    Parameters
-    ----------
-    clean : ndarray, shape (ny, nx)
-        Noise-free image, finite, non-negative, not all zero (arbitrary units); at least 0.1 %
-        of its pixels must be lit so that P99.9 > 0.
-    snr : float
-        Requested ``P99.9(clean) / sigma_noise``, positive and finite.
-    rng : numpy.random.Generator or int
-        Generator or seed; the same seed gives the same image.
-    bit_depth : {8, 12, 16}
-        Bits per pixel; the output is uint8 for 8 bits and uint16 for 12 and 16 bits.
-    fill : float
-        Fraction (0, 1] of the range above the black level the image maximum maps to; the rest
-        is headroom for noise on bright pixels.
-    offset_sigmas : float
-        Black level in units of ``sigma`` (≥ 0); 4 σ leaves 3·10⁻⁵ of background pixels clipped.
-
-    Returns
-    -------
-    noisy : ndarray of uint8 or uint16, shape (ny, nx)
-        The noisy image in DN.
-    info : dict
-        ``{"model": "gaussian", "snr", "sigma_dn", "offset_dn", "scale_dn_per_unit",
-        "bit_depth"}``. The clean image in DN is ``scale_dn_per_unit · clean + offset_dn``;
-        :func:`measure_snr` takes ``scale_dn_per_unit · clean`` and ``offset_dn``.
-
-    Raises
-    ------
-    ConfigError
-        On a bad ``snr``, ``bit_depth``, ``fill``, ``offset_sigmas``, ``rng`` or ``clean``.
-    """
-    snr = _positive("snr", snr)
-    bit_depth = _check_bit_depth("bit_depth", bit_depth)
-    fill = _check_fill(fill)
-    offset_sigmas = _non_negative("offset_sigmas", offset_sigmas)
-    gen = _as_generator(rng)
-    img, peak, p999 = _validate_clean(clean)
-
-    full = _full_scale(bit_depth)
-    scale = fill * full / (peak + fill * offset_sigmas * p999 / snr)
-    sigma = scale * p999 / snr
-    offset = offset_sigmas * sigma
-    if sigma < 0.5:
-        log.warning(
-            "add_gaussian_noise: sigma = %.3g DN < 0.5 DN at snr=%g and bit_depth=%d; "
-            "quantisation noise (1/12 DN^2) dominates and the measured SNR will be lower than "
-            "requested. Use a larger bit_depth.",
-            sigma,
-            snr,
-            bit_depth,
-        )
-    dn = scale * img + offset + gen.normal(0.0, sigma, size=img.shape)
-    info = {
-        "model": "gaussian",
-        "snr": snr,
-        "sigma_dn": float(sigma),
-        "offset_dn": float(offset),
-        "scale_dn_per_unit": float(scale),
-        "bit_depth": bit_depth,
-    }
-    return _quantise(dn, bit_depth), info
-
-
-def measure_snr(noisy_dn: np.ndarray, clean_dn: np.ndarray, offset_dn: float = 0.0) -> float:
-    """Measure ``SNR = P99.9(clean image) / sigma_noise`` of a noisy image against its truth.
-
-    ``P99.9`` is the 99.9th percentile of the noise-free image (DESIGN.md §2) and
-    ``sigma_noise`` the standard deviation of the residual over all pixels:
-
-        ``SNR = P99.9(clean_dn) / std(noisy_dn − offset_dn − clean_dn)``.
-
-    Parameters
-    ----------
-    noisy_dn : ndarray, shape (ny, nx)
-        Noisy image in DN (any numeric dtype), black level included.
-    clean_dn : ndarray, shape (ny, nx)
-        Noise-free image in DN *without* the black level, e.g.
-        ``info["scale_dn_per_unit"] · clean`` from :func:`add_gaussian_noise`.
-    offset_dn : float
-        Black level in DN, ``info["offset_dn"]``.
-
-    Returns
-    -------
-    float
-        The measured SNR; ``inf`` when the residual is exactly zero.
-    """
-    noisy = np.asarray(noisy_dn, dtype=np.float64)
-    clean = np.asarray(clean_dn, dtype=np.float64)
-    if noisy.shape != clean.shape:
-        raise ConfigError(
-            f"noisy_dn and clean_dn must have the same shape, got {noisy.shape} and {clean.shape}"
-        )
-    if noisy.size == 0:
-        raise ConfigError("noisy_dn must not be empty")
-    offset = float(offset_dn)
-    if not math.isfinite(offset):
-        raise ConfigError(f"offset_dn must be finite, got {offset_dn!r}")
-    sigma = float(np.std(noisy - offset - clean))
-    signal = float(np.percentile(clean, SNR_PERCENTILE))
-    return math.inf if sigma == 0 else signal / sigma
-
-
 # -- a physical camera ---------------------------------------------------------------------
 @dataclass(frozen=True)
 class CameraModel:
@@ -351,17 +149,19 @@ class CameraModel:
     full_well_e: float | None = 16_000.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(
-            self,
-            "quantum_efficiency",
-            _check_fraction("quantum_efficiency", self.quantum_efficiency),
-        )
-        object.__setattr__(self, "read_noise_e", _non_negative("read_noise_e", self.read_noise_e))
-        object.__setattr__(self, "gain_dn_per_e", _positive("gain_dn_per_e", self.gain_dn_per_e))
-        object.__setattr__(self, "offset_dn", _non_negative("offset_dn", self.offset_dn))
-        object.__setattr__(self, "bit_depth", _check_bit_depth("bit_depth", self.bit_depth))
-        if self.full_well_e is not None:
-            object.__setattr__(self, "full_well_e", _positive("full_well_e", self.full_well_e))
+        checks = {
+            "quantum_efficiency": lambda v, n: _check_fraction(n, v),
+            "read_noise_e": nonnegative_float,
+            "gain_dn_per_e": positive_float,
+            "offset_dn": nonnegative_float,
+            "bit_depth": lambda v, n: _check_bit_depth(n, v),
+            "full_well_e": positive_float,
+        }
+        for name, check in checks.items():
+            value = getattr(self, name)
+            if name == "full_well_e" and value is None:
+                continue
+            object.__setattr__(self, name, _checked(check, value, name))
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> CameraModel:
@@ -440,7 +240,7 @@ class CameraModel:
         c = np.asarray(counts)
         if not np.issubdtype(c.dtype, np.integer) or (c.size and c.min() < 0):
             raise ConfigError("counts must be a non-negative integer image (tracer photon counts)")
-        ppc = _positive("photons_per_count", photons_per_count)
+        ppc = _checked(positive_float, photons_per_count, "photons_per_count")
         gen = _as_generator(rng)
         p = self.quantum_efficiency * ppc
         if p <= 1.0:
@@ -516,10 +316,11 @@ class CameraModel:
         ``SNR = gain · QE · photons / sqrt(variance_dn(photons, quantisation=quantisation))``:
         the mean signal above the black level over the standard deviation of the recorded
         value. With ``quantisation=True`` (default) the 1/12 DN² of rounding counts as noise,
-        as it does in :func:`measure_snr` (EMVA 1288 convention); with ``False`` this is
+        as it does in :func:`lfsim.noise.measure_snr` (EMVA 1288 convention); with ``False`` this is
         ``QE·photons / sqrt(QE·photons + read_noise_e²)``, independent of the gain. For an
-        image, the paper's ``P99.9(clean) / sigma_noise`` corresponds to ``photons`` at the
-        99.9th-percentile pixel, with that pixel's noise. Zero where the signal is zero.
+        image, the SNR ``S / sigma_noise`` corresponds to ``photons`` at the signal reference
+        ``S`` (:func:`lfsim.noise.signal_reference`: the 99.9th-percentile pixel of a dense
+        image), with that pixel's noise. Zero where the signal is zero.
 
         Parameters
         ----------
@@ -632,216 +433,12 @@ def snr_vs_fps(
     return np.asarray(camera.snr(ph), dtype=np.float64)
 
 
-# -- choosing and applying a model ---------------------------------------------------------
-@dataclass(frozen=True)
-class NoiseSpec:
-    """Which noise model to apply and its parameters.
-
-    Parameters
-    ----------
-    model : {"none", "gaussian", "camera"}
-        See the module docstring.
-    snr : float or None
-        ``P99.9(clean image) / sigma_noise`` (P99.9 = 99.9th percentile of the noise-free
-        image); required for ``"gaussian"``, must be ``None`` otherwise (the camera model's
-        SNR follows from its photons).
-    bit_depth : {8, 12, 16} or None
-        Output bits per pixel. Default 8 for ``"none"``/``"gaussian"``; for ``"camera"`` the
-        camera's own bit depth (giving a different one is an error).
-    camera : CameraModel or None
-        Camera for ``"camera"`` (default :class:`CameraModel()`); must be ``None`` otherwise.
-    fps : float or None
-        Frame rate (frames/s), ``"camera"`` only, together with ``photon_rate_per_s``.
-    duty_cycle : float
-        Exposed fraction of the frame period, in (0, 1].
-    photon_rate_per_s : float or None
-        ``"camera"`` only. Photons per second at the 99.9th-percentile pixel of the clean
-        image; when given (with ``fps``), :func:`apply_noise` treats the clean image as
-        relative and scales it so that its P99.9 pixel receives
-        ``photons_per_frame(photon_rate_per_s, fps, duty_cycle)`` photons. When ``None`` the
-        clean image is already the expected photon count per pixel for this exposure.
-    fill : float
-        ``"none"``/``"gaussian"``: fraction of full scale the image maximum maps to.
-    offset_sigmas : float
-        ``"gaussian"``: black level in noise σ (see :func:`add_gaussian_noise`).
-    """
-
-    model: str = "gaussian"
-    snr: float | None = None
-    bit_depth: int | None = None
-    camera: CameraModel | None = None
-    fps: float | None = None
-    duty_cycle: float = 1.0
-    photon_rate_per_s: float | None = None
-    fill: float = 0.7
-    offset_sigmas: float = 4.0
-
-    def __post_init__(self) -> None:
-        if self.model not in NOISE_MODELS:
-            raise ConfigError(f"model must be one of {NOISE_MODELS}, got {self.model!r}")
-
-        def set_(name: str, value: Any) -> None:
-            object.__setattr__(self, name, value)
-
-        if self.model == "gaussian":
-            if self.snr is None:
-                raise ConfigError("snr is required for model 'gaussian' (P99.9(clean)/sigma)")
-            set_("snr", _positive("snr", self.snr))
-        elif self.snr is not None:
-            raise ConfigError(
-                f"snr applies only to model 'gaussian', got snr={self.snr!r} with "
-                f"model={self.model!r}"
-            )
-        set_("duty_cycle", _check_fraction("duty_cycle", self.duty_cycle))
-        set_("fill", _check_fraction("fill", self.fill))
-        set_("offset_sigmas", _non_negative("offset_sigmas", self.offset_sigmas))
-
-        if self.model == "camera":
-            cam = self.camera
-            if cam is None:
-                cam = CameraModel()
-            elif isinstance(cam, Mapping):
-                cam = CameraModel.from_dict(cam)
-            elif not isinstance(cam, CameraModel):
-                raise ConfigError(
-                    f"camera must be a CameraModel or a mapping, got {type(cam).__name__}"
-                )
-            set_("camera", cam)
-            if self.bit_depth is None:
-                set_("bit_depth", cam.bit_depth)
-            elif _check_bit_depth("bit_depth", self.bit_depth) != cam.bit_depth:
-                raise ConfigError(
-                    f"bit_depth={self.bit_depth!r} differs from camera.bit_depth="
-                    f"{cam.bit_depth}; give one or make them equal"
-                )
-            if (self.fps is None) != (self.photon_rate_per_s is None):
-                raise ConfigError(
-                    "fps and photon_rate_per_s must be given together (got "
-                    f"fps={self.fps!r}, photon_rate_per_s={self.photon_rate_per_s!r})"
-                )
-            if self.fps is not None:
-                set_("fps", _positive("fps", self.fps))
-                set_(
-                    "photon_rate_per_s",
-                    _positive("photon_rate_per_s", self.photon_rate_per_s),
-                )
-        else:
-            for name in ("camera", "fps", "photon_rate_per_s"):
-                if getattr(self, name) is not None:
-                    raise ConfigError(
-                        f"{name} applies only to model 'camera', got {name}="
-                        f"{getattr(self, name)!r} with model={self.model!r}"
-                    )
-            set_("bit_depth", 8 if self.bit_depth is None else self.bit_depth)
-            set_("bit_depth", _check_bit_depth("bit_depth", self.bit_depth))
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> NoiseSpec:
-        """Build from a mapping (e.g. parsed JSON).
-
-        ``camera`` may be a nested mapping of :class:`CameraModel` parameters. Unknown keys, at
-        either level, raise :class:`ConfigError` naming them.
-        """
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"noise must be a mapping of parameters, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(
-                f"noise: unknown key(s) {unknown}; expected a subset of {sorted(known)}"
-            )
-        kw = dict(d)
-        if isinstance(kw.get("camera"), Mapping):
-            kw["camera"] = CameraModel.from_dict(kw["camera"])
-        return cls(**kw)
-
-    def to_dict(self) -> dict:
-        """The parameters as a JSON-serialisable dict (inverse of :meth:`from_dict`)."""
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
-        if self.camera is not None:
-            out["camera"] = self.camera.to_dict()
-        return out
-
-
-def apply_noise(
-    clean_photons: np.ndarray, spec: NoiseSpec, rng: np.random.Generator | int
-) -> tuple[np.ndarray, dict]:
-    """Turn a noise-free image into a camera-like integer image according to ``spec``.
-
-    - ``"none"``: :func:`scale_to_dn` (scaled to ``spec.fill`` of full scale, rounded).
-    - ``"gaussian"``: :func:`add_gaussian_noise` with ``spec.snr``
-      (``SNR = P99.9(clean image) / sigma_noise``, P99.9 = 99.9th percentile of the clean
-      image).
-    - ``"camera"``: :meth:`CameraModel.expose`. ``clean_photons`` must be the expected photon
-      count per pixel for this exposure, unless ``spec.photon_rate_per_s`` and ``spec.fps``
-      are set: then it is a relative image (its overall scale, e.g. photons per particle, is
-      arbitrary) rescaled so that its 99.9th-percentile pixel receives
-      ``photons_per_frame(spec.photon_rate_per_s, spec.fps, spec.duty_cycle)`` photons.
-
-    Parameters
-    ----------
-    clean_photons : ndarray, shape (ny, nx)
-        Noise-free image, finite, non-negative, not all zero.
-    spec : NoiseSpec
-    rng : numpy.random.Generator or int
-        Generator or seed (unused, but still validated, for ``"none"``).
-
-    Returns
-    -------
-    image : ndarray of uint8 or uint16, shape (ny, nx)
-    info : dict
-        Always holds ``model``, ``bit_depth``, ``offset_dn`` and ``scale_dn_per_unit`` (the
-        noise-free image in DN is ``scale_dn_per_unit · clean_photons + offset_dn``, below
-        saturation) and ``snr``. For ``"camera"``, ``snr`` is the theoretical
-        :meth:`CameraModel.snr` of the 99.9th-percentile pixel, and the dict adds
-        ``photons_per_unit``, ``photons_p999``, ``exposure_s`` (``None`` without ``fps``) and
-        ``camera`` (its parameters).
-    """
-    if not isinstance(spec, NoiseSpec):
-        raise ConfigError(f"spec must be a NoiseSpec, got {type(spec).__name__}")
-    gen = _as_generator(rng)
-    if spec.model == "none":
-        return scale_to_dn(clean_photons, bit_depth=spec.bit_depth, fill=spec.fill)
-    if spec.model == "gaussian":
-        return add_gaussian_noise(
-            clean_photons,
-            spec.snr,
-            gen,
-            bit_depth=spec.bit_depth,
-            fill=spec.fill,
-            offset_sigmas=spec.offset_sigmas,
-        )
-    cam = spec.camera
-    img = _finite_non_negative_array("clean_photons", clean_photons, ndim=2)
-    if spec.photon_rate_per_s is not None:
-        p999 = float(np.percentile(img, SNR_PERCENTILE))
-        if p999 <= 0:
-            raise ConfigError(
-                f"clean_photons: its {SNR_PERCENTILE}th percentile is 0, so it cannot be "
-                "scaled to photon_rate_per_s; expected a denser image"
-            )
-        target = photons_per_frame(spec.photon_rate_per_s, spec.fps, spec.duty_cycle)
-        per_unit = target / p999
-        t_exp = exposure_s(spec.fps, spec.duty_cycle)
-    else:
-        per_unit = 1.0
-        t_exp = None
-    photons = per_unit * img
-    p999_photons = float(np.percentile(photons, SNR_PERCENTILE))
-    info = {
-        "model": "camera",
-        "bit_depth": cam.bit_depth,
-        "offset_dn": cam.offset_dn,
-        "scale_dn_per_unit": float(cam.gain_dn_per_e * cam.quantum_efficiency * per_unit),
-        "snr": float(cam.snr(p999_photons)),
-        "photons_per_unit": float(per_unit),
-        "photons_p999": p999_photons,
-        "exposure_s": t_exp,
-        "camera": cam.to_dict(),
-    }
-    if np.issubdtype(np.asarray(clean_photons).dtype, np.integer):
-        # Tracer photon counts: thin them rather than adding shot noise a second time.
-        info["shot_noise"] = "binomial thinning of traced photon counts"
-        return cam.expose_counts(np.asarray(clean_photons), per_unit, gen), info
-    info["shot_noise"] = "poisson"
-    return cam.expose(photons, gen), info
+__all__ = [
+    "BIT_DEPTHS",
+    "MAX_PHOTONS_PER_PIXEL",
+    "QUANTISATION_VAR_DN2",
+    "CameraModel",
+    "exposure_s",
+    "photons_per_frame",
+    "snr_vs_fps",
+]

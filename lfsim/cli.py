@@ -15,10 +15,11 @@
                 [--bit-depth 16] [--seed 0] [--overwrite]
     lfsim dataset EXPERIMENT.toml -o DIR [--overwrite] [--quiet]
 
-Lengths in µm. SNR is ``P99.9(clean image) / sigma_noise`` (99.9th percentile of the
-noise-free image). Every error a user can cause prints one line ``lfsim: error: ...`` and exits
-with status 2; outputs are written atomically and never replace an existing file without
-``--overwrite``.
+Lengths in µm. SNR is ``S / sigma_noise`` with ``S`` the 99.9th percentile of the noise-free
+image (for sparse images, such as a single particle, half the 99.9th percentile of its lit
+pixels when that is higher; ``docs/conventions.md``). Every error a user can cause prints one
+line ``lfsim: error: ...`` and exits with status 2; outputs are written atomically and never
+replace an existing file without ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -151,7 +152,7 @@ def _write_image(args, scene, img, meta) -> Path:
 
 def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
     """White and micrometer images: Gaussian noise at ``--snr``, metadata, atomic write."""
-    from .camera import add_gaussian_noise
+    from .noise import add_gaussian_noise
 
     img, info = add_gaussian_noise(
         clean.astype(np.float64), args.snr, _noise_seed(args.seed), bit_depth=args.bit_depth
@@ -162,8 +163,8 @@ def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
 
 
 def cmd_render(args) -> int:
-    from .camera import NoiseSpec, apply_noise
     from .io import sha256_file
+    from .noise import NoiseSpec, apply_noise
     from .particles import Particles
     from .render import render_particles
     from .tracer import RenderSettings
@@ -308,7 +309,8 @@ def build_parser() -> argparse.ArgumentParser:
             "--snr",
             type=float,
             default=None if snr is None else snr,
-            help=f"P99.9(clean)/sigma of the Gaussian noise (default {snr or 17:g}"
+            help="S/sigma of the Gaussian noise, S = P99.9 of the clean image "
+            + f"(default {snr or 17:g}"
             + ("" if snr else "; --noise gaussian only")
             + ")",
         )

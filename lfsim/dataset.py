@@ -42,10 +42,10 @@ import numpy as np
 from hrvbase.errors import HrvError
 from hrvbase.io import file_record, read_json, sha256_file, verify_record, write_json
 
-from .camera import add_gaussian_noise, apply_noise
 from .errors import ConfigError, OutputError
 from .experiment import Experiment
 from .io import write_tiff
+from .noise import SNR_DEFINITION, add_gaussian_noise, apply_noise
 from .particles import Particles
 
 log = logging.getLogger(__name__)
@@ -318,8 +318,7 @@ def generate_dataset(
             "frames": f"{FRAMES}/{{frame:06d}}.tif",
             "truth": f"{TRUTH}/{{frame:06d}}.csv",
         },
-        "snr_definition": "P99.9(clean image) / sigma_noise (99.9th percentile of the "
-        "noise-free image)",
+        "snr_definition": SNR_DEFINITION,
         "white": None,
         "frame_records": [None] * n,
         "created": started,
@@ -427,10 +426,7 @@ def generate_dataset(
                 # Integer photon counts: the camera model thins them (no double shot noise).
                 img, info = apply_noise(clean, experiment.noise_for_frame(k), n_rng)
             except ConfigError as exc:
-                raise ConfigError(
-                    f"experiment {experiment.name!r}, frame {k}: {exc} (did every particle "
-                    "leave the field of view?)"
-                ) from exc
+                raise ConfigError(f"experiment {experiment.name!r}, frame {k}: {exc}") from exc
             x0, x1, y0, y1 = optics.field_of_view_um
             p = particles.positions_um
             inside = int(

@@ -34,7 +34,7 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
     diffraction = true
     batch_rays = 4194304            # rays per kernel launch (memory bound)
 
-    [noise]                         # lfsim.camera.NoiseSpec; default model "gaussian", snr 17
+    [noise]                         # lfsim.noise.NoiseSpec; default model "gaussian", snr 17
     model = "gaussian"              # none | gaussian | camera
     snr = 17                        # or a list, one value per frame (SNR sweeps, Fig. 4a/4b)
     # bit_depth, fill, offset_sigmas, duty_cycle, photon_rate_per_s, camera = {...},
@@ -68,9 +68,10 @@ from typing import Any
 
 import numpy as np
 
-from .camera import BIT_DEPTHS, NoiseSpec
+from .camera import BIT_DEPTHS
 from .errors import ConfigError
 from .motion import Motion, UserField, _is_path, motion_from_dict
+from .noise import NoiseSpec
 from .optics import Optics
 from .render import TRACERS
 from .scene import read_optics

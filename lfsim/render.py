@@ -1,7 +1,7 @@
 """High-level rendering: particles, a white (uniformly fluorescent) slide, a stage micrometer.
 
 These functions turn object-space descriptions into noise-free light-field images with one of
-the tracers of :mod:`lfsim.tracer`; :mod:`lfsim.camera` then makes them camera-like.
+the tracers of :mod:`lfsim.tracer`; :mod:`lfsim.noise` then makes them camera-like.
 """
 
 from __future__ import annotations

@@ -27,7 +27,8 @@ Frame numbers and times. Every frame carries its original number: the number in 
 name, or for a page of a stack its page index (counted on across consecutive stacks, as
 cameras split a long recording into several files). Its time is ``number / fps`` when a frame
 rate is given; otherwise it is read from the file's metadata when present (the ``finterval``
-of an ImageJ stack, or a ``"time_s"`` entry in a JSON image description); otherwise unknown.
+of an ImageJ stack, or a ``"time_s"`` entry in the JSON metadata that ``lfsim.io.write_tiff``
+writes, or in a JSON image description); otherwise unknown.
 """
 
 from __future__ import annotations
@@ -411,6 +412,8 @@ def probe_tiff(path: str | os.PathLike) -> TiffHeader:
     """
     import tifffile
 
+    from lfsim.io import METADATA_TAG
+
     path = Path(path)
     if not path.is_file():
         raise InputError(f"frame {str(path)!r} does not exist")
@@ -421,7 +424,8 @@ def probe_tiff(path: str | os.PathLike) -> TiffHeader:
             shape, axes, dtype = tuple(first.shape), first.axes, np.dtype(first.dtype)
             page = tif.pages[0]
             bits = int(page.bitspersample)
-            description = page.description or ""
+            tag = page.tags.get(METADATA_TAG)  # lfsim's JSON; older files: the description
+            description = str(tag.value) if tag is not None else page.description or ""
             ij = tif.imagej_metadata or {}
     except (OSError, ValueError, IndexError, KeyError, tifffile.TiffFileError) as exc:
         raise InputError(f"cannot read frame {str(path)!r} as TIFF: {exc}") from exc

@@ -356,6 +356,7 @@ def reconstruct_series(
                             "iterations": res.iterations,
                         },
                         pixel_size_um=rgrid.voxel_size_um,
+                        origin_xyz_um=(rgrid.x_um()[0], rgrid.y_um()[0], rgrid.depths_um[0]),
                         overwrite=True,
                     )
                     secs[k] = time.perf_counter() - t1

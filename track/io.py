@@ -16,11 +16,14 @@ Formats (lengths in µm, DESIGN.md §2):
   components, row-major: ParaView shows them as tensors), scalars ``E_xx … e_yz``,
   ``gamma_xz`` (= 2 e_xz) and ``mask``; inline ``ascii`` or ``binary`` (base64 of a UInt64
   byte count followed by the little-endian values, one base64 stream);
-- volumes: a folder of ``NNNNNN.tif`` float32 ``(z, y, x)`` volumes. The voxel size comes
-  from the JSON ``ImageDescription`` (``"voxel_size_um": [dz, dy, dx]``, as
-  ``lfsim.io.write_tiff`` writes it) or from the folder's ``recon.json``
-  (``voxel_size_um``; ``grid.origin_um`` ``[x0, y0]`` and ``grid.depths_um`` place the
-  volume in object space).
+- volumes: a folder of ``NNNNNN.tif`` float32 ``(z, y, x)`` volumes. The voxel size
+  ``[dz, dy, dx]`` and the origin come, in this order of preference, from the JSON metadata
+  of ``lfsim.io.write_tiff`` (private tag 65001, or the ``ImageDescription`` of files of the
+  previous layout: ``"voxel_size_um"``, ``"origin_xyz_um"`` or ``origin_um`` ``[x0, y0]``
+  with ``depths_um``), from the ImageJ calibration of a file saved by Fiji (``unit`` µm,
+  ``spacing``, ``XResolution``/``YResolution``, ``xorigin``/``yorigin``/``zorigin``), or from
+  the folder's ``recon.json`` (``voxel_size_um``; ``grid.origin_um`` ``[x0, y0]`` and
+  ``grid.depths_um`` place the volume in object space).
 """
 
 from __future__ import annotations
@@ -283,6 +286,18 @@ class VolumeInfo:
     origin_um: tuple
 
 
+#: Private TIFF tags of ``lfsim.io.write_tiff`` (track does not import lfsim): the array
+#: shape ``{"shape": [...]}`` and the JSON metadata (files of the previous layout hold the JSON
+#: in the ``ImageDescription``).
+_SHAPE_TAG = 65000
+_METADATA_TAG = 65001
+
+#: Spellings of the micrometre in ImageJ's ``unit=`` entry.
+_MICROMETRE = frozenset(
+    {"um", "\u00b5m", "\\u00b5m", "micron", "microns", "micrometer", "micrometre"}
+)
+
+
 def _voxel_size(value, where: str) -> tuple[float, float, float]:
     try:
         vals = tuple(float(v) for v in value)
@@ -294,7 +309,21 @@ def _voxel_size(value, where: str) -> tuple[float, float, float]:
 
 
 def _origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | None:
-    """Voxel-centre origin from ``origin_um`` [x0, y0] (lenslet corner) and ``depths_um``."""
+    """Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm) from metadata.
+
+    ``origin_xyz_um`` (that centre, as ``lfsim.io.write_tiff`` records it) or, in older files
+    and ``recon.json``, ``origin_um`` ``[x0, y0]`` (the corner of lenslet ``(0, 0)``) with
+    ``depths_um``. ``None`` when the metadata hold neither.
+    """
+    xyz = meta.get("origin_xyz_um")
+    if xyz is not None:
+        try:
+            vals = tuple(float(v) for v in xyz)
+        except (TypeError, ValueError):
+            vals = ()
+        if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+            raise InputError(f"{where}: origin_xyz_um must be 3 numbers [x, y, z], got {xyz!r}")
+        return vals
     o = meta.get("origin_um")
     d = meta.get("depths_um")
     if o is None and d is None:
@@ -308,27 +337,87 @@ def _origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | None:
     return (ox + 0.5 * vs[2], oy + 0.5 * vs[1], z0)
 
 
-def _tiff_header(path: Path) -> tuple[tuple, str, Any]:
+@dataclass(frozen=True)
+class _Header:
+    """What :func:`_tiff_header` reads: shape, dtype, our JSON metadata, ImageJ calibration."""
+
+    shape: tuple
+    dtype: Any
+    meta: dict
+    imagej_vs: tuple | None = None  # (dz, dy, dx) µm from a Fiji calibration
+    imagej_origin: tuple | None = None  # (x, y, z) µm of voxel (0, 0, 0)
+
+
+def _imagej_calibration(ij: Mapping | None, page) -> tuple[tuple | None, tuple | None]:
+    """Voxel size ``(dz, dy, dx)`` and origin ``(x, y, z)`` (µm) of an ImageJ calibration.
+
+    ``(None, None)`` unless the unit is a micrometre and spacing and resolutions are positive.
+    """
+    if not ij or str(ij.get("unit", "")).strip().lower() not in _MICROMETRE:
+        return None, None
+    try:
+        dz = float(ij["spacing"])
+        xres = page.tags["XResolution"].value
+        yres = page.tags["YResolution"].value
+        dx = xres[1] / xres[0]
+        dy = yres[1] / yres[0]
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        return None, None
+    vs = (dz, dy, dx)
+    if not all(math.isfinite(v) and v > 0 for v in vs):
+        return None, None
+    keys = ("xorigin", "yorigin", "zorigin")
+    if not any(k in ij for k in keys):
+        return vs, None
+    try:
+        idx = [float(ij.get(k, 0.0)) for k in keys]
+    except (TypeError, ValueError):
+        return vs, None
+    # ImageJ: coordinate = (index - origin) * size, so voxel 0 sits at -origin * size.
+    origin = (-idx[0] * dx, -idx[1] * dy, -idx[2] * dz)
+    if not all(math.isfinite(v) for v in origin):
+        return vs, None
+    return vs, origin
+
+
+def _tiff_header(path: Path) -> _Header:
+    """Shape, dtype and metadata of a volume file, without reading its voxels."""
     import tifffile
 
     try:
         with tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
             desc = page.description or ""
-            tag = page.tags.get(65000)
+            tagvals = {}
+            for code in (_SHAPE_TAG, _METADATA_TAG):
+                tag = page.tags.get(code)
+                tagvals[code] = tag.value if tag is not None else None
             shape = tuple(tif.series[0].shape)
             dtype = tif.series[0].dtype
-            tagval = tag.value if tag is not None else None
+            ij_vs, ij_origin = _imagej_calibration(tif.imagej_metadata, page)
     except Exception as exc:  # tifffile raises assorted types on corrupt files
         raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
-    if tagval is not None:
+    if tagvals[_SHAPE_TAG] is not None:
         with contextlib.suppress(ValueError, KeyError, TypeError):
-            shape = tuple(json.loads(tagval)["shape"])
+            shape = tuple(json.loads(tagvals[_SHAPE_TAG])["shape"])
     if len(shape) == 2:
         shape = (1, *shape)
     if len(shape) != 3:
         raise InputError(f"{path}: expected a (z, y, x) volume, got shape {shape}")
-    return shape, desc, dtype
+    text = tagvals[_METADATA_TAG]
+    if text is not None:
+        try:
+            meta = json.loads(text)
+        except (ValueError, TypeError):
+            meta = None
+        if not isinstance(meta, dict):
+            raise InputError(f"{path}: metadata tag {_METADATA_TAG} does not hold a JSON object")
+    else:  # the previous layout: JSON, if any, in the ImageDescription
+        meta = {}
+        with contextlib.suppress(json.JSONDecodeError):
+            obj = json.loads(desc) if desc else {}
+            meta = obj if isinstance(obj, dict) else {}
+    return _Header(shape, dtype, meta, ij_vs, ij_origin)
 
 
 def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
@@ -379,23 +468,26 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     out = []
     for k in idx:
         p = files[k]
-        shape, desc, dtype = _tiff_header(p)
-        if np.dtype(dtype).kind not in "uif":
-            raise InputError(f"{p}: unsupported voxel type {dtype}")
-        meta: dict = {}
-        with contextlib.suppress(json.JSONDecodeError):
-            obj = json.loads(desc) if desc else {}
-            meta = obj if isinstance(obj, dict) else {}
+        head = _tiff_header(p)
+        shape, meta = head.shape, head.meta
+        if np.dtype(head.dtype).kind not in "uif":
+            raise InputError(f"{p}: unsupported voxel type {head.dtype}")
         if meta.get("voxel_size_um") is not None:
             vs = _voxel_size(meta["voxel_size_um"], str(p))
+        elif head.imagej_vs is not None:
+            vs = head.imagej_vs
         elif recon_vs is not None:
             vs = recon_vs
         else:
             raise InputError(
-                f"{p}: no voxel size (no 'voxel_size_um' in the TIFF description and no "
-                f"{RECON_JSON} in {folder})"
+                f"{p}: no voxel size (no 'voxel_size_um' in the TIFF metadata, no ImageJ "
+                f"calibration in µm and no {RECON_JSON} in {folder})"
             )
-        origin = _origin(meta, vs, str(p)) or _origin(recon.get("grid") or {}, vs, RECON_JSON)
+        origin = (
+            _origin(meta, vs, str(p))
+            or head.imagej_origin
+            or _origin(recon.get("grid") or {}, vs, RECON_JSON)
+        )
         out.append(VolumeInfo(p, k, shape, vs, origin or (0.0, 0.0, 0.0)))
     first = out[0]
     for v in out[1:]:

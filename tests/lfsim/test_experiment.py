@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from lfsim.camera import NoiseSpec
 from lfsim.errors import ConfigError
 from lfsim.experiment import Experiment, load_experiment
 from lfsim.motion import SimpleShear
+from lfsim.noise import NoiseSpec
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = ROOT / "scenes"
