@@ -3,7 +3,7 @@
 One function per kind of study (:data:`hrvptm.config.KINDS`). Each returns an
 :class:`Analysis`: per-frame (or per-pair) table rows, pooled summary numbers and the arrays
 the plots need. Lengths in µm, strains dimensionless (0.01 = 1 %), Green–Lagrange
-``E = (FᵀF − I)/2`` (DESIGN.md §2); the imposed strain comes from the prescribed motion's
+``E = (FᵀF − I)/2`` (docs/conventions.md); the imposed strain comes from the prescribed motion's
 deformation gradient (``lfsim.motion``), or from central differences of a user field.
 
 Failed frames

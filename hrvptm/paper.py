@@ -1,4 +1,4 @@
-"""The paper's numbers (§4–5, DESIGN.md §4) and the issue's acceptance bounds, per figure.
+"""The paper's numbers (§4–5) and the issue's acceptance bounds, per figure.
 
 Each :class:`Reference` names a key of a variant's pooled summary (:mod:`hrvptm.analysis`),
 the paper's value and, where the paper states a bound, the test ``ours <= bound``. Values in

@@ -1,4 +1,4 @@
-"""Explicit initialisation of the Dr.Jit / Mitsuba backend (DESIGN.md §2).
+"""Explicit initialisation of the Dr.Jit / Mitsuba backend (docs/conventions.md).
 
 Nothing in this project sets a Mitsuba variant at import time. Every entry point that needs
 Dr.Jit arrays calls :func:`init_backend` first; it is idempotent and cheap after the first call.

@@ -1,6 +1,6 @@
 """Generate a synthetic light-field dataset from an :class:`~lfsim.experiment.Experiment`.
 
-Layout of the output folder (DESIGN.md §1)::
+Layout of the output folder (docs/conventions.md §6)::
 
     white.tif              flat field: uniformly fluorescent slide through the same optics
     frames/000000.tif      light-field frames, camera-like integers (uint8/uint16), frame 0 =
@@ -18,8 +18,10 @@ what an uninterrupted one gives.
 
 Re-running on an existing folder:
 
-- same experiment (same :meth:`~lfsim.experiment.Experiment.fingerprint`): resume — frames whose
-  ``.tif`` and ``.csv`` both exist are kept; a complete dataset is left untouched;
+- same experiment (same :meth:`~lfsim.experiment.Experiment.fingerprint`): resume — a frame
+  is kept when its ``.tif`` and ``.csv`` are still the files recorded when they were written
+  (size and SHA-256); a truncated or edited one is rendered again; a complete dataset is left
+  untouched;
 - a dataset of a different experiment: refused unless ``overwrite=True``, which first deletes
   only the files this module writes (``white.tif``, ``frames/NNNNNN.tif``,
   ``truth/NNNNNN.csv``, ``dataset.json`` and its own leftover temporary files);

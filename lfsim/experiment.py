@@ -49,7 +49,7 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
     [study], [recon], [track]       # not read here: settings of ``hrvptm study`` (validation)
 
 SNR is the paper's ``P99.9(clean image) / sigma_noise`` with ``P99.9`` the 99.9th percentile of
-the noise-free image (DESIGN.md §2).
+the noise-free image (docs/conventions.md).
 """
 
 from __future__ import annotations

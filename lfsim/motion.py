@@ -1,7 +1,7 @@
 """Prescribed particle motions: reference positions X → current positions x at frame k.
 
 Every motion maps reference positions ``X`` (shape (N, 3), µm, object-space frame of
-DESIGN.md §2) and a frame index ``k`` to current positions ``x`` (N, 3). The homogeneous
+docs/conventions.md) and a frame index ``k`` to current positions ``x`` (N, 3). The homogeneous
 motions follow
 
     x = c + F(k) (X − c) + t(k),        u = x − X,

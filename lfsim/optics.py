@@ -5,7 +5,7 @@
 the Mitsuba scene files in ``scenes/`` (:mod:`lfsim.scene`), so both use exactly the same
 numbers.
 
-Model (paper §2.2, Table 1; DESIGN.md §3). An infinity-corrected objective of focal length
+Model (paper §2.2, Table 1; docs/conventions.md §2). An infinity-corrected objective of focal length
 ``f_objective_um`` and a tube lens ``f_tube_um`` form a 4f system of lateral magnification
 ``M = f_tube / f_objective``; the aperture stop sits in the shared focal plane, so the system is
 telecentric on both sides and the stop radius ``f_objective · tan(asin NA)`` fixes the

@@ -2,8 +2,8 @@
 
 :class:`Particles` is the immutable point table passed between seeding
 (:mod:`lfsim.seeding`), motions (:mod:`lfsim.motion`), the renderer and the ground-truth files
-of a dataset. Lengths are micrometres in the object-space frame of DESIGN.md §2 (x along sensor
-columns, y along sensor rows, z along the optical axis, away from the objective).
+of a dataset. Lengths are micrometres in the object-space frame of docs/conventions.md (x
+along sensor columns, y along sensor rows, z along the optical axis, away from the objective).
 
 CSV format (one particle per line, header first, columns in any order)::
 

@@ -1,7 +1,7 @@
 """Mitsuba scene files of the light-field microscope: write, read back, load.
 
 A scene file (``scenes/*.xml``) is an ordinary Mitsuba 3 XML scene, in millimetres, with the
-microlens array at the origin and light travelling along +z (DESIGN.md §2):
+microlens array at the origin and light travelling along +z (docs/conventions.md):
 
 ====================  =========================================================
 id                    element

@@ -1,6 +1,6 @@
 """Random particle seeding with a minimum centre-to-centre spacing.
 
-Positions are micrometres in the object-space frame of DESIGN.md §2. Every function takes a
+Positions are micrometres in the object-space frame of docs/conventions.md. Every function takes a
 :class:`numpy.random.Generator`; the same generator state gives the same positions.
 
 Algorithm: batched dart throwing. Candidates are drawn uniformly in the box in batches; a

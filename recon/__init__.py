@@ -28,7 +28,7 @@ Command line
     :mod:`recon.cli`: ``recon calibrate WHITE.tif --scene SCENE.xml -o calib.json``,
     ``recon run``.
 
-Importing :mod:`recon` never sets a Mitsuba variant (DESIGN.md §2) and imports neither
+Importing :mod:`recon` never sets a Mitsuba variant (docs/conventions.md) and imports neither
 Dr.Jit nor Mitsuba: they load when a PSF bank is traced or a Dr.Jit projector is built.
 """
 

@@ -114,6 +114,11 @@ class ReconSettings:
             raise InputError(f"z range {self.z_min_um}:{self.z_max_um} is empty (min > max)")
         if self.z_min_um is not None and self.z_step_um is not None:
             n = math.floor((self.z_max_um - self.z_min_um) / self.z_step_um + 1e-9) + 1
+            if n < 2:
+                raise InputError(
+                    f"z range {self.z_min_um:g}:{self.z_max_um:g} in steps of "
+                    f"{self.z_step_um:g} µm holds {n} depth plane; a volume needs at least 2"
+                )
             if n > MAX_DEPTHS:
                 raise InputError(f"{n} depth planes requested; at most {MAX_DEPTHS} are supported")
         if self.s is not None:

@@ -2,7 +2,7 @@
 
 Consumes reconstructed volumes (float32 ``(z, y, x)``, voxel size in µm) or point clouds
 from any source and produces particle tables, matches, Lagrangian trajectories and gridded
-displacement/strain fields (DESIGN.md §2 conventions: µm, x/y/z order, tensors
+displacement/strain fields (docs/conventions.md conventions: µm, x/y/z order, tensors
 ``(..., 3, 3)``, ``F = I + ∂u/∂X``, ``E = (FᵀF − I)/2``, ``e = sym(∂u/∂X)``,
 ``γ = 2 e_xz``, ``F_total = F_inc · F_prev``).
 

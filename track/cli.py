@@ -11,9 +11,10 @@ Commands::
     track detect VOLDIR -o RESULTS [detection options] [--overwrite]
     track link A.csv B.csv [C.csv ...] -o RESULTS [--mode ...] [--grid-spacing-um X] ...
 
-``VOLDIR`` holds numbered float32 volumes ``NNNNNN.tif`` (voxel size in the TIFF description
-or in ``recon.json``, see :mod:`track.io`); ``link`` takes point clouds (CSV with columns
-``x_um, y_um, z_um``) from any localisation source, frame 0 first.
+``VOLDIR`` holds numbered float32 volumes ``NNNNNN.tif`` (voxel size and origin in the TIFF
+metadata or in ``recon.json``, see :mod:`track.io` and docs/conventions.md §6); ``link``
+takes point clouds (CSV with columns ``x_um, y_um, z_um``) from any localisation source,
+frame 0 first.
 
 ``RESULTS`` receives ``particles/NNNNNN.csv``, ``matches_NNNNNN.csv`` (one per linked pair,
 ``NNNNNN`` = deformed frame), ``tracks.csv``, ``fields/NNNNNN.npz`` and ``.vti`` (total

@@ -3,7 +3,7 @@
 Every writer is **atomic** and refuses to replace an existing file unless ``overwrite=True``
 (the shared :mod:`hrvbase.io`, whose JSON and checksum helpers are re-exported here).
 
-Formats (lengths in µm, DESIGN.md §2):
+Formats (lengths in µm, docs/conventions.md):
 
 - ``particles/NNNNNN.csv``: ``x_um,y_um,z_um[,intensity]``;
 - ``matches_NNNNNN.csv``: ``row_ref,row_def,ux_um,uy_um,uz_um`` (0-based rows into the two

@@ -1,6 +1,6 @@
 """Strain measures and per-particle deformation gradients.
 
-Conventions (DESIGN.md §2): lengths in µm, vectors and tensors in x, y, z order, tensors as
+Conventions (docs/conventions.md): lengths in µm, vectors and tensors in x, y, z order, tensors as
 ``(..., 3, 3)`` arrays. With the displacement ``u`` defined on the reference configuration
 ``X``,
 

@@ -1,6 +1,6 @@
 """Physics of the light tracers against the lenslet geometry, energy and each other.
 
-Acceptance points of the simulator (paper §2.2, DESIGN.md §3) at the paper's optics.
+Acceptance points of the simulator (paper §2.2, docs/conventions.md §2) at the paper's optics.
 """
 
 from __future__ import annotations
