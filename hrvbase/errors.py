@@ -8,6 +8,9 @@ expected.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 
 class HrvError(Exception):
     """Base class of every error the toolkit raises on purpose."""
@@ -21,4 +24,16 @@ class OutputError(HrvError, OSError):
     """An output cannot be written, or writing it would overwrite or lose the user's data."""
 
 
-__all__ = ["HrvError", "InputError", "OutputError"]
+@contextlib.contextmanager
+def raised_as(error: type[InputError]) -> Iterator[None]:
+    """Inside the block, the shared validators' :class:`InputError` is raised as ``error``, a
+    package's own subclass, with the same message (so a package's callers catch one type)."""
+    try:
+        yield
+    except InputError as exc:
+        if isinstance(exc, error):
+            raise
+        raise error(str(exc)) from None
+
+
+__all__ = ["HrvError", "InputError", "OutputError", "raised_as"]

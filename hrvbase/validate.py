@@ -58,7 +58,9 @@ def int_in_range(value: Any, name: str, lo: int, hi: int | None = None) -> int:
     return v
 
 
-def points_xyz(arr: Any, name: str, *, min_points: int = 0) -> np.ndarray:
+def points_xyz(
+    arr: Any, name: str, *, min_points: int = 0, error: type[InputError] = InputError
+) -> np.ndarray:
     """``arr`` as a finite float64 array of shape ``(N, 3)`` in (x, y, z) order (µm).
 
     Parameters
@@ -68,19 +70,21 @@ def points_xyz(arr: Any, name: str, *, min_points: int = 0) -> np.ndarray:
         Parameter name for the message.
     min_points : int
         Smallest accepted ``N``.
+    error : type
+        The :class:`InputError` subclass to raise (a package's own).
     """
     try:
         a = np.asarray(arr, dtype=np.float64)
     except (TypeError, ValueError):
-        raise InputError(f"{name} must be a numeric (N, 3) array of x, y, z in µm") from None
+        raise error(f"{name} must be a numeric (N, 3) array of x, y, z in µm") from None
     if a.ndim == 1 and a.size == 0:
         a = a.reshape(0, 3)
     if a.ndim != 2 or a.shape[1] != 3:
-        raise InputError(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
+        raise error(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise InputError(f"{name} holds NaN or infinite values")
+        raise error(f"{name} holds NaN or infinite values")
     if a.shape[0] < min_points:
-        raise InputError(f"{name} needs at least {min_points} points, got {a.shape[0]}")
+        raise error(f"{name} needs at least {min_points} points, got {a.shape[0]}")
     return a
 
 

@@ -7,8 +7,6 @@ key or parameter at fault and what was expected. The command line turns them int
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-
 from hrvbase import errors as base
 
 
@@ -26,16 +24,7 @@ class InputError(ReconError, base.InputError):
     wrong dimensionality, a malformed calibration file...)."""
 
 
-@contextmanager
 def recon_input_errors():
-    """Raise the shared validators' :class:`hrvbase.errors.InputError` as recon's own.
-
-    :mod:`hrvbase.validate` raises the base class; inside ``with recon_input_errors():`` it
-    becomes :class:`InputError` with the same message, so that recon's callers catch one type.
-    """
-    try:
-        yield
-    except base.InputError as exc:
-        if isinstance(exc, InputError):
-            raise
-        raise InputError(str(exc)) from None
+    """Raise the shared validators' :class:`hrvbase.errors.InputError` as recon's own
+    :class:`InputError` inside the block (:func:`hrvbase.errors.raised_as`)."""
+    return base.raised_as(InputError)

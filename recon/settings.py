@@ -29,7 +29,7 @@ import numpy as np
 
 from hrvbase import validate
 
-from .errors import InputError
+from .errors import InputError, recon_input_errors
 from .geometry import depth_range
 from .projector import PROJECTORS
 
@@ -42,10 +42,8 @@ RANGE_PATTERN_LENSLETS = 6
 
 
 def _wrap(check, *args):
-    try:
+    with recon_input_errors():
         return check(*args)
-    except Exception as exc:  # hrvbase.errors.InputError: re-raised as recon's own type
-        raise InputError(str(exc)) from None
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ The pipeline of the paper's §3.2 (settings of Table 1):
    noisy data.
 
 Positions are returned in µm, columns ``x, y, z``: voxel ``(k, j, i)`` (z, y, x indices) has its
-centre at ``origin_um + (i dx, j dy, k dz)``.
+centre at ``origin_xyz_um + (i dx, j dy, k dz)``.
 """
 
 from __future__ import annotations
@@ -182,7 +182,7 @@ class Detection:
         counted, in ``rejected_specks``).
     voxel_size_um : tuple of 3 float
         ``(dz, dy, dx)``.
-    origin_um : tuple of 3 float
+    origin_xyz_um : tuple of 3 float
         ``(x0, y0, z0)``: centre of voxel ``(0, 0, 0)``.
     """
 
@@ -192,7 +192,7 @@ class Detection:
     sizes_vox: np.ndarray
     report: dict = field(default_factory=dict)
     voxel_size_um: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    origin_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    origin_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def n(self) -> int:
@@ -208,12 +208,12 @@ class Detection:
 def voxel_to_um(
     positions_vox: np.ndarray,
     voxel_size_um: Sequence[float],
-    origin_um: Sequence[float] = (0.0, 0.0, 0.0),
+    origin_xyz_um: Sequence[float] = (0.0, 0.0, 0.0),
 ) -> np.ndarray:
     """Map ``(z, y, x)`` voxel positions ``(N, 3)`` to ``(x, y, z)`` µm (see module docstring)."""
     p = np.asarray(positions_vox, dtype=np.float64).reshape(-1, 3)
     dz, dy, dx = check_voxel_size_um(voxel_size_um)
-    x0, y0, z0 = check_triple(origin_um, "origin_um", positive=False)
+    x0, y0, z0 = check_triple(origin_xyz_um, "origin_xyz_um", positive=False)
     return np.stack([x0 + p[:, 2] * dx, y0 + p[:, 1] * dy, z0 + p[:, 0] * dz], axis=1)
 
 
@@ -223,7 +223,7 @@ def detect_particles(
     settings: DetectSettings | None = None,
     psf: np.ndarray | None = None,
     *,
-    origin_um: Sequence[float] = (0.0, 0.0, 0.0),
+    origin_xyz_um: Sequence[float] = (0.0, 0.0, 0.0),
 ) -> Detection:
     """Find and localise particles in a reconstructed volume.
 
@@ -239,7 +239,7 @@ def detect_particles(
         Particle PSF (odd shape, same voxel grid) for the secondary deconvolution; estimated
         from ``volume`` when None and deconvolution is on. Pass the PSF of the first volume
         to treat a sequence consistently, as the paper does.
-    origin_um : sequence of 3 float
+    origin_xyz_um : sequence of 3 float
         ``(x0, y0, z0)``: position (µm) of the centre of voxel ``(0, 0, 0)``.
 
     Returns
@@ -255,7 +255,7 @@ def detect_particles(
     t0 = time.perf_counter()
     vol = check_volume(volume)
     spacing = check_voxel_size_um(voxel_size_um)
-    origin = check_triple(origin_um, "origin_um", positive=False)
+    origin = check_triple(origin_xyz_um, "origin_xyz_um", positive=False)
     if settings is None:
         settings = DetectSettings()
     elif not isinstance(settings, DetectSettings):
@@ -366,5 +366,5 @@ def detect_particles(
         sizes_vox=sizes,
         report=report,
         voxel_size_um=spacing,
-        origin_um=origin,
+        origin_xyz_um=origin,
     )

@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hrvbase.validate import points_xyz
+
 from .errors import InputError
 from .strain import green_lagrange, infinitesimal
 
@@ -148,12 +150,12 @@ class GridAxes:
         return (self.z_um.size, self.y_um.size, self.x_um.size)
 
     @property
-    def spacing_um(self) -> tuple[float, float, float]:
+    def spacing_xyz_um(self) -> tuple[float, float, float]:
         """Node spacing ``(dx, dy, dz)`` (µm; mean step along each axis)."""
         return tuple(float(np.mean(np.diff(a))) for a in (self.x_um, self.y_um, self.z_um))
 
     @property
-    def origin_um(self) -> tuple[float, float, float]:
+    def origin_xyz_um(self) -> tuple[float, float, float]:
         """First node ``(x0, y0, z0)`` (µm)."""
         return (float(self.x_um[0]), float(self.y_um[0]), float(self.z_um[0]))
 
@@ -216,23 +218,18 @@ class GridField:
         return self.axes.shape
 
     @property
-    def spacing_um(self) -> tuple[float, float, float]:
+    def spacing_xyz_um(self) -> tuple[float, float, float]:
         """``(dx, dy, dz)`` (µm)."""
-        return self.axes.spacing_um
+        return self.axes.spacing_xyz_um
 
     @property
-    def origin_um(self) -> tuple[float, float, float]:
+    def origin_xyz_um(self) -> tuple[float, float, float]:
         """``(x0, y0, z0)`` (µm)."""
-        return self.axes.origin_um
+        return self.axes.origin_xyz_um
 
 
 def _points(arr, name: str) -> np.ndarray:
-    a = np.asarray(arr, dtype=float)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise InputError(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{name} holds NaN or infinite values")
-    return a
+    return points_xyz(arr, name, error=InputError)
 
 
 def grid_axes(

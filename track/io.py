@@ -231,8 +231,8 @@ def write_field_vti(
     if encoding not in ("binary", "ascii"):
         raise InputError(f"encoding must be 'binary' or 'ascii', got {encoding!r}")
     nz, ny, nx = fld.shape
-    dx, dy, dz = fld.spacing_um
-    x0, y0, z0 = fld.origin_um
+    dx, dy, dz = fld.spacing_xyz_um
+    x0, y0, z0 = fld.origin_xyz_um
     ext = f"0 {nx - 1} 0 {ny - 1} 0 {nz - 1}"
     parts = [
         '<?xml version="1.0"?>',
@@ -275,7 +275,7 @@ class VolumeInfo:
         ``(nz, ny, nx)``.
     voxel_size_um : tuple of float
         ``(dz, dy, dx)`` (µm).
-    origin_um : tuple of float
+    origin_xyz_um : tuple of float
         Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm).
     """
 
@@ -283,7 +283,7 @@ class VolumeInfo:
     index: int
     shape: tuple
     voxel_size_um: tuple
-    origin_um: tuple
+    origin_xyz_um: tuple
 
 
 #: Private TIFF tags of ``lfsim.io.write_tiff`` (track does not import lfsim): the array

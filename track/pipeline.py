@@ -367,7 +367,9 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                 v = vols[i]
                 t0 = time.perf_counter()
                 vol = vol0 if i == 0 else tio.read_volume(v)
-                det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_um=v.origin_um)
+                det = detect_particles(
+                    vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um
+                )
                 part = tio.numbered(out / "particles", v.index, ".csv")
                 tio.write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
                 clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
@@ -377,7 +379,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                         "particles": str(part.relative_to(out)),
                         "n_particles": int(clouds[i].shape[0]),
                         "voxel_size_um": list(v.voxel_size_um),
-                        "origin_um": list(v.origin_um),
+                        "origin_xyz_um": list(v.origin_xyz_um),
                         "seconds": time.perf_counter() - t0,
                         "report": det.report,
                     }
@@ -500,8 +502,8 @@ def _link_and_write(
     if res.axes is not None:
         summary["grid"] = {
             "shape_zyx": list(res.axes.shape),
-            "spacing_um": list(res.axes.spacing_um),
-            "origin_um": list(res.axes.origin_um),
+            "spacing_xyz_um": list(res.axes.spacing_xyz_um),
+            "origin_xyz_um": list(res.axes.origin_xyz_um),
         }
     summary["timings"]["link_s"] = t1 - t0
     summary["timings"]["fields_s"] = t2 - t1

@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 
+from hrvbase.validate import points_xyz
+
 from .errors import InputError, TrackError, TrackingError
 from .fields import (
     DisplacementInterpolant,
@@ -418,6 +420,43 @@ def compose_step(
     return np.asarray(u_prev_um, float) + u_inc, F_total, increment.supported(x)
 
 
+class EulerianCumulation:
+    """Total fields on the reference grid, one increment at a time (module docstring).
+
+    Parameters
+    ----------
+    axes : GridAxes
+        Reference grid (frame 0 configuration).
+    """
+
+    def __init__(self, axes: GridAxes) -> None:
+        self.axes = axes
+        self._X = axes.points()
+        self._u = np.zeros_like(self._X)
+        self._F = np.broadcast_to(np.eye(3), (self._X.shape[0], 3, 3)).copy()
+        self._mask = np.ones(self._X.shape[0], dtype=bool)
+
+    def add(self, increment: DisplacementInterpolant) -> GridField:
+        """Compose the next increment (a field over the previous frame's configuration);
+        the total field from frame 0 to the increment's deformed frame."""
+        self._u, self._F, sup = compose_step(
+            self._X, self._u, self._F, increment, self.axes.spacing_xyz_um
+        )
+        self._mask &= sup
+        shape = self.axes.shape
+        Fg = self._F.reshape(*shape, 3, 3)
+        return GridField(
+            self.axes.x_um,
+            self.axes.y_um,
+            self.axes.z_um,
+            self._u.reshape(*shape, 3),
+            Fg,
+            green_lagrange(Fg),
+            infinitesimal(Fg),
+            self._mask.reshape(shape),
+        )
+
+
 def cumulate_eulerian(
     axes: GridAxes, increments: Sequence[DisplacementInterpolant]
 ) -> list[GridField]:
@@ -436,39 +475,12 @@ def cumulate_eulerian(
         Entry ``k``: total displacement and ``F = F_inc,k · … · F_inc,0`` from frame 0 to
         frame ``k + 1`` (module docstring), with ``E`` and ``e`` of that ``F``.
     """
-    X = axes.points()
-    u = np.zeros_like(X)
-    F = np.broadcast_to(np.eye(3), (X.shape[0], 3, 3)).copy()
-    mask = np.ones(X.shape[0], dtype=bool)
-    step = axes.spacing_um
-    out = []
-    for inc in increments:
-        u, F, sup = compose_step(X, u, F, inc, step)
-        mask &= sup
-        shape = axes.shape
-        Fg = F.reshape(*shape, 3, 3)
-        out.append(
-            GridField(
-                axes.x_um,
-                axes.y_um,
-                axes.z_um,
-                u.reshape(*shape, 3),
-                Fg,
-                green_lagrange(Fg),
-                infinitesimal(Fg),
-                mask.reshape(shape),
-            )
-        )
-    return out
+    cumulation = EulerianCumulation(axes)
+    return [cumulation.add(inc) for inc in increments]
 
 
 def _points(arr, name: str) -> np.ndarray:
-    a = np.asarray(arr, dtype=float)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise InputError(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{name} holds NaN or infinite coordinates")
-    return a
+    return points_xyz(arr, name, error=InputError)
 
 
 def _default_linker():
@@ -652,9 +664,6 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
 
 def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field) -> None:
     done = on_field or (lambda k: None)
-    step = axes.spacing_um
-    X = axes.points()
-    shape = axes.shape
     if settings.mode == "cumulative":
         for k, pair in enumerate(pairs):
             try:
@@ -666,9 +675,7 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_fie
                 status[k] = f"skipped: {exc}"
             done(k)
         return
-    u = np.zeros_like(X)
-    F = np.broadcast_to(np.eye(3), (X.shape[0], 3, 3)).copy()
-    mask = np.ones(X.shape[0], dtype=bool)
+    cumulation = EulerianCumulation(axes)
     broken = None
     for k, pair in enumerate(pairs):
         try:
@@ -684,19 +691,7 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_fie
             status[k] = broken
             done(k)
             continue
-        u, F, sup = compose_step(X, u, F, interp, step)
-        mask &= sup
-        Fg = F.reshape(*shape, 3, 3)
-        totals[k] = GridField(
-            axes.x_um,
-            axes.y_um,
-            axes.z_um,
-            u.reshape(*shape, 3),
-            Fg,
-            green_lagrange(Fg),
-            infinitesimal(Fg),
-            mask.reshape(shape),
-        )
+        totals[k] = cumulation.add(interp)
         status[k] = OK
         done(k)
 
@@ -705,6 +700,7 @@ __all__ = [
     "MAX_GRID_NODES",
     "MODES",
     "SPACING_NODES_FACTOR",
+    "EulerianCumulation",
     "PairResult",
     "SeriesResult",
     "SeriesSettings",

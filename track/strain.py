@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hrvbase.validate import points_xyz
+
 from .errors import InputError
 
 log = logging.getLogger(__name__)
@@ -179,12 +181,7 @@ class ParticleStrain:
 
 
 def _points(arr, name: str) -> np.ndarray:
-    a = np.asarray(arr, dtype=float)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise InputError(f"{name} must have shape (N, 3) in x, y, z order (µm), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{name} holds NaN or infinite values")
-    return a
+    return points_xyz(arr, name, error=InputError)
 
 
 def particle_deformation_gradient(

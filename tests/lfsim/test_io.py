@@ -123,7 +123,7 @@ def test_volume_scale_and_origin_for_imagej_readers(tmp_path):
     )
     (info,) = scan_volumes(tmp_path / "series")
     assert info.shape == (6, 5, 4) and info.voxel_size_um == (5.0, 25 / 3, 1.62)
-    assert info.origin_um == pytest.approx(origin)
+    assert info.origin_xyz_um == pytest.approx(origin)
 
 
 def test_other_dtypes_are_plain_tiff_with_the_same_metadata(tmp_path):
@@ -175,7 +175,7 @@ def test_files_of_the_previous_layout_still_read(tmp_path):
     assert info.shape == (1, 3, 4) and info.voxel_size_um == (5.0, 2.0, 2.0)
     # recon's old files: origin_um is the corner of lenslet (0, 0); voxel centres are half a
     # voxel further in.
-    assert info.origin_um == pytest.approx((11.0, 21.0, -80.0))
+    assert info.origin_xyz_um == pytest.approx((11.0, 21.0, -80.0))
 
 
 def test_track_reads_a_volume_resaved_by_fiji(tmp_path):
@@ -192,7 +192,7 @@ def test_track_reads_a_volume_resaved_by_fiji(tmp_path):
     )
     (info,) = scan_volumes(tmp_path)
     assert info.voxel_size_um == pytest.approx((4.0, 2.5, 1.5))
-    assert info.origin_um == pytest.approx((0.0, 0.0, -80.0))
+    assert info.origin_xyz_um == pytest.approx((0.0, 0.0, -80.0))
     # an uncalibrated ImageJ file (unit pixel) has no voxel size
     (tmp_path / "000000.tif").unlink()
     tifffile.imwrite(tmp_path / "000000.tif", vol, imagej=True, metadata={"axes": "ZYX"})

@@ -161,7 +161,7 @@ def test_detect_particles_end_to_end(scene, method):
     vol, truth = scene
     origin = (-100.0, 20.0, 300.0)
     det = detect_particles(
-        vol, VOXEL, DetectSettings(psf_box_um=PSF_BOX_UM, method=method), origin_um=origin
+        vol, VOXEL, DetectSettings(psf_box_um=PSF_BOX_UM, method=method), origin_xyz_um=origin
     )
     assert not det.empty and not det.report["empty"]
     dist, idx = _match(det.positions_vox, truth)
@@ -221,7 +221,7 @@ def test_detect_empty_volume_returns_empty_detection(rng):
         (np.full((5, 5, 5), np.inf), VOXEL, {}, "non-finite"),
         (np.zeros((5, 5, 5)), (5.0, 0.0, 1.64), {}, "voxel_size_um"),
         (np.zeros((5, 5, 5)), (5.0, 1.64), {}, "voxel_size_um"),
-        (np.zeros((5, 5, 5)), VOXEL, {"origin_um": (0, np.nan, 0)}, "origin_um"),
+        (np.zeros((5, 5, 5)), VOXEL, {"origin_xyz_um": (0, np.nan, 0)}, "origin_xyz_um"),
         (np.zeros((5, 5, 5)), VOXEL, {"settings": "fast"}, "settings"),
         (np.zeros((5, 5, 5)), VOXEL, {"psf": np.ones((2, 3, 3))}, "psf"),
     ],

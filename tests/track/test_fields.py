@@ -30,7 +30,7 @@ def test_default_grid_has_about_50000_nodes():
     ax = grid_axes(_cloud())
     n = int(np.prod(ax.shape))
     assert 40_000 < n < 65_000
-    dx, dy, dz = ax.spacing_um
+    dx, dy, dz = ax.spacing_xyz_um
     assert dx == pytest.approx(dy) == pytest.approx(dz)
     X = _cloud()
     assert np.all(ax.x_um[0] <= X[:, 0].min()) and ax.x_um[-1] >= X[:, 0].max()
@@ -38,7 +38,7 @@ def test_default_grid_has_about_50000_nodes():
 
 def test_user_spacing_and_flat_cloud():
     ax = grid_axes(_cloud(), 25.0)
-    assert ax.spacing_um == pytest.approx((25.0, 25.0, 25.0))
+    assert ax.spacing_xyz_um == pytest.approx((25.0, 25.0, 25.0))
     assert ax.shape == (9, 11, 13)
     flat = _cloud()
     flat[:, 2] = 7.0
@@ -81,7 +81,7 @@ def test_gradient_of_interpolant_and_grid_agree():
     pts = ax.points()
     U = it(pts).reshape(*ax.shape, 3)
     F, _, _ = strain_from_displacement(ax, U)
-    G = it.gradient(pts, ax.spacing_um).reshape(*ax.shape, 3, 3)
+    G = it.gradient(pts, ax.spacing_xyz_um).reshape(*ax.shape, 3, 3)
     inner = (slice(1, -1),) * 3
     assert np.allclose((np.eye(3) + G)[inner], F[inner], atol=1e-10)
 
@@ -91,7 +91,7 @@ def test_gridfield_validates_shapes():
     u = np.zeros((*ax.shape, 3))
     F, E, e = strain_from_displacement(ax, u)
     g = GridField(ax.x_um, ax.y_um, ax.z_um, u, F, E, e, np.ones(ax.shape, bool))
-    assert g.shape == ax.shape and g.origin_um == ax.origin_um
+    assert g.shape == ax.shape and g.origin_xyz_um == ax.origin_xyz_um
     with pytest.raises(InputError, match=r"GridField\.u"):
         GridField(ax.x_um, ax.y_um, ax.z_um, u[:, :, :2], F, E, e, np.ones(ax.shape, bool))
 

@@ -104,7 +104,7 @@ def test_vti_parses_with_grid_and_arrays(tmp_path, encoding):
     img = root.find("ImageData")
     nz, ny, nx = g.shape
     assert img.get("WholeExtent") == f"0 {nx - 1} 0 {ny - 1} 0 {nz - 1}"
-    assert np.allclose([float(v) for v in img.get("Origin").split()], g.origin_um)
+    assert np.allclose([float(v) for v in img.get("Origin").split()], g.origin_xyz_um)
     assert np.allclose([float(v) for v in img.get("Spacing").split()], (12.0, 12.0, 12.0))
     pd = img.find("Piece/PointData")
     arrays = {da.get("Name"): da for da in pd.findall("DataArray")}
@@ -138,7 +138,7 @@ def test_scan_volume_series_with_metadata(tmp_path):
     vols = io.scan_volumes(tmp_path)
     assert [v.index for v in vols] == [0, 1, 2]
     assert vols[0].shape == (4, 6, 5) and vols[0].voxel_size_um == (5.0, 1.6, 1.6)
-    assert vols[0].origin_um == pytest.approx((10.8, 20.8, -5.0))
+    assert vols[0].origin_xyz_um == pytest.approx((10.8, 20.8, -5.0))
     assert io.read_volume(vols[1]).dtype == np.float32
 
 
@@ -151,7 +151,7 @@ def test_recon_json_supplies_voxel_size(tmp_path):
     (tmp_path / "recon.json").write_text(json.dumps(recon))
     vols = io.scan_volumes(tmp_path)
     assert vols[1].voxel_size_um == (4.0, 2.0, 2.0)
-    assert vols[1].origin_um == pytest.approx((1.0, 1.0, 100.0))
+    assert vols[1].origin_xyz_um == pytest.approx((1.0, 1.0, 100.0))
 
 
 def test_mismatched_voxel_sizes(tmp_path):
