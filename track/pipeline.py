@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from hrvbase.errors import HrvError
+from hrvbase.io import file_record, verify_record
 
 from . import io as tio
 from .errors import FailedFramesError, InputError, TrackingError
@@ -349,9 +350,17 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
         old = prev_frames.get(v.index)
         part = tio.numbered(out / "particles", v.index, ".csv")
-        if old and old.get("input_sha256") == f["input_sha256"] and part.is_file():
-            clouds[i] = tio.read_points_csv(part)
-            frames[i] = {**old, **f, "reused": True}
+        if old and old.get("input_sha256") == f["input_sha256"]:
+            if verify_record(part, old.get("particles_file")):
+                clouds[i] = tio.read_points_csv(part)
+                frames[i] = {**old, **f, "reused": True}
+            elif part.is_file():
+                log.warning(
+                    "%s changed on disk since it was written (truncated or edited); "
+                    "detecting volume %s again",
+                    part,
+                    v.path.name,
+                )
     todo = [i for i in range(len(vols)) if clouds[i] is None]
     if todo:
         log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
@@ -382,6 +391,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                         "origin_xyz_um": list(v.origin_xyz_um),
                         "seconds": time.perf_counter() - t0,
                         "report": det.report,
+                        "particles_file": file_record(part),
                     }
                 )
                 if clouds[i].shape[0] == 0:

@@ -113,3 +113,10 @@ def test_track_volumes_detects_resumes_and_links(tmp_path):
     for p in res2.pairs:  # 1.5 µm along x per frame
         assert np.allclose(np.median(p.displacement_um, axis=0), [1.5, 0, 0], atol=0.1)
     assert json.loads((out / "summary.json").read_text())["command"] == "run"
+    # Resume verifies what it keeps: a truncated particle table is detected again, only it.
+    table = out / "particles" / "000002.csv"
+    before = table.read_bytes()
+    table.write_bytes(before[: len(before) // 2])
+    res3 = track_volumes(vols, out, detect=det, series=series)
+    assert [f.reused for f in res3.frames] == [True, True, False]
+    assert table.read_bytes() == before
