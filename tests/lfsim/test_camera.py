@@ -33,16 +33,21 @@ def test_camera_flat_field_statistics(n_photons):
     img = CAM.expose(np.full((200, 200), n_photons), np.random.default_rng(int(n_photons) + 5))
     assert img.dtype == np.uint16 and img.shape == (200, 200)
     x = img.astype(np.float64)
-    mean_th = CAM.mean_dn(n_photons)
-    var_th = CAM.variance_dn(n_photons)
-    assert mean_th == pytest.approx(0.5 * 0.8 * n_photons + 100.0)
-    assert var_th == pytest.approx(0.25 * (0.8 * n_photons + 4.0) + 1 / 12)
+    # analytic: electrons ~ Poisson(QE·N), + N(0, σ_read²), × gain, + offset, rounded
+    electrons = 0.8 * n_photons
+    mean_th = 0.5 * electrons + 100.0
+    var_th = 0.5**2 * (electrons + 2.0**2) + 1 / 12  # shot + read noise + rounding
     assert abs(x.mean() - mean_th) < 4 * math.sqrt(var_th / n)
     assert abs(x.var(ddof=1) - var_th) < 4 * var_th * math.sqrt(2 / (n - 1))
-    # the measured SNR of the flat field is the theoretical one
+    # the model's formulas are these
+    assert CAM.mean_dn(n_photons) == pytest.approx(mean_th, rel=1e-12)
+    assert CAM.variance_dn(n_photons) == pytest.approx(var_th, rel=1e-12)
+    # the measured SNR of the flat field is the analytic one
     if n_photons > 0:
         snr = (x.mean() - CAM.offset_dn) / x.std()
-        assert snr == pytest.approx(CAM.snr(n_photons), rel=0.02)
+        snr_th = 0.5 * electrons / math.sqrt(var_th)
+        assert snr == pytest.approx(snr_th, rel=0.02)
+        assert CAM.snr(n_photons) == pytest.approx(snr_th, rel=1e-12)
 
 
 def test_camera_quantisation_term_matters():
@@ -50,9 +55,11 @@ def test_camera_quantisation_term_matters():
     cam = CameraModel(read_noise_e=1.0, gain_dn_per_e=1.0, offset_dn=20.0, bit_depth=8)
     x = cam.expose(np.zeros((300, 300)), 3).astype(np.float64)
     n = x.size
-    var_th = cam.variance_dn(0.0)
+    var_th = 1.0**2 * 1.0**2 + 1 / 12  # (gain · read noise)² + rounding
     assert abs(x.var(ddof=1) - var_th) < 4 * var_th * math.sqrt(2 / (n - 1))
-    assert abs(x.var(ddof=1) - cam.variance_dn(0.0, quantisation=False)) > 0.04
+    assert abs(x.var(ddof=1) - 1.0) > 0.04  # without the 1/12 DN² the variance is off
+    assert cam.variance_dn(0.0) == pytest.approx(var_th, rel=1e-12)
+    assert cam.variance_dn(0.0, quantisation=False) == pytest.approx(1.0, rel=1e-12)
 
 
 @pytest.mark.parametrize("bit_depth", [8, 12, 16])
@@ -90,8 +97,10 @@ def test_snr_falls_as_fps_rises():
     snr = snr_vs_fps(CAM, 2e6, fps)
     assert snr.shape == fps.shape
     assert np.all(np.diff(snr) < 0)
-    expected = [CAM.snr(2e6 / f) for f in fps]
-    np.testing.assert_allclose(snr, expected, rtol=1e-12)
+    # analytic: QE·N electrons over the shot, read (2 e-) and rounding (1/12 DN² at 0.5 DN/e-)
+    # noise, with N = rate / fps photons per frame
+    e = 0.8 * 2e6 / fps
+    np.testing.assert_allclose(snr, e / np.sqrt(e + 2.0**2 + (1 / 12) / 0.5**2), rtol=1e-12)
     # shot-noise limit at low fps: SNR ≈ sqrt(QE · photons)
     assert snr[0] == pytest.approx(math.sqrt(0.8 * 2e4), rel=0.01)
     # at 25 kfps 80 photons, 64 e- against 2 e- read noise

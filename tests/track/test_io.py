@@ -15,11 +15,12 @@ from track import io
 from track.fields import GridSettings, gridded_field
 from track.series import link_tracks
 
+_A = np.array([[0.0, 0.0, 0.1], [0.0, 0.02, 0.0], [0.0, 0.0, -0.01]])  # u = A x (µm)
+
 
 def _field():
     X = np.random.default_rng(0).uniform([0, 10, -5], [100, 80, 60], (80, 3))
-    u = X @ np.array([[0.0, 0.0, 0.1], [0.0, 0.02, 0.0], [0.0, 0.0, -0.01]]).T
-    return gridded_field(X, u, GridSettings(spacing_um=12.0))
+    return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0))
 
 
 def test_points_csv_round_trip_and_extra_columns(tmp_path):
@@ -85,44 +86,94 @@ def test_field_npz_round_trip(tmp_path):
         assert np.array_equal(getattr(g2, k), getattr(g, k))
 
 
-def _decode(da, n_values):
-    vtype = {"Float32": "<f4", "UInt8": "<u1"}[da.get("type")]
-    if da.get("format") == "ascii":
-        return np.array(da.text.split(), dtype=vtype)
-    raw = base64.b64decode(da.text)
-    nbytes = int(np.frombuffer(raw[:8], "<u8")[0])
-    assert nbytes == len(raw) - 8 == n_values * np.dtype(vtype).itemsize
-    return np.frombuffer(raw[8:], vtype)
+# VTK XML ImageData, decoded from the file format's definition (not from the writer): points
+# are numbered x fastest, then y, then z over the extent; position = origin + index · spacing;
+# inline "binary" data are base64 of (header_type byte count + data in byte_order).
+_VTK_TYPES = {"Float32": "f4", "Float64": "f8", "UInt8": "u1", "Int32": "i4", "UInt64": "u8"}
 
 
-@pytest.mark.parametrize("encoding", ["binary", "ascii"])
-def test_vti_parses_with_grid_and_arrays(tmp_path, encoding):
-    g = _field()
-    p = io.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
-    root = ET.parse(p).getroot()
-    assert root.get("type") == "ImageData" and root.get("header_type") == "UInt64"
+def _read_vti_xml(path):
+    root = ET.parse(path).getroot()
+    assert root.get("type") == "ImageData"
+    end = {"LittleEndian": "<", "BigEndian": ">"}[root.get("byte_order")]
+    header = np.dtype(end + _VTK_TYPES[root.get("header_type", "UInt32")])
     img = root.find("ImageData")
+    e = [int(v) for v in img.get("WholeExtent").split()]
+    n = [e[1] - e[0] + 1, e[3] - e[2] + 1, e[5] - e[4] + 1]  # points along x, y, z
+    origin = np.array([float(v) for v in img.get("Origin").split()])
+    spacing = np.array([float(v) for v in img.get("Spacing").split()])
+    pid = np.arange(n[0] * n[1] * n[2])
+    ijk = np.c_[pid % n[0], (pid // n[0]) % n[1], pid // (n[0] * n[1])] + [e[0], e[2], e[4]]
+    points = origin + ijk * spacing
+    arrays = {}
+    for da in img.find("Piece/PointData").findall("DataArray"):
+        dtype = np.dtype(end + _VTK_TYPES[da.get("type")])
+        nc = int(da.get("NumberOfComponents", "1"))
+        if da.get("format") == "ascii":
+            vals = np.array(da.text.split(), dtype=dtype)
+        else:
+            raw = base64.b64decode(da.text)
+            nbytes = int(np.frombuffer(raw[: header.itemsize], header)[0])
+            assert nbytes == len(raw) - header.itemsize
+            vals = np.frombuffer(raw[header.itemsize :], dtype)
+        arrays[da.get("Name")] = vals.reshape(len(pid), nc)
+    return points, arrays
+
+
+def _check_vti_against_truth(points, arrays, g):
+    """Every point's values are those of the affine field u = A x at the point's position."""
     nz, ny, nx = g.shape
-    assert img.get("WholeExtent") == f"0 {nx - 1} 0 {ny - 1} 0 {nz - 1}"
-    assert np.allclose([float(v) for v in img.get("Origin").split()], g.origin_xyz_um)
-    assert np.allclose([float(v) for v in img.get("Spacing").split()], (12.0, 12.0, 12.0))
-    pd = img.find("Piece/PointData")
-    arrays = {da.get("Name"): da for da in pd.findall("DataArray")}
+    assert points.shape == (nx * ny * nz, 3)
+    assert np.allclose(points.min(axis=0), g.origin_xyz_um)
+    assert np.allclose(points.max(axis=0), [g.x_um[-1], g.y_um[-1], g.z_um[-1]])
     assert {"displacement", "F", "E", "e", "E_xx", "E_xz", "e_yz", "gamma_xz", "mask"} <= set(
         arrays
     )
-    n = nx * ny * nz
-    comps = {"displacement": 3, "F": 9, "E": 9, "e": 9, "E_xx": 1, "mask": 1}
-    for name, nc in comps.items():
-        assert int(arrays[name].get("NumberOfComponents")) == nc
-        vals = _decode(arrays[name], n * nc)
-        assert vals.size == n * nc
-    u = _decode(arrays["displacement"], n * 3).reshape(nz, ny, nx, 3)
-    assert np.allclose(u, g.u, rtol=1e-5, atol=1e-4)  # x fastest: VTK point order
-    F = _decode(arrays["F"], n * 9).reshape(nz, ny, nx, 3, 3)
-    assert np.allclose(F, g.F, atol=1e-6)
-    gam = _decode(arrays["gamma_xz"], n)
-    assert np.allclose(gam, 2 * g.e[..., 0, 2].ravel(), atol=1e-6)
+    u = points @ _A.T
+    assert np.allclose(arrays["displacement"], u, rtol=1e-5, atol=1e-4)  # Float32 of ~10 µm
+    F = np.eye(3) + _A
+    E = 0.5 * (F.T @ F - np.eye(3))
+    e = 0.5 * (_A + _A.T)
+    for name, want in (("F", F), ("E", E), ("e", e)):  # 9 components, row-major
+        assert np.allclose(arrays[name], want.ravel(), atol=1e-6), name
+    assert np.allclose(arrays["E_xx"][:, 0], E[0, 0], atol=1e-6)
+    assert np.allclose(arrays["E_xz"][:, 0], E[0, 2], atol=1e-6)
+    assert np.allclose(arrays["e_yz"][:, 0], e[1, 2], atol=1e-6)
+    assert np.allclose(arrays["gamma_xz"][:, 0], 0.1 - 0.0, atol=1e-6)  # 2 e_xz = A_xz + A_zx
+    # the mask: in the VTK point order (x fastest), the same nodes as the field's
+    assert np.array_equal(arrays["mask"][:, 0].astype(bool), g.mask.ravel())
+    assert 0.2 < g.mask.mean() < 0.95  # not trivial: both kinds of node occur
+
+
+@pytest.mark.parametrize("encoding", ["binary", "ascii"])
+def test_vti_holds_the_field_at_each_point(tmp_path, encoding):
+    g = _field()
+    p = io.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
+    _check_vti_against_truth(*_read_vti_xml(p), g)
+
+
+@pytest.mark.parametrize("encoding", ["binary", "ascii"])
+def test_vti_reads_in_vtk(tmp_path, encoding):
+    """VTK's own reader (what ParaView uses) sees the same points and values."""
+    pytest.importorskip("vtkmodules.vtkIOXML", reason="VTK is not installed (optional)")
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
+
+    g = _field()
+    p = io.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
+    reader = vtkXMLImageDataReader()
+    reader.SetFileName(str(p))
+    reader.Update()
+    img = reader.GetOutput()
+    assert img.GetDimensions() == g.shape[::-1]
+    points = np.array([img.GetPoint(i) for i in range(img.GetNumberOfPoints())])
+    pd = img.GetPointData()
+    arrays = {}
+    for i in range(pd.GetNumberOfArrays()):
+        a = vtk_to_numpy(pd.GetArray(i))
+        arrays[pd.GetArrayName(i)] = a.reshape(a.shape[0], -1)
+    assert pd.GetVectors().GetName() == "displacement" and pd.GetTensors().GetName() == "F"
+    _check_vti_against_truth(points, arrays, g)
 
 
 def _volume(path, vs=(5.0, 1.6, 1.6), meta=None):
