@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import re
 import sys
 import traceback
@@ -155,6 +156,42 @@ def run_main(
             lg.setLevel(old)
 
 
+# -- argparse types --------------------------------------------------------------------------
+def int_in(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """argparse type: an integer in ``lo..hi`` (``hi=None``: no upper bound)."""
+    expected = f"an integer >= {lo}" if hi is None else f"an integer in {lo}..{hi}"
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if v < lo or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return v
+
+    return parse
+
+
+def number(ok: Callable[[float], bool], expected: str, *, keyword: str | None = None):
+    """argparse type: a finite number for which ``ok(v)`` holds (``expected`` says what), or the
+    word ``keyword`` itself."""
+    prefix = f"'{keyword}' or " if keyword else ""
+
+    def parse(text: str) -> float | str:
+        if keyword is not None and text == keyword:
+            return text
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {prefix}{expected}, got {text!r}") from None
+        if not (math.isfinite(v) and ok(v)):
+            raise argparse.ArgumentTypeError(f"expected {prefix}{expected}, got {text!r}")
+        return v
+
+    return parse
+
+
 # -- options that set fields of a settings dataclass ---------------------------------------
 @dataclasses.dataclass(frozen=True)
 class SettingOption:
@@ -261,7 +298,9 @@ __all__ = [
     "SettingOption",
     "add_setting_options",
     "common_options",
+    "int_in",
     "log_level",
+    "number",
     "one_line",
     "rename_fields",
     "run_main",

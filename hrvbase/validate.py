@@ -7,7 +7,9 @@ what was expected.
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -104,7 +106,34 @@ def per_axis(value: Any, name: str, *, positive: bool = True) -> tuple[float, fl
     return (z, y, x)
 
 
+def check_table_keys(
+    where: str,
+    section: str,
+    table: Any,
+    allowed: Iterable[str],
+    *,
+    error: type[InputError] = InputError,
+) -> Mapping:
+    """``table`` (a parsed TOML/JSON table) if all its keys are ``allowed``.
+
+    An unknown key raises ``error`` naming the file (``where``), the section, the key, the
+    closest allowed key and every allowed key.
+    """
+    if not isinstance(table, Mapping):
+        raise error(f"{where}: [{section}] must be a table, got {type(table).__name__} {table!r}")
+    allowed = list(allowed)
+    for key in table:
+        if key not in allowed:
+            hint = difflib.get_close_matches(str(key), allowed, n=1)
+            did = f" (did you mean {hint[0]!r}?)" if hint else ""
+            raise error(
+                f"{where}: [{section}] unknown key {key!r}{did}; allowed: {', '.join(allowed)}"
+            )
+    return table
+
+
 __all__ = [
+    "check_table_keys",
     "finite_float",
     "int_in_range",
     "nonnegative_float",

@@ -54,7 +54,6 @@ Kinds of study (what the truth is compared with):
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import os
 import tomllib
@@ -63,6 +62,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hrvbase.validate import check_table_keys
 from recon.settings import ReconSettings
 from track.detect import DetectSettings
 from track.fields import GridSettings
@@ -85,16 +85,7 @@ def _int(v: Any) -> bool:
 
 
 def _check_keys(where: str, section: str, table: Any, allowed) -> Mapping:
-    if not isinstance(table, Mapping):
-        raise StudyConfigError(f"{where}: [{section}] must be a table, got {table!r}")
-    for key in table:
-        if key not in allowed:
-            hint = difflib.get_close_matches(str(key), allowed, n=1)
-            did = f" (did you mean {hint[0]!r}?)" if hint else ""
-            raise StudyConfigError(
-                f"{where}: [{section}] unknown key {key!r}{did}; allowed: {', '.join(allowed)}"
-            )
-    return table
+    return check_table_keys(where, section, table, allowed, error=StudyConfigError)
 
 
 @dataclass(frozen=True)

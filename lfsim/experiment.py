@@ -68,6 +68,8 @@ from typing import Any
 
 import numpy as np
 
+from hrvbase.validate import check_table_keys
+
 from .camera import BIT_DEPTHS
 from .errors import ConfigError
 from .motion import Motion, UserField, _is_path, motion_from_dict
@@ -106,20 +108,7 @@ def _is_num(v: Any) -> bool:
 
 
 def _check_keys(where: str, section: str, table: Any, allowed) -> Mapping:
-    if not isinstance(table, Mapping):
-        raise ConfigError(
-            f"{where}: [{section}] must be a table, got {type(table).__name__} {table!r}"
-        )
-    allowed = list(allowed)
-    for key in table:
-        if key not in allowed:
-            hint = difflib.get_close_matches(str(key), allowed, n=1)
-            did = f" (did you mean {hint[0]!r}?)" if hint else ""
-            raise ConfigError(
-                f"{where}: unknown key {key!r} in [{section}]{did}; allowed keys: "
-                f"{', '.join(allowed)}"
-            )
-    return table
+    return check_table_keys(where, section, table, allowed, error=ConfigError)
 
 
 @dataclass(frozen=True)

@@ -48,7 +48,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from hrvbase.cli import SettingOption, add_setting_options, settings_from_args
+from hrvbase.cli import SettingOption, add_setting_options, int_in, settings_from_args
 
 from . import __version__
 from .calibration_file import (
@@ -66,16 +66,6 @@ from .settings import BACKGROUND_MODELS, ReconSettings
 log = logging.getLogger("recon.cli")
 
 
-def _threads(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
 def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
     """``--threads`` and the shared ``-q``/``-v``, accepted before and after the command name.
 
@@ -87,7 +77,7 @@ def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False, parents=[common_options(suppress=suppress)])
     common.add_argument(
         "--threads",
-        type=_threads,
+        type=int_in(1),
         metavar="N",
         default=argparse.SUPPRESS if suppress else None,
         help="worker threads for the Dr.Jit backend of the reconstruction commands "

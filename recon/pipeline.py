@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lfsim.optics import REQUIRED as INSTRUMENT_FIELDS
+
 from .deconvolve import richardson_lucy
 from .errors import InputError, ReconError
 from .filters import DepthFilter
@@ -72,16 +74,7 @@ def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> N
 #: Optics a calibration and the scene of a run must agree on: a lenslet grid fitted on one
 #: microscope places lenslets, and the optical axis (the object origin), wrongly on another.
 #: The lenslet kind (glass or ideal) is not among them: both model the same microscope.
-OPTICS_MATCH_FIELDS = (
-    "na",
-    "f_objective_um",
-    "f_tube_um",
-    "mla_pitch_um",
-    "mla_focal_um",
-    "pixel_um",
-    "sensor_px",
-    "axis_px",
-)
+OPTICS_MATCH_FIELDS = (*INSTRUMENT_FIELDS, "axis_px")
 
 #: Relative tolerance of :func:`optics_differences`.
 OPTICS_RTOL = 1e-6

@@ -53,7 +53,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -65,6 +64,8 @@ from hrvbase.cli import (
     SettingOption,
     add_setting_options,
     common_options,
+    int_in,
+    number,
     run_main,
     settings_from_args,
     show_progress,
@@ -82,62 +83,11 @@ log = logging.getLogger("track.cli")
 EXIT_FAILED = 3
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _count(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return v
-
-
-def _int_in(lo: int, hi: int):
-    """argparse type: an integer in ``lo..hi``."""
-    message = f"expected an integer in {lo}..{hi}, got {{!r}}"
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(message.format(text)) from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(message.format(text))
-        return v
-
-    return parse
-
-
-def _keyword_or_number(keyword: str, ok, expected: str):
-    """argparse type: ``keyword`` itself, or a finite number for which ``ok(v)`` holds."""
-    message = f"expected '{keyword}' or {expected}, got {{!r}}"
-
-    def parse(text: str) -> float | str:
-        if text == keyword:
-            return text
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(message.format(text)) from None
-        if not (math.isfinite(v) and ok(v)):
-            raise argparse.ArgumentTypeError(message.format(text))
-        return v
-
-    return parse
-
-
-_smoothing = _keyword_or_number("gcv", lambda v: v >= 0, "a number >= 0")
-_threshold = _keyword_or_number("auto", lambda v: 0 < v < 1, "a fraction in (0, 1)")
+_positive_float = number(lambda v: v > 0, "a positive number")
+_count = int_in(0)
+_int_in = int_in
+_smoothing = number(lambda v: v >= 0, "a number >= 0", keyword="gcv")
+_threshold = number(lambda v: 0 < v < 1, "a fraction in (0, 1)", keyword="auto")
 
 
 def _common(p: argparse.ArgumentParser) -> None:
