@@ -163,6 +163,7 @@ def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
 
 
 def cmd_render(args) -> int:
+    from .experiment import DEFAULT_NOISE
     from .io import sha256_file
     from .noise import NoiseSpec, apply_noise
     from .particles import Particles
@@ -182,7 +183,9 @@ def cmd_render(args) -> int:
     if not args.float:
         spec = NoiseSpec(
             model=noise_model,
-            snr=(17.0 if args.snr is None else args.snr) if noise_model == "gaussian" else None,
+            snr=(DEFAULT_NOISE["snr"] if args.snr is None else args.snr)
+            if noise_model == "gaussian"
+            else None,
             bit_depth=args.bit_depth,
         )
     scene = _read_scene(args.scene)
@@ -273,6 +276,14 @@ def build_parser() -> argparse.ArgumentParser:
     from hrvbase.cli import Parser, common_options
 
     from . import __version__
+    from .experiment import DEFAULT_NOISE, WhiteConfig
+    from .render import (
+        MICROMETER_DIVISION_UM,
+        MICROMETER_LINE_WIDTH_UM,
+        MICROMETER_RAYS_PER_LINE,
+        WHITE_RAYS_PER_LENSLET,
+    )
+    from .tracer import RenderSettings
 
     p = Parser(
         prog="lfsim",
@@ -310,7 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
             type=float,
             default=None if snr is None else snr,
             help="S/sigma of the Gaussian noise, S = P99.9 of the clean image "
-            + f"(default {snr or 17:g}"
+            + f"(default {snr or DEFAULT_NOISE['snr']:g}"
             + ("" if snr else "; --noise gaussian only")
             + ")",
         )
@@ -366,7 +377,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="P.csv",
         help="CSV with x_um,y_um,z_um[,id,diameter_um,brightness] (required)",
     )
-    r.add_argument("--rays", type=int, default=100_000, help="rays per particle (default 100000)")
+    r.add_argument(
+        "--rays",
+        type=int,
+        default=RenderSettings.rays_per_particle,
+        help=f"rays per particle (default {RenderSettings.rays_per_particle})",
+    )
     r.add_argument(
         "--noise",
         choices=("none", "gaussian", "camera"),
@@ -390,19 +406,27 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument(
         "--rays-per-lenslet",
         type=int,
-        default=20_000,
-        help="rays traced per lenslet (default 20000)",
+        default=WHITE_RAYS_PER_LENSLET,
+        help=f"rays traced per lenslet (default {WHITE_RAYS_PER_LENSLET})",
     )
-    image_options(w, snr=50.0, bits=16, what="white image to write")
+    image_options(w, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="white image")
     w.set_defaults(func=cmd_white, needs_backend=True)
 
     m = sub.add_parser(
         "micrometer", parents=[common], help="stage-micrometer image for pixel-size calibration"
     )
     m.add_argument(
-        "--division-um", type=float, default=10.0, help="line spacing in µm (default 10)"
+        "--division-um",
+        type=float,
+        default=MICROMETER_DIVISION_UM,
+        help=f"line spacing in µm (default {MICROMETER_DIVISION_UM:g})",
     )
-    m.add_argument("--line-width-um", type=float, default=2.0, help="line width in µm (default 2)")
+    m.add_argument(
+        "--line-width-um",
+        type=float,
+        default=MICROMETER_LINE_WIDTH_UM,
+        help=f"line width in µm (default {MICROMETER_LINE_WIDTH_UM:g})",
+    )
     m.add_argument(
         "--axis",
         choices=("x", "y"),
@@ -410,9 +434,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="scale direction; x: lines perpendicular to x (default x)",
     )
     m.add_argument(
-        "--rays-per-line", type=int, default=50_000, help="rays traced per line (default 50000)"
+        "--rays-per-line",
+        type=int,
+        default=MICROMETER_RAYS_PER_LINE,
+        help=f"rays traced per line (default {MICROMETER_RAYS_PER_LINE})",
     )
-    image_options(m, snr=50.0, bits=16, what="micrometer image to write")
+    image_options(m, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="micrometer image")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)
 
     d = sub.add_parser(

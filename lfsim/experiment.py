@@ -75,7 +75,7 @@ from .errors import ConfigError
 from .motion import Motion, UserField, _is_path, motion_from_dict
 from .noise import NoiseSpec
 from .optics import Optics
-from .render import TRACERS
+from .render import TRACERS, WHITE_RAYS_PER_LENSLET
 from .scene import read_optics
 from .seeding import SeedingSpec
 from .tracer import RenderSettings
@@ -120,10 +120,10 @@ class RenderConfig:
     launch. Frames are traced in mode ``"photons"`` (integer counts, bit-identical per seed).
     """
 
-    rays_per_particle: int = 100_000
+    rays_per_particle: int = RenderSettings.rays_per_particle
     tracer: str = "mitsuba"
-    diffraction: bool = True
-    batch_rays: int = 1 << 22
+    diffraction: bool = RenderSettings.diffraction
+    batch_rays: int = RenderSettings.batch_rays
 
     def __post_init__(self) -> None:
         if self.tracer not in TRACERS:
@@ -154,7 +154,7 @@ class WhiteConfig:
     (``P99.9(clean) / sigma``), ``bit_depth`` bits (16 → uint16), ``enabled`` to write it.
     """
 
-    rays_per_lenslet: int = 20_000
+    rays_per_lenslet: int = WHITE_RAYS_PER_LENSLET
     snr: float = 50.0
     bit_depth: int = 16
     enabled: bool = True

@@ -136,9 +136,17 @@ def white_sources(optics, thickness_um: float = 2.0, margin_um: float | None = N
     return Sources.boxes(centers, (step, step, thickness_um))
 
 
+#: Rays per lenslet footprint of a white image (the default of the CLI and experiment files).
+WHITE_RAYS_PER_LENSLET = 20_000
+#: Stage micrometer defaults: line spacing and width (µm) and rays per line.
+MICROMETER_DIVISION_UM = 10.0
+MICROMETER_LINE_WIDTH_UM = 2.0
+MICROMETER_RAYS_PER_LINE = 50_000
+
+
 def render_white(
     scene,
-    rays_per_lenslet: int = 20_000,
+    rays_per_lenslet: int = WHITE_RAYS_PER_LENSLET,
     *,
     seed: int = 0,
     diffraction: bool = True,
@@ -202,11 +210,11 @@ def micrometer_sources(
 
 def render_micrometer(
     scene,
-    division_um: float = 10.0,
+    division_um: float = MICROMETER_DIVISION_UM,
     *,
-    line_width_um: float = 2.0,
+    line_width_um: float = MICROMETER_LINE_WIDTH_UM,
     axis: str = "x",
-    rays_per_line: int = 50_000,
+    rays_per_line: int = MICROMETER_RAYS_PER_LINE,
     seed: int = 0,
     tracer: str = "mitsuba",
 ) -> np.ndarray:

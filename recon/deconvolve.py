@@ -62,7 +62,7 @@ def kl_divergence(y: np.ndarray, model: np.ndarray) -> float:
 def richardson_lucy(
     image: np.ndarray,
     projector,
-    iterations: int = 3,
+    iterations: int,
     *,
     depth_filter=None,
     x0: np.ndarray | None = None,

@@ -233,7 +233,10 @@ def _points(arr, name: str) -> np.ndarray:
 
 
 def grid_axes(
-    points_um: np.ndarray, spacing_um: float | None = None, *, target_nodes: int = 50_000
+    points_um: np.ndarray,
+    spacing_um: float | None = None,
+    *,
+    target_nodes: int = GridSettings.target_nodes,
 ) -> GridAxes:
     """Regular grid over the bounding box of ``points_um``.
 
