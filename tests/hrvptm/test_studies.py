@@ -23,7 +23,7 @@ from hrvptm.cli import main
 EXPERIMENTS = Path(__file__).resolve().parents[2] / "scenes" / "experiments"
 _RUNS: dict[str, dict] = {}
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.studies]
 
 
 @pytest.fixture(scope="module")
