@@ -117,14 +117,16 @@ def test_background_in_the_model_instead_of_clipped_noise(small_projector, point
     modelled = richardson_lucy(raw, small_projector, 3, track_kl=False, background=b)
     bias = 0.4 * sigma * raw.size  # flux of the clipped noise
     assert clipped.volume.sum() == pytest.approx(true_flux + bias, rel=0.15)  # 3.4× the signal
-    # RL still fits the upward noise a little (x >= 0): 8 % here, against 240 %.
-    assert modelled.volume.sum() == pytest.approx(true_flux, rel=0.4)
-    assert modelled.volume.sum() - true_flux < 0.1 * (clipped.volume.sum() - true_flux)
-    # The particles come out where they are, above any haze.
+    # RL still fits the upward noise a little (x >= 0): 7.9 % here, against 240 %.
+    assert modelled.volume.sum() == pytest.approx(true_flux, rel=0.16)
+    # the flux excess is 3.2 % of the clipped one (measured)
+    assert modelled.volume.sum() - true_flux < 0.07 * (clipped.volume.sum() - true_flux)
+    # The particles come out where they are, above any haze: 35 of the 50 brightest voxels
+    # are those of the noise-free reconstruction (measured)
     r0 = richardson_lucy(signal, small_projector, 3, track_kl=False)
     top0 = set(np.argsort(r0.volume.ravel())[-50:])
     top1 = set(np.argsort(modelled.volume.ravel())[-50:])
-    assert len(top0 & top1) >= 25
+    assert len(top0 & top1) >= 30
     assert modelled.volume.max() > 5 * np.median(modelled.volume)  # a slow-to-clear haze
     # noise-free data with a zero background: identical to the background-free call
     r2 = richardson_lucy(signal, small_projector, 3, track_kl=False, background=0.0)
