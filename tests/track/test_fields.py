@@ -262,3 +262,23 @@ def test_local_rbf_above_rbf_max_points(monkeypatch):
     assert np.all(err_u < [0.055, 0.045, 0.24]), err_u
     err_g = np.sqrt(np.mean((fit.gradient(Xt, 1.0) - _smooth_gradient(Xt)) ** 2))
     assert err_g < 0.025, err_g
+
+
+def test_gcv_on_a_subset_inside_the_field_fit():
+    """``gcv_max_points`` below the particle count: λ is chosen on a subset, recorded on the
+    interpolant, and the field is as accurate as with GCV on all particles (measured RMSE
+    ratio 1.02 / 1.00 / 1.10) and far better than exact interpolation (0.53 / 0.08 / 0.30)."""
+    X, Y, truth, Xt = _noisy_field(n=400)
+    yt = truth(Xt)
+    sub = fit_displacement(X, Y, GridSettings(gcv_max_points=100))
+    assert sub.smoothing == pytest.approx(tuple(gcv_smoothing(X, Y, max_points=100)))
+    assert min(sub.smoothing) > 0
+    full = fit_displacement(X, Y, GridSettings(gcv_max_points=400))
+    exact = fit_displacement(X, Y, GridSettings(smoothing=0.0))
+
+    def rmse(f):
+        return np.sqrt(np.mean((f(Xt) - yt) ** 2, axis=0))
+
+    e_sub, e_full, e_exact = rmse(sub), rmse(full), rmse(exact)
+    assert np.all(e_sub < 1.2 * e_full), e_sub / e_full
+    assert np.all(e_sub < 0.75 * e_exact), e_sub / e_exact
