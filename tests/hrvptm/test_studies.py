@@ -13,7 +13,6 @@ or swaps particles, a wrong strain definition) fails them.
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import pytest
@@ -33,10 +32,9 @@ def reports(tmp_path_factory):
     def run(name: str) -> dict:
         if name not in _RUNS:
             out = root / name
-            t0 = time.perf_counter()
             assert main(["study", str(EXPERIMENTS / f"{name}.toml"), "-o", str(out), "-q"]) == 0
             summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
-            _RUNS[name] = {"out": out, "summary": summary, "seconds": time.perf_counter() - t0}
+            _RUNS[name] = {"out": out, "summary": summary}
         return _RUNS[name]
 
     return run
@@ -53,20 +51,46 @@ def _series_ok(v: dict, min_ratio: float = 0.95) -> None:
     assert all(r["n_tracked"] >= 10 for r in v["rows"])
 
 
-def _strain_ok(v: dict) -> None:
-    """Strain against the imposed one (fields smoothed by GCV, track's default). In-plane
-    components (xx, yy, xy): measured at test size ≤ 0.19 % RMSD and ≤ 0.10 % mean error,
-    bounded by 0.4 % and 0.25 % (the paper: < 1 % and < 3 %). Components that differentiate
-    the axial displacement (zz, xz, yz; the paper also excludes zz and zy) rest on 15–24
-    particles with ≈ 2–3 µm axial noise: measured up to 2.2 % RMSD and 2.6 % mean error,
-    bounded here by 4.5 %."""
+#: Strain errors measured at test size (%, pooled RMSD and worst frame's |mean error| per
+#: component xx, yy, xy, zz, xz, yz; both variants of 6c, the larger), fields smoothed by GCV.
+MEASURED_E = {
+    "fig6a_uniaxial_test": (
+        (0.143, 0.140, 0.070, 1.988, 1.376, 0.983),
+        (0.076, 0.034, 0.038, 2.147, 0.571, 0.501),
+    ),
+    "fig6b_rotation_test": (
+        (0.122, 0.110, 0.087, 2.217, 1.145, 1.289),
+        (0.101, 0.018, 0.058, 0.603, 0.382, 0.804),
+    ),
+    "fig6c_simple_shear_test": (
+        (0.083, 0.035, 0.096, 1.439, 0.408, 0.690),
+        (0.022, 0.048, 0.057, 1.555, 0.135, 0.279),
+    ),
+    "fig7_shear_impact_test": (
+        (0.186, 0.033, 0.109, 0.581, 0.382, 0.269),
+        (0.053, 0.034, 0.033, 0.613, 0.239, 0.095),
+    ),
+    "demo_simple_shear": (
+        (0.123, 0.143, 0.103, 2.662, 0.471, 0.616),
+        (0.049, 0.048, 0.061, 2.588, 0.313, 0.418),
+    ),
+}
+
+
+def _strain_ok(v: dict, study: str) -> None:
+    """Strain against the imposed one, each component within 2× the error measured for this
+    study (at least 0.05 %, the scatter of one particle's localisation), and never above the
+    acceptance bounds: in-plane (xx, yy, xy) 0.4 % RMSD and 0.25 % mean error (the paper:
+    < 1 % and < 3 %); the components that differentiate the axial displacement (zz, xz, yz;
+    the paper excludes zz and zy) rest on 15–24 particles with ≈ 2–3 µm axial noise: 4.5 %."""
     s = v["summary"]
-    for c in ("xx", "yy", "xy"):
-        assert s[f"pooled_E_rmsd_{c}"] < 0.004, c
-        assert s[f"worst_E_abs_mean_err_{c}"] < 0.0025, c
-    for c in ("zz", "xz", "yz"):
-        assert s[f"pooled_E_rmsd_{c}"] < 0.045, c
-        assert s[f"worst_E_abs_mean_err_{c}"] < 0.045, c
+    rmsd, mean = MEASURED_E[study]
+    for i, c in enumerate(("xx", "yy", "xy", "zz", "xz", "yz")):
+        cap_rmsd, cap_mean = (0.4, 0.25) if i < 3 else (4.5, 4.5)
+        bound_rmsd = min(max(2 * rmsd[i], 0.05), cap_rmsd) / 100
+        bound_mean = min(max(2 * mean[i], 0.05), cap_mean) / 100
+        assert s[f"pooled_E_rmsd_{c}"] < bound_rmsd, (c, s[f"pooled_E_rmsd_{c}"])
+        assert s[f"worst_E_abs_mean_err_{c}"] < bound_mean, (c, s[f"worst_E_abs_mean_err_{c}"])
 
 
 def test_fig4a_localization_against_snr(reports):
@@ -119,9 +143,11 @@ def test_fig5a_inplane_translation(reports, axis):
     # Paper: RMSD 0.60 (x), 0.59 (y), 3.2 µm (z); the acceptance bounds.
     assert s["pooled_u_rmsd_x"] < 0.45 and s["pooled_u_rmsd_y"] < 0.45
     assert s["pooled_u_rmsd_z"] < 3.2
-    last = v["rows"][-1]
-    assert last[f"u_true_{axis}"] == pytest.approx(20.0)
-    assert last[f"u_meas_{axis}"] == pytest.approx(20.0, abs=0.2)
+    # mean measured displacement of each frame against the imposed one: measured at most
+    # 0.04 (x), 0.09 (y) in-plane and 1.13 µm axially
+    for r in v["rows"]:
+        assert abs(r["u_meas_x"] - r["u_true_x"]) < 0.2 and abs(r["u_meas_y"] - r["u_true_y"]) < 0.2
+        assert abs(r["u_meas_z"] - r["u_true_z"]) < 2.3
 
 
 def test_fig5b_axial_translation_of_a_layer(reports):
@@ -145,17 +171,18 @@ def test_fig5b_axial_translation_of_a_layer(reports):
 def test_fig6a_uniaxial_tension(reports):
     v = _v(reports("fig6a_uniaxial_test"))
     _series_ok(v)
-    _strain_ok(v)
-    last = v["rows"][-1]
-    assert last["E_true_xx"] == pytest.approx((1.25**2 - 1) / 2)
-    assert last["E_meas_xx"] == pytest.approx(last["E_true_xx"], abs=0.01)
+    _strain_ok(v, "fig6a_uniaxial_test")
+    last = v["rows"][-1]  # stretch 25 %: E_xx = 0.281 (measured 0.2818)
+    assert last["E_meas_xx"] == pytest.approx(last["E_true_xx"], abs=0.001)
 
 
 def test_fig6b_rigid_rotation(reports):
     v = _v(reports("fig6b_rotation_test"))
     _series_ok(v)
-    _strain_ok(v)
-    assert v["rows"][-1]["amplitude"] == pytest.approx(45.0)
+    _strain_ok(v, "fig6b_rotation_test")
+    # displacements up to the rotation's 45°: worst frame RMSD measured 0.44 / 0.89 / 3.98 µm
+    s = v["summary"]
+    assert s["worst_u_rmsd_x"] < 0.9 and s["worst_u_rmsd_y"] < 1.8 and s["worst_u_rmsd_z"] < 8.0
 
 
 def test_fig6c_simple_shear_with_and_without_inverse_crime(reports):
@@ -163,30 +190,32 @@ def test_fig6c_simple_shear_with_and_without_inverse_crime(reports):
     mis, mat = _v(run, "mismatched"), _v(run, "matched")
     for v in (mis, mat):
         _series_ok(v)
-        _strain_ok(v)
-        last = v["rows"][-1]
-        assert 2 * last["E_meas_xz"] == pytest.approx(0.25, abs=0.01)  # γ = 25 %
-    # The glass lenslets barely change the result (the gap the report shows).
+        _strain_ok(v, "fig6c_simple_shear_test")
+        last = v["rows"][-1]  # γ = 25 %: 2 E_xz measured 24.85 % and 24.83 %
+        assert 2 * last["E_meas_xz"] == pytest.approx(2 * last["E_true_xz"], abs=0.004)
+    # The glass lenslets barely change the result (the gap the report shows): measured 0.003 µm
     gap = abs(mis["summary"]["pooled_u_rmsd_x"] - mat["summary"]["pooled_u_rmsd_x"])
-    assert gap < 0.1
+    assert gap < 0.01
     for name in ("displacement.png", "strain.png", "vectors.png"):
         assert (run["out"] / "plots" / name).is_file()
+    # the report's table shows the measured values of both variants
     md = (run["out"] / "summary.md").read_text(encoding="utf-8")
-    assert "| strain RMSD E_xz | 1.00 % |" in md and "matched" in md
+    row = next(line for line in md.splitlines() if line.startswith("| strain RMSD E_xz |"))
+    for v in (mis, mat):
+        assert f"{100 * v['summary']['pooled_E_rmsd_xz']:.2f} % ✓" in row, row
 
 
 def test_fig7_shear_impact_history(reports):
     run = reports("fig7_shear_impact_test")
     v = _v(run)
     _series_ok(v)
-    rows = v["rows"]
-    peak = max(rows, key=lambda r: r["amplitude"])
-    assert peak["amplitude"] > 30.0  # the overshoot of the prescribed history (γ in %)
-    assert 2 * peak["E_meas_xz"] == pytest.approx(peak["amplitude"] / 100, abs=0.015)
-    # E_zz follows the finite-deformation theory γ²/2 (the paper's Fig. 7 check).
-    assert peak["E_true_zz"] == pytest.approx((peak["amplitude"] / 100) ** 2 / 2)
-    assert abs(peak["E_meas_zz"] - peak["E_true_zz"]) < 0.02
-    assert rows[0]["time_s"] == pytest.approx(0.04)
+    _strain_ok(v, "fig7_shear_impact_test")
+    for r in v["rows"]:
+        # the shear history: 2 E_xz within 0.48 % of the imposed γ (measured, worst frame)
+        assert 2 * r["E_meas_xz"] == pytest.approx(2 * r["E_true_xz"], abs=0.01)
+        # E_zz follows the finite-deformation theory γ²/2 of the *measured* shear (the paper's
+        # Fig. 7 check): measured within 0.62 % (at the peak, γ = 31 %)
+        assert abs(r["E_meas_zz"] - (2 * r["E_meas_xz"]) ** 2 / 2) < 0.012
     for name in ("strain_history.png", "slices.png"):
         assert (run["out"] / "plots" / name).is_file()
 
@@ -197,9 +226,19 @@ def test_rerun_resumes_without_rendering_or_reconstructing_again(reports):
     frames = sorted((out / "mismatched" / "dataset" / "frames").glob("*.tif"))
     vols = sorted((out / "mismatched" / "volumes").glob("[0-9]*.tif"))
     before = {p: p.stat().st_mtime_ns for p in frames + vols}
-    t0 = time.perf_counter()
-    assert main(["study", str(EXPERIMENTS / "fig6b_rotation_test.toml"), "-o", str(out), "-q"]) == 0
-    assert time.perf_counter() - t0 < 0.5 * run["seconds"]
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("a finished frame was rendered or reconstructed again")
+
+    import lfsim.render
+    import recon.pipeline
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(lfsim.render, "render_particles", forbidden)
+        mp.setattr(lfsim.render, "render_white", forbidden)
+        mp.setattr(recon.pipeline, "richardson_lucy", forbidden)
+        args = ["study", str(EXPERIMENTS / "fig6b_rotation_test.toml"), "-o", str(out), "-q"]
+        assert main(args) == 0
     assert {p: p.stat().st_mtime_ns for p in before} == before
     state = json.loads((out / "study.json").read_text(encoding="utf-8"))
     assert len(state["runs"]) == 2
@@ -212,7 +251,7 @@ def test_demo_prints_the_summary_table(tmp_path, capsys):
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text(encoding="utf-8"))
     v = summary["variants"]["mismatched"]
     _series_ok(v)
-    _strain_ok(v)
+    _strain_ok(v, "demo_simple_shear")
 
 
 def test_collect_gathers_reports_with_their_plots(reports, tmp_path):

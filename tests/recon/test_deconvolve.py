@@ -53,11 +53,14 @@ def test_kl_still_decreases_with_the_anti_aliasing_filter(
     assert r.volume.min() >= 0
 
 
-def test_points_localised_within_one_voxel_and_two_z_steps(
-    small_projector, point_image, small_grid, small_optics_, small_bank
-):
+@pytest.fixture(scope="module")
+def rl_gather(small_projector, point_image, small_optics_, small_bank):
+    """10 RL iterations with the anti-aliasing filter and the Dr.Jit gather projector."""
     f = DepthFilter.for_optics(small_optics_, small_bank.depths_um, small_bank.s)
-    vol = richardson_lucy(point_image, small_projector, 10, depth_filter=f).volume
+    return richardson_lucy(point_image, small_projector, 10, depth_filter=f)
+
+
+def _assert_points_found(vol, small_grid):
     xs, ys, zs = small_grid.x_um(), small_grid.y_um(), np.asarray(small_grid.depths_um)
     dz = small_grid.z_step_um
     for p in POINTS:
@@ -70,6 +73,28 @@ def test_points_localised_within_one_voxel_and_two_z_steps(
         assert abs(xs[kx] - p[0]) <= small_grid.voxel_um, p
         assert abs(ys[ky] - p[1]) <= small_grid.voxel_um, p
         assert abs(zs[kz] - p[2]) <= 2 * dz, p
+
+
+def test_points_localised_within_one_voxel_and_two_z_steps(rl_gather, small_grid):
+    _assert_points_found(rl_gather.volume, small_grid)
+
+
+def test_richardson_lucy_with_the_production_cpu_projector(
+    rl_gather, small_bank, point_image, small_grid, small_optics_
+):
+    """``make_projector(..., "auto")`` on the CPU is the scipy.sparse projector: the same RL
+    iterates as the gather projector to float32 round-off (measured: max difference 6.2e-6 of
+    the peak after 10 iterations, KL equal to 4e-7), and the points are found."""
+    from recon.projector import SparseProjector, make_projector
+
+    sp = make_projector(small_bank, (20, 20), "sparse")
+    assert isinstance(sp, SparseProjector)
+    f = DepthFilter.for_optics(small_optics_, small_bank.depths_um, small_bank.s)
+    r = richardson_lucy(point_image, sp, 10, depth_filter=f)
+    peak = rl_gather.volume.max()
+    np.testing.assert_allclose(r.volume, rl_gather.volume, rtol=0, atol=5e-5 * peak)
+    np.testing.assert_allclose(r.kl, rl_gather.kl, rtol=1e-5)
+    _assert_points_found(r.volume, small_grid)
 
 
 def test_zero_and_dark_regions_do_not_blow_up(small_projector):
@@ -117,14 +142,16 @@ def test_background_in_the_model_instead_of_clipped_noise(small_projector, point
     modelled = richardson_lucy(raw, small_projector, 3, track_kl=False, background=b)
     bias = 0.4 * sigma * raw.size  # flux of the clipped noise
     assert clipped.volume.sum() == pytest.approx(true_flux + bias, rel=0.15)  # 3.4× the signal
-    # RL still fits the upward noise a little (x >= 0): 8 % here, against 240 %.
-    assert modelled.volume.sum() == pytest.approx(true_flux, rel=0.4)
-    assert modelled.volume.sum() - true_flux < 0.1 * (clipped.volume.sum() - true_flux)
-    # The particles come out where they are, above any haze.
+    # RL still fits the upward noise a little (x >= 0): 7.9 % here, against 240 %.
+    assert modelled.volume.sum() == pytest.approx(true_flux, rel=0.16)
+    # the flux excess is 3.2 % of the clipped one (measured)
+    assert modelled.volume.sum() - true_flux < 0.07 * (clipped.volume.sum() - true_flux)
+    # The particles come out where they are, above any haze: 35 of the 50 brightest voxels
+    # are those of the noise-free reconstruction (measured)
     r0 = richardson_lucy(signal, small_projector, 3, track_kl=False)
     top0 = set(np.argsort(r0.volume.ravel())[-50:])
     top1 = set(np.argsort(modelled.volume.ravel())[-50:])
-    assert len(top0 & top1) >= 25
+    assert len(top0 & top1) >= 30
     assert modelled.volume.max() > 5 * np.median(modelled.volume)  # a slow-to-clear haze
     # noise-free data with a zero background: identical to the background-free call
     r2 = richardson_lucy(signal, small_projector, 3, track_kl=False, background=0.0)

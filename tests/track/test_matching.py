@@ -257,3 +257,52 @@ def test_sparse_noisy_zero_motion_pairs_link_by_the_small_motion_bootstrap():
         good = [(i, j) for i, j in res.matches if i < 14 and j < 14]
         assert all(i == j + 2 for i, j in good)  # a[i] is b[i - 2]
         assert len(good) >= 10
+
+
+def test_anisotropic_localisation_noise():
+    """Light-field localisation: axial noise 10× the lateral one (0.1 µm lateral, 1 µm axial,
+    spacing ≈ 24 µm), 400 particles, a smooth non-affine displacement of up to 1.3 spacings.
+
+    With the median test's noise level ε at the axial displacement noise (√2 · 1 µm ≈ 1.5 µm,
+    as LinkSettings.outlier_eps_um asks) every common particle is linked (measured 99.7–100 %
+    over 4 noise seeds, 0 wrong). The default ε (2 % of the spacing, 0.5 µm) is below the
+    axial noise: the per-component median test then drops the particles with the largest
+    axial noise (measured 93–97 % linked), but never links a wrong one."""
+    n = 400
+    x = random_cloud(n, seed=12, d_min_um=10.0, density_um3=n / 300.0**3)
+    s = mean_spacing(x)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+
+    def motion(p):
+        q = (p - lo) / (hi - lo)
+        u = np.column_stack(
+            [
+                0.8 * s * np.sin(np.pi * q[:, 2]) + 0.5 * s,
+                0.3 * s * np.sin(np.pi * q[:, 0]),
+                0.4 * s * q[:, 1] ** 2,
+            ]
+        )
+        return p + u
+
+    rng = np.random.default_rng(0)
+    ia = np.flatnonzero(rng.random(n) >= DROP)
+    ib = rng.permutation(np.flatnonzero(rng.random(n) >= DROP))
+    sigma_um = np.array([0.1, 0.1, 1.0])
+    a = x[ia] + rng.normal(0.0, sigma_um, (ia.size, 3))
+    b = motion(x)[ib] + rng.normal(0.0, sigma_um, (ib.size, 3))
+    common = np.intersect1d(ia, ib).size
+
+    def linked(res):
+        m = res.matches
+        good = ia[m[:, 0]] == ib[m[:, 1]]
+        return int(good.sum()) / common, int((~good).sum())
+
+    res = link_pair(a, b, LinkSettings(outlier_eps_um=1.5))
+    ratio, wrong = linked(res)
+    assert res.ok and wrong == 0 and ratio >= 0.99, (ratio, wrong)
+    # the regularised field averages the axial noise down (measured 0.41 µm; raw: 1.4 µm)
+    xt = x[ia[res.matches[:, 0]]]
+    err_z = np.sqrt(np.mean((res.displacement_field(xt) - (motion(xt) - xt))[:, 2] ** 2))
+    assert err_z < 0.75, err_z
+    ratio, wrong = linked(link_pair(a, b))
+    assert wrong == 0 and ratio >= 0.9, (ratio, wrong)  # measured 0.946
