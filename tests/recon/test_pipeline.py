@@ -232,7 +232,7 @@ def test_background_model_is_a_setting_of_its_own(dataset, tmp_path, capsys):
         assert run(capsys, *args)[0] == 0
         vols[mode] = tifffile.imread(out / "000000.tif")
     top = {m: set(np.argsort(v.ravel())[-30:]) for m, v in vols.items()}
-    assert len(top["subtract"] & top["model"]) >= 10
+    assert len(top["subtract"] & top["model"]) >= 22  # measured 26 of 30
     rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "2", "-o", tmp_path / "model")
     assert rc == 2 and "other inputs or settings" in err
     from recon.errors import InputError
