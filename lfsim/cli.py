@@ -306,6 +306,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=Parser)
     common = common_options(suppress=True)
 
+    def value(q, flag: str, kind, default, text: str) -> None:
+        q.add_argument(flag, type=kind, default=default, help=f"{text} (default {default:g})")
+
     def output(q, what: str, meta: str) -> None:
         q.add_argument("-o", "--output", required=True, metavar=meta, help=f"{what} (required)")
         q.add_argument(
@@ -377,12 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="P.csv",
         help="CSV with x_um,y_um,z_um[,id,diameter_um,brightness] (required)",
     )
-    r.add_argument(
-        "--rays",
-        type=int,
-        default=RenderSettings.rays_per_particle,
-        help=f"rays per particle (default {RenderSettings.rays_per_particle})",
-    )
+    value(r, "--rays", int, RenderSettings.rays_per_particle, "rays per particle")
     r.add_argument(
         "--noise",
         choices=("none", "gaussian", "camera"),
@@ -403,42 +401,22 @@ def build_parser() -> argparse.ArgumentParser:
     w = sub.add_parser(
         "white", parents=[common], help="flat-field image of a uniformly fluorescent slide"
     )
-    w.add_argument(
-        "--rays-per-lenslet",
-        type=int,
-        default=WHITE_RAYS_PER_LENSLET,
-        help=f"rays traced per lenslet (default {WHITE_RAYS_PER_LENSLET})",
-    )
+    value(w, "--rays-per-lenslet", int, WHITE_RAYS_PER_LENSLET, "rays traced per lenslet")
     image_options(w, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="white image")
     w.set_defaults(func=cmd_white, needs_backend=True)
 
     m = sub.add_parser(
         "micrometer", parents=[common], help="stage-micrometer image for pixel-size calibration"
     )
-    m.add_argument(
-        "--division-um",
-        type=float,
-        default=MICROMETER_DIVISION_UM,
-        help=f"line spacing in µm (default {MICROMETER_DIVISION_UM:g})",
-    )
-    m.add_argument(
-        "--line-width-um",
-        type=float,
-        default=MICROMETER_LINE_WIDTH_UM,
-        help=f"line width in µm (default {MICROMETER_LINE_WIDTH_UM:g})",
-    )
+    value(m, "--division-um", float, MICROMETER_DIVISION_UM, "line spacing in µm")
+    value(m, "--line-width-um", float, MICROMETER_LINE_WIDTH_UM, "line width in µm")
     m.add_argument(
         "--axis",
         choices=("x", "y"),
         default="x",
         help="scale direction; x: lines perpendicular to x (default x)",
     )
-    m.add_argument(
-        "--rays-per-line",
-        type=int,
-        default=MICROMETER_RAYS_PER_LINE,
-        help=f"rays traced per line (default {MICROMETER_RAYS_PER_LINE})",
-    )
+    value(m, "--rays-per-line", int, MICROMETER_RAYS_PER_LINE, "rays traced per line")
     image_options(m, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="micrometer image")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)
 
