@@ -90,17 +90,37 @@ def points_xyz(
     return a
 
 
+def fixed_length(value: Any, name: str, n: int, what: str) -> tuple:
+    """``value`` as a tuple of exactly ``n`` items (``what`` says what they are)."""
+    try:
+        items = tuple(value)
+    except TypeError:
+        raise InputError(f"{name} must be {what}, got {value!r}") from None
+    if len(items) != n:
+        raise InputError(f"{name} must be {what}, got {value!r}")
+    return items
+
+
+def known_keys(cls: type, mapping: Any, what: str, *, error: type[InputError] = InputError) -> dict:
+    """``mapping`` as a dict whose keys are all fields of the dataclass ``cls`` (else one
+    ``error`` naming the unknown keys and the known ones)."""
+    from dataclasses import fields
+
+    if not isinstance(mapping, Mapping):
+        raise error(f"{what} must be a mapping of parameters, got {type(mapping).__name__}")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(mapping) - known)
+    if unknown:
+        raise error(f"{what}: unknown key(s) {unknown}; expected a subset of {sorted(known)}")
+    return dict(mapping)
+
+
 def per_axis(value: Any, name: str, *, positive: bool = True) -> tuple[float, float, float]:
     """A per-axis triple in array order ``(z, y, x)``; one number is used for all three."""
     if isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
         vals = (value,) * 3
     else:
-        try:
-            vals = tuple(value)
-        except TypeError:
-            raise InputError(f"{name} must be a number or 3 numbers (z, y, x)") from None
-    if len(vals) != 3:
-        raise InputError(f"{name} must be a number or 3 numbers (z, y, x), got {value!r}")
+        vals = fixed_length(value, name, 3, "a number or 3 numbers (z, y, x)")
     check = positive_float if positive else finite_float
     z, y, x = (check(v, name) for v in vals)
     return (z, y, x)
@@ -135,7 +155,9 @@ def check_table_keys(
 __all__ = [
     "check_table_keys",
     "finite_float",
+    "fixed_length",
     "int_in_range",
+    "known_keys",
     "nonnegative_float",
     "per_axis",
     "points_xyz",

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from hrvbase.errors import InputError
-from hrvbase.validate import nonnegative_float, positive_float
+from hrvbase.validate import known_keys, nonnegative_float, positive_float
 
 from .errors import ConfigError
 
@@ -166,15 +166,7 @@ class CameraModel:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> CameraModel:
         """Build from a mapping (e.g. parsed JSON); unknown keys raise :class:`ConfigError`."""
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"camera must be a mapping of parameters, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(
-                f"camera: unknown key(s) {unknown}; expected a subset of {sorted(known)}"
-            )
-        return cls(**d)
+        return cls(**known_keys(cls, d, "camera", error=ConfigError))
 
     def to_dict(self) -> dict:
         """The parameters as a JSON-serialisable dict (inverse of :meth:`from_dict`)."""

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from hrvbase.validate import nonnegative_float, positive_float
+from hrvbase.validate import known_keys, nonnegative_float, positive_float
 
 from .camera import (
     CameraModel,
@@ -420,15 +420,7 @@ class NoiseSpec:
         ``camera`` may be a nested mapping of :class:`CameraModel` parameters. Unknown keys, at
         either level, raise :class:`ConfigError` naming them.
         """
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"noise must be a mapping of parameters, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(
-                f"noise: unknown key(s) {unknown}; expected a subset of {sorted(known)}"
-            )
-        kw = dict(d)
+        kw = known_keys(cls, d, "noise", error=ConfigError)
         if isinstance(kw.get("camera"), Mapping):
             kw["camera"] = CameraModel.from_dict(kw["camera"])
         return cls(**kw)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from hrvbase.io import write_json
-from hrvbase.validate import finite_float, int_in_range, nonnegative_float
+from hrvbase.validate import finite_float, fixed_length, int_in_range, nonnegative_float
 
 from .errors import InputError, recon_input_errors
 
@@ -50,13 +50,8 @@ def pair(value: Any, name: str, kind: type) -> tuple:
     InputError
         Not a pair, or an element not of that kind (the message names ``name``).
     """
-    try:
-        items = tuple(value)
-    except TypeError:
-        raise InputError(f"{name} must be a pair of numbers, got {value!r}") from None
-    if len(items) != 2:
-        raise InputError(f"{name} must be a pair of numbers, got {value!r}")
     with recon_input_errors():
+        items = fixed_length(value, name, 2, "a pair of numbers")
         if kind is int:
             return tuple(int_in_range(v, name, 1) for v in items)
         return tuple(finite_float(v, name) for v in items)

@@ -41,6 +41,18 @@ from .segment import MIN_AUTO_VOX, segment
 log = logging.getLogger(__name__)
 
 
+#: :class:`DetectSettings` fields passed on to :func:`track.segment.segment` as they are.
+SEGMENT_SETTINGS = (
+    "threshold",
+    "auto_k_sigma",
+    "blob_min_vox",
+    "blob_max_vox",
+    "auto_size_factors",
+    "max_rel_aspect",
+    "clump_prominence",
+)
+
+
 @dataclass(frozen=True)
 class DetectSettings:
     """Settings of :func:`detect_particles` (defaults follow the paper's Table 1 where it has one).
@@ -297,14 +309,8 @@ def detect_particles(
     seg = segment(
         work,
         spacing,
-        threshold=settings.threshold,
-        auto_k_sigma=settings.auto_k_sigma,
-        blob_min_vox=settings.blob_min_vox,
-        blob_max_vox=settings.blob_max_vox,
-        auto_size_factors=settings.auto_size_factors,
-        max_rel_aspect=settings.max_rel_aspect,
-        clump_prominence=settings.clump_prominence,
         edge_margin_vox=margin_vox,
+        **{name: getattr(settings, name) for name in SEGMENT_SETTINGS},
     )
     timings["segment_s"] = time.perf_counter() - t
     accepted = seg.accepted
