@@ -64,12 +64,17 @@ def build_parser() -> argparse.ArgumentParser:
             help="exit 0 when frames failed (the report still says FAILED)",
         )
 
-    st = sub.add_parser(
+    def command(name: str, text: str, description: str, func) -> argparse.ArgumentParser:
+        q = sub.add_parser(name, parents=[shared], help=text, description=description)
+        q.set_defaults(func=func)
+        return q
+
+    st = command(
         "study",
-        parents=[shared],
-        help="run a validation study end to end",
-        description="Simulate → reconstruct → track → compare with the truth; writes CSV "
-        "tables, plots, summary.md and summary.json into REPORT. A rerun resumes.",
+        "run a validation study end to end",
+        "Simulate → reconstruct → track → compare with the truth; writes CSV tables, plots, "
+        "summary.md and summary.json into REPORT. A rerun resumes.",
+        cmd_study,
     )
     st.add_argument(
         "experiment", type=Path, metavar="EXPERIMENT.toml", help="study file (experiment TOML)"
@@ -84,23 +89,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="last stage to run (default: all, with the report)",
     )
     common(st)
-    st.set_defaults(func=cmd_study)
 
-    de = sub.add_parser(
+    de = command(
         "demo",
-        parents=[shared],
-        help="the built-in small study (simple shear, test size)",
-        description=f"Run {DEMO.name} end to end and print its summary.",
+        "the built-in small study (simple shear, test size)",
+        f"Run {DEMO.name} end to end and print its summary.",
+        cmd_demo,
     )
     de.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="report folder")
     common(de)
-    de.set_defaults(func=cmd_demo)
 
-    co = sub.add_parser(
+    co = command(
         "collect",
-        parents=[shared],
-        help="gather study reports into one Markdown page",
-        description="Gather the summary.md of finished reports into one page with their plots.",
+        "gather study reports into one Markdown page",
+        "Gather the summary.md of finished reports into one page with their plots.",
+        cmd_collect,
     )
     co.add_argument("reports", type=Path, nargs="+", metavar="REPORT", help="finished reports")
     co.add_argument(
@@ -118,7 +121,6 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace a page an earlier collect wrote (default: refuse an existing page)",
     )
-    co.set_defaults(func=cmd_collect)
     return p
 
 

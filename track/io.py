@@ -1,7 +1,7 @@
 """Files of :mod:`track`: point tables, matches, tracks, gridded fields, volumes, JSON.
 
 Every writer is **atomic** and refuses to replace an existing file unless ``overwrite=True``
-(the shared :mod:`hrvbase.io`, whose JSON and checksum helpers are re-exported here).
+(the shared :mod:`hrvbase.io`; JSON and checksums come from there too).
 
 Formats (lengths in µm, docs/conventions.md):
 
@@ -42,14 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from hrvbase.io import (
-    atomic_path,
-    atomic_write_bytes,
-    atomic_write_text,
-    read_json,
-    sha256_file,
-    write_json,
-)
+from hrvbase.io import atomic_path, atomic_write_text, read_json
 from hrvbase.tables import read_table, write_table
 
 from .errors import InputError
@@ -536,22 +529,16 @@ __all__ = [
     "POINT_COLUMNS",
     "TRACK_COLUMNS",
     "VolumeInfo",
-    "atomic_path",
-    "atomic_write_bytes",
-    "atomic_write_text",
     "numbered",
     "read_field_npz",
-    "read_json",
     "read_matches_csv",
     "read_points_csv",
     "read_tracks_csv",
     "read_volume",
     "scan_volumes",
-    "sha256_file",
     "vti_arrays",
     "write_field_npz",
     "write_field_vti",
-    "write_json",
     "write_matches_csv",
     "write_points_csv",
     "write_tracks_csv",

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from hrvbase.errors import HrvError
-from hrvbase.io import file_record, verify_record
+from hrvbase.io import file_record, read_json, sha256_file, verify_record, write_json
 
 from . import io as tio
 from .errors import FailedFramesError, InputError, TrackingError
@@ -218,7 +218,7 @@ def _open_results(out: Path, fingerprint: str, overwrite: bool) -> dict | None:
     prev = None
     if summary.is_file():
         try:
-            prev = tio.read_json(summary)
+            prev = read_json(summary)
         except HrvError:
             prev = None
     if not isinstance(prev, dict) or prev.get("tool") != "track":
@@ -340,9 +340,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
     frames = []
     for v in vols:
-        frames.append(
-            {"index": v.index, "input": str(v.path), "input_sha256": tio.sha256_file(v.path)}
-        )
+        frames.append({"index": v.index, "input": str(v.path), "input_sha256": sha256_file(v.path)})
     summary["frames"] = frames
     summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
     clouds: list[np.ndarray | None] = [None] * len(vols)
@@ -397,7 +395,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                 if clouds[i].shape[0] == 0:
                     log.info("volume %s: no particle found", v.path.name)
                 summary["psf"] = psf_note
-                tio.write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
+                write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
                 bar.update()
     summary["psf"] = psf_note
     summary["timings"]["detect_s"] = time.perf_counter() - t_det
@@ -605,7 +603,7 @@ def _finish(
     else:
         summary["status"] = "partial" if allow_partial else "failed"
     summary["timings"]["total_s"] = time.perf_counter() - t0
-    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    write_json(out / SUMMARY, summary, overwrite=True)
     log.info("results in %s", out)
     result = TrackResult(
         out, command, tuple(frames), tuple(pairs), tracks, grid, summary, tuple(failures)
@@ -745,7 +743,7 @@ def track_clouds(
     for i, c in enumerate(clouds):
         if isinstance(c, str | os.PathLike):
             points.append(tio.read_points_csv(c))
-            checks.append(tio.sha256_file(c))
+            checks.append(sha256_file(c))
             sources.append(str(Path(c).resolve()))
             names.append(str(c))
         else:
@@ -781,7 +779,7 @@ def track_clouds(
         )
         frames.append(FrameDetections(i, name, c, part))
     summary["frames"] = entries
-    tio.write_json(out / SUMMARY, summary, overwrite=True)
+    write_json(out / SUMMARY, summary, overwrite=True)
     pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)
     return _finish(out, summary, t0, allow_partial, "link", frames, pairs, tracks, grid)
 

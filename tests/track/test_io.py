@@ -11,6 +11,7 @@ import pytest
 import tifffile
 
 from hrvbase.errors import InputError, OutputError
+from hrvbase.io import sha256_file, write_json
 from track import io
 from track.fields import GridSettings, gridded_field
 from track.series import link_tracks
@@ -227,6 +228,6 @@ def test_missing_volume_in_series(tmp_path):
 
 
 def test_json_writes_nan_as_null(tmp_path):
-    p = io.write_json(tmp_path / "s.json", {"a": float("nan"), "b": np.float32(1.5), "c": [1]})
+    p = write_json(tmp_path / "s.json", {"a": float("nan"), "b": np.float32(1.5), "c": [1]})
     assert json.loads(p.read_text()) == {"a": None, "b": 1.5, "c": [1]}
-    assert len(io.sha256_file(p)) == 64
+    assert len(sha256_file(p)) == 64
