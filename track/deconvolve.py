@@ -32,6 +32,9 @@ import logging
 import numpy as np
 import scipy.fft as sfft
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import int_in_range
+
 from .errors import InputError
 from .localize import check_volume
 from .psf_estimate import check_psf
@@ -117,10 +120,8 @@ def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.n
     """
     vol = check_volume(volume)
     kernel = check_psf(psf)
-    if isinstance(iterations, bool) or not isinstance(iterations, int | np.integer):
-        raise InputError(f"iterations must be an integer >= 0, got {iterations!r}")
-    if iterations < 0:
-        raise InputError(f"iterations must be an integer >= 0, got {iterations!r}")
+    with raised_as(InputError):
+        iterations = int_in_range(iterations, "iterations", 0)
     y = np.clip(vol, 0.0, None).astype(np.float32)
     if iterations == 0 or not float(y.max()) > 0:
         return y

@@ -40,6 +40,9 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import int_in_range
+
 from .errors import InputError, TrackingError
 from .localize import check_triple, check_volume, check_voxel_size_um
 
@@ -180,10 +183,8 @@ def estimate_psf(
     """
     vol = check_volume(volume)
     spacing = check_voxel_size_um(voxel_size_um)
-    if isinstance(n_particles, bool) or not isinstance(n_particles, int | np.integer):
-        raise InputError(f"n_particles must be a positive integer, got {n_particles!r}")
-    if n_particles < 1:
-        raise InputError(f"n_particles must be a positive integer, got {n_particles!r}")
+    with raised_as(InputError):
+        n_particles = int_in_range(n_particles, "n_particles", 1)
     box = box_shape_vox(box_um, spacing)
     if any(bx + 2 > n for bx, n in zip(box, vol.shape, strict=True)):
         raise InputError(
