@@ -24,8 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from lfsim.optics import REQUIRED as INSTRUMENT_FIELDS
-
 from .deconvolve import richardson_lucy
 from .errors import InputError, ReconError
 from .filters import DepthFilter
@@ -73,8 +71,11 @@ def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> N
 
 #: Optics a calibration and the scene of a run must agree on: a lenslet grid fitted on one
 #: microscope places lenslets, and the optical axis (the object origin), wrongly on another.
-#: The lenslet kind (glass or ideal) is not among them: both model the same microscope.
-OPTICS_MATCH_FIELDS = (*INSTRUMENT_FIELDS, "axis_px")
+#: The objective and tube-lens focal lengths are not among them: they set the magnification,
+#: which the lenslet grid does not depend on and ``recon pixel-size`` measures (a scene with the
+#: measured magnification differs from the calibration's nominal one exactly there). Nor is
+#: the lenslet kind (glass or ideal): both model the same microscope.
+OPTICS_MATCH_FIELDS = ("na", "mla_pitch_um", "mla_focal_um", "pixel_um", "sensor_px", "axis_px")
 
 #: Relative tolerance of :func:`optics_differences`.
 OPTICS_RTOL = 1e-6
