@@ -11,20 +11,15 @@ from hrvptm.errors import StudyConfigError
 from lfsim.errors import ConfigError
 from lfsim.experiment import load_experiment
 
+from ..helpers import experiment_toml
+
 EXPERIMENTS = Path(__file__).resolve().parents[2] / "scenes" / "experiments"
 STUDIES = sorted(EXPERIMENTS.glob("*.toml"))
 
-BASE = """
-[experiment]
-name = "x"
-scene = "{scene}"
-frames = 4
-
-[particles]
-kind = "box"
-count = 10
-box_um = [[-100, 100], [-100, 100], [150, 300]]
-"""
+BASE = experiment_toml(
+    experiment={"name": "x", "scene": "{scene}", "frames": 4},
+    particles={"kind": "box", "count": 10, "box_um": ((-100, 100), (-100, 100), (150, 300))},
+)
 
 
 def _write(tmp_path: Path, extra: str) -> Path:

@@ -13,18 +13,7 @@ from lfsim.camera import CameraModel, exposure_s, photons_per_frame, snr_vs_fps
 from lfsim.errors import ConfigError
 from lfsim.noise import NoiseSpec, apply_noise
 
-FULL = {8: 255, 12: 4095, 16: 65535}
-DTYPE = {8: np.uint8, 12: np.uint16, 16: np.uint16}
-
-
-CAM = CameraModel(
-    quantum_efficiency=0.8,
-    read_noise_e=2.0,
-    gain_dn_per_e=0.5,
-    offset_dn=100.0,
-    bit_depth=12,
-    full_well_e=10_000.0,
-)
+from .shared import CAM, DTYPE, FULL
 
 
 @pytest.mark.parametrize("n_photons", [0.0, 10.0, 100.0, 1000.0])

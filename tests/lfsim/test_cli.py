@@ -13,31 +13,18 @@ from lfsim.io import read_tiff
 from lfsim.particles import Particles
 from lfsim.scene import read_optics
 
+from ..helpers import BOX_UM, experiment_toml
+
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = str(ROOT / "scenes" / "small.xml")
 
-TOML = f"""
-[experiment]
-name = "cli_tiny"
-scene = "{SMALL}"
-seed = 1
-frames = 2
-
-[particles]
-kind = "box"
-count = 3
-box_um = [[-150, 150], [-150, 150], [100, 300]]
-
-[motion]
-type = "translation"
-step_um = [5, 0, 0]
-
-[render]
-rays_per_particle = 2000
-
-[white]
-rays_per_lenslet = 200
-"""
+TOML = experiment_toml(
+    experiment={"name": "cli_tiny", "scene": SMALL, "seed": 1, "frames": 2},
+    particles={"kind": "box", "count": 3, "box_um": BOX_UM},
+    motion={"type": "translation", "step_um": (5, 0, 0)},
+    render={"rays_per_particle": 2000},
+    white={"rays_per_lenslet": 200},
+)
 
 
 def error_line(capsys) -> str:
@@ -48,6 +35,19 @@ def error_line(capsys) -> str:
     assert lines[0].startswith("lfsim: error: ")
     assert "Traceback" not in err
     return lines[0]
+
+
+def render(particles, out, *options, scene=SMALL) -> int:
+    """The exit status of ``lfsim -q render SCENE --particles PARTICLES -o OUT OPTIONS...``."""
+    return main(
+        ["-q", "render", str(scene), "--particles", str(particles), "-o", str(out), *options]
+    )
+
+
+def micrometer(out, axis: str) -> int:
+    """The exit status of ``lfsim -q micrometer`` with 20 µm divisions along ``axis``."""
+    args = ["-o", str(out), "--division-um", "20", "--rays-per-line", "2000", "--axis", axis]
+    return main(["-q", "micrometer", SMALL, *args])
 
 
 @pytest.fixture
@@ -87,58 +87,23 @@ def test_scene(tmp_path, capsys):
 
 def test_render(backend, tmp_path, particles_csv):
     out = tmp_path / "img.tif"
-    args = ["-q", "render", SMALL, "--particles", str(particles_csv), "-o", str(out)]
-    assert main([*args, "--rays", "3000", "--snr", "20", "--seed", "4"]) == 0
+    assert render(particles_csv, out, "--rays", "3000", "--snr", "20", "--seed", "4") == 0
     img, meta = read_tiff(out)
     assert img.dtype == np.uint8 and img.shape == (300, 300)
     assert meta["noise"]["snr"] == 20 and meta["n_particles"] == 2 and meta["seed"] == 4
     assert meta["pixel_size_um"] == pytest.approx(read_optics(SMALL).object_pixel_um)
     again = tmp_path / "again.tif"
-    args2 = ["-q", "render", SMALL, "--particles", str(particles_csv), "-o", str(again)]
-    assert main([*args2, "--rays", "3000", "--snr", "20", "--seed", "4"]) == 0
+    assert render(particles_csv, again, "--rays", "3000", "--snr", "20", "--seed", "4") == 0
     assert again.read_bytes() == out.read_bytes()
 
     flt = tmp_path / "float.tif"
-    assert (
-        main(
-            [
-                "-q",
-                "render",
-                SMALL,
-                "--particles",
-                str(particles_csv),
-                "-o",
-                str(flt),
-                "--rays",
-                "3000",
-                "--float",
-            ]
-        )
-        == 0
-    )
+    assert render(particles_csv, flt, "--rays", "3000", "--float") == 0
     clean, meta = read_tiff(flt)
     assert clean.dtype == np.float32 and "noise" not in meta
     assert 0 < clean.sum() <= 2 * 3000
 
     cam = tmp_path / "cam.tif"
-    assert (
-        main(
-            [
-                "-q",
-                "render",
-                SMALL,
-                "--particles",
-                str(particles_csv),
-                "-o",
-                str(cam),
-                "--rays",
-                "3000",
-                "--noise",
-                "camera",
-            ]
-        )
-        == 0
-    )
+    assert render(particles_csv, cam, "--rays", "3000", "--noise", "camera") == 0
     img, meta = read_tiff(cam)
     assert img.dtype == np.uint16 and meta["noise"]["model"] == "camera"
 
@@ -149,45 +114,11 @@ def test_white_and_micrometer(backend, tmp_path):
     img, meta = read_tiff(white)
     assert img.dtype == np.uint16 and meta["kind"] == "white"
     m = tmp_path / "m.tif"
-    assert (
-        main(
-            [
-                "-q",
-                "micrometer",
-                SMALL,
-                "-o",
-                str(m),
-                "--division-um",
-                "20",
-                "--rays-per-line",
-                "2000",
-                "--axis",
-                "y",
-            ]
-        )
-        == 0
-    )
+    assert micrometer(m, "y") == 0
     img, meta = read_tiff(m)
     assert img.shape == (300, 300) and meta["division_um"] == 20 and meta["axis"] == "y"
     mx = tmp_path / "mx.tif"
-    assert (
-        main(
-            [
-                "-q",
-                "micrometer",
-                SMALL,
-                "-o",
-                str(mx),
-                "--division-um",
-                "20",
-                "--rays-per-line",
-                "2000",
-                "--axis",
-                "x",
-            ]
-        )
-        == 0
-    )
+    assert micrometer(mx, "x") == 0
     assert not np.array_equal(read_tiff(mx)[0], img)
 
 
@@ -216,15 +147,10 @@ def test_bad_input_gives_one_line_and_exit_2(backend, tmp_path, particles_csv, c
     # Missing scene file.
     out = tmp_path / "img.tif"
     missing = tmp_path / "nowhere.xml"
-    assert (
-        main(["-q", "render", str(missing), "--particles", str(particles_csv), "-o", str(out)]) == 2
-    )
+    assert render(particles_csv, out, scene=missing) == 2
     assert "nowhere.xml" in error_line(capsys) and not out.exists()
     # Missing particle table.
-    assert (
-        main(["-q", "render", SMALL, "--particles", str(tmp_path / "none.csv"), "-o", str(out)])
-        == 2
-    )
+    assert render(tmp_path / "none.csv", out) == 2
     assert "none.csv" in error_line(capsys) and not out.exists()
     # Unknown TOML key.
     toml = tmp_path / "bad.toml"
@@ -243,54 +169,19 @@ def test_bad_input_gives_one_line_and_exit_2(backend, tmp_path, particles_csv, c
         assert main(["-q", *cmd, "-o", str(out)]) == 2
         assert "img.tif" in error_line(capsys)
         assert out.read_bytes() == b"precious"
-    assert (
-        main(
-            [
-                "-q",
-                "render",
-                SMALL,
-                "--particles",
-                str(particles_csv),
-                "--rays",
-                "1000",
-                "-o",
-                str(out),
-                "--overwrite",
-            ]
-        )
-        == 0
-    )
+    assert render(particles_csv, out, "--rays", "1000", "--overwrite") == 0
     assert read_tiff(out)[0].shape == (300, 300)
     # Particles outside the field of view, a non-dataset output folder, conflicting options.
     far = tmp_path / "far.csv"
     Particles(np.array([[900.0, 0.0, 100.0]])).to_csv(far)
-    assert (
-        main(["-q", "render", SMALL, "--particles", str(far), "-o", str(tmp_path / "f.tif")]) == 2
-    )
+    assert render(far, tmp_path / "f.tif") == 2
     assert "field of view" in error_line(capsys)
     toml.write_text(TOML)
     (tmp_path / "busy").mkdir()
     (tmp_path / "busy" / "x.txt").write_text("x")
     assert main(["-q", "dataset", str(toml), "-o", str(tmp_path / "busy")]) == 2
     assert "busy" in error_line(capsys)
-    assert (
-        main(
-            [
-                "-q",
-                "render",
-                SMALL,
-                "--particles",
-                str(particles_csv),
-                "-o",
-                str(tmp_path / "n.tif"),
-                "--noise",
-                "none",
-                "--snr",
-                "5",
-            ]
-        )
-        == 2
-    )
+    assert render(particles_csv, tmp_path / "n.tif", "--noise", "none", "--snr", "5") == 2
     assert "--snr" in error_line(capsys)
 
 

@@ -15,38 +15,19 @@ from lfsim.experiment import load_experiment
 from lfsim.io import read_tiff
 from lfsim.particles import Particles
 
+from ..helpers import BOX_UM, SHEAR_XZ, experiment_toml
+
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = ROOT / "scenes" / "small.xml"
 
-TINY = f"""
-[experiment]
-name = "tiny"
-scene = "{SMALL}"
-seed = 5
-frames = 3
-
-[particles]
-kind = "box"
-count = 3
-box_um = [[-150, 150], [-150, 150], [100, 300]]
-min_spacing_um = 40
-
-[motion]
-type = "simple_shear"
-plane = "xz"
-step_gamma = 0.05
-center_um = [0, 0, 200]
-
-[render]
-rays_per_particle = 3000
-
-[noise]
-model = "gaussian"
-snr = [40, 20, 10]
-
-[white]
-rays_per_lenslet = 300
-"""
+TINY = experiment_toml(
+    experiment={"name": "tiny", "scene": SMALL, "seed": 5, "frames": 3},
+    particles={"kind": "box", "count": 3, "box_um": BOX_UM, "min_spacing_um": 40},
+    motion=SHEAR_XZ,
+    render={"rays_per_particle": 3000},
+    noise={"model": "gaussian", "snr": (40, 20, 10)},
+    white={"rays_per_lenslet": 300},
+)
 
 
 def tiny(tmp_path: Path, text: str = TINY, name: str = "tiny.toml"):

@@ -13,38 +13,20 @@ from lfsim.experiment import Experiment, load_experiment
 from lfsim.motion import SimpleShear
 from lfsim.noise import NoiseSpec
 
+from ..helpers import BOX_UM, SHEAR_XZ, experiment_toml
+
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = ROOT / "scenes"
 EXAMPLES = sorted((SCENES / "experiments").glob("*.toml"))
 
-BASE = """
-[experiment]
-name = "t"
-scene = "{scene}"
-seed = 2
-frames = 3
-
-[particles]
-kind = "box"
-count = 4
-box_um = [[-150, 150], [-150, 150], [100, 300]]
-
-[motion]
-type = "simple_shear"
-plane = "xz"
-step_gamma = 0.05
-center_um = [0, 0, 200]
-
-[render]
-rays_per_particle = 1000
-
-[noise]
-model = "gaussian"
-snr = [30, 20, 10]
-
-[white]
-rays_per_lenslet = 100
-"""
+BASE = experiment_toml(
+    experiment={"name": "t", "scene": "{scene}", "seed": 2, "frames": 3},
+    particles={"kind": "box", "count": 4, "box_um": BOX_UM},
+    motion=SHEAR_XZ,
+    render={"rays_per_particle": 1000},
+    noise={"model": "gaussian", "snr": (30, 20, 10)},
+    white={"rays_per_lenslet": 100},
+)
 
 
 def write_toml(folder: Path, text: str = BASE, name: str = "exp.toml", scene=None) -> Path:

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lfsim.camera import CameraModel
 from lfsim.errors import ConfigError
 from lfsim.noise import (
     NOISE_MODELS,
@@ -28,8 +27,7 @@ from lfsim.noise import (
     signal_reference,
 )
 
-FULL = {8: 255, 12: 4095, 16: 65535}
-DTYPE = {8: np.uint8, 12: np.uint16, 16: np.uint16}
+from .shared import CAM, DTYPE, FULL
 
 
 def spot_image(shape=(400, 400), n_spots=300, sigma_px=1.5, seed=1) -> np.ndarray:
@@ -45,17 +43,6 @@ def spot_image(shape=(400, 400), n_spots=300, sigma_px=1.5, seed=1) -> np.ndarra
         dy, dx = yy - (cy - iy), xx - (cx - ix)
         img[iy - 6 : iy + 7, ix - 6 : ix + 7] += amp * np.exp(-(dx**2 + dy**2) / (2 * sigma_px**2))
     return img
-
-
-#: The camera of the dispatch tests (a generic 12-bit camera).
-CAM = CameraModel(
-    quantum_efficiency=0.8,
-    read_noise_e=2.0,
-    gain_dn_per_e=0.5,
-    offset_dn=100.0,
-    bit_depth=12,
-    full_well_e=10_000.0,
-)
 
 
 @pytest.fixture(scope="module")

@@ -10,36 +10,24 @@ import pytest
 
 from recon.cli import main
 
+from ..helpers import experiment_toml
+
 ROOT = Path(__file__).resolve().parents[2]
 
-EXPERIMENT = """
-[experiment]
-name = "recon_test"
-scene = "{scene}"
-seed = 3
-frames = 3
-
-[particles]
-kind = "box"
-count = 6
-box_um = [[-180, 160], [-180, 160], [150, 350]]
-min_spacing_um = 60
-diameter_um = 15
-
-[motion]
-type = "translation"
-step_um = [5.0, 0.0, 0.0]
-
-[render]
-rays_per_particle = 30000
-
-[noise]
-model = "gaussian"
-snr = 30
-
-[white]
-rays_per_lenslet = 3000
-"""
+EXPERIMENT = experiment_toml(
+    experiment={"name": "recon_test", "scene": "{scene}", "seed": 3, "frames": 3},
+    particles={
+        "kind": "box",
+        "count": 6,
+        "box_um": ((-180, 160), (-180, 160), (150, 350)),
+        "min_spacing_um": 60,
+        "diameter_um": 15,
+    },
+    motion={"type": "translation", "step_um": (5.0, 0.0, 0.0)},
+    render={"rays_per_particle": 30000},
+    noise={"model": "gaussian", "snr": 30},
+    white={"rays_per_lenslet": 3000},
+)
 
 FAST = ["--z-range", "-40:400", "--z-step", "20", "-s", "3", "--rays-per-pattern", "20000"]
 

@@ -7,10 +7,9 @@ import pytest
 from scipy import ndimage
 from scipy.interpolate import RBFInterpolator
 
+from track import GridField, GridSettings
 from track.errors import InputError
 from track.fields import (
-    GridField,
-    GridSettings,
     fit_displacement,
     gcv_smoothing,
     grid_axes,
