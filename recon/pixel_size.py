@@ -31,7 +31,10 @@ over each footprint, sampled once per lenslet. Nothing finer is recorded, and:
   10 µm) the two unfoldings meet and the contrast barely separates them: on a 20-lenslet
   field a magnification within about ±1 % of that point is either refused as ambiguous
   or returned with an uncertainty wide enough to hold both (on the paper's 86-lenslet field
-  the nominal magnification itself was measured to 0.01 %).
+  the nominal magnification itself was measured to 0.01 %). Near a whole number the moiré
+  becomes as long as the field and the scale is refused as well (``q`` = 2.94 on 20
+  lenslets); so is a ruling whose band of full rows a large rotation leaves too small (8°
+  with the 100 µm long lines of ``lfsim micrometer`` on 20 lenslets; 5° worked).
 - ``D`` above two lenslets: each line lights one column of lenslets and its position inside
   it is lost. The scale then comes from the vernier of many lines against the lenslets (and
   from lines of a slightly rotated micrometer crossing lenslet borders); 16–21 lines of
@@ -932,7 +935,8 @@ def measure_pixel_size(
     division_um : float
         Spacing of the micrometer's divisions (µm), > 0.
     grid : recon.calibration.LensletGrid, optional
-        Lenslet grid of the camera (``recon calibrate``); default :func:`nominal_grid`.
+        Lenslet grid of the camera (``recon calibrate``); default :func:`nominal_grid`, which
+        needs an image of the scene's sensor size.
     axis : {"auto", "x", "y"}
         Image axis along which the divisions run; ``"auto"`` fits both, keeps the better.
     polarity : {"bright", "dark"}
@@ -972,6 +976,12 @@ def measure_pixel_size(
         raise InputError(f"max_rotation_deg must lie in (0, 30], got {max_rotation_deg!r}")
     max_relative_std = _positive(max_relative_std, "max_relative_std")
     if grid is None:
+        if (img.shape[1], img.shape[0]) != tuple(optics.sensor_px):
+            raise InputError(
+                f"the micrometer image is {img.shape[1]} × {img.shape[0]} px but the scene's "
+                f"sensor is {optics.sensor_px[0]} × {optics.sensor_px[1]} px: give the lenslet "
+                "grid of this camera (recon calibrate on a white image of the same size)"
+            )
         grid = nominal_grid(optics, img.shape)
     elif tuple(grid.image_shape) != tuple(img.shape):
         raise InputError(
@@ -1001,12 +1011,23 @@ def measure_pixel_size(
     close = [a for a in fit.alternatives if a[1] < AMBIGUITY_CHI2]
     if close and not um_std <= max_relative_std * um:
         alt_q, chi2 = close[0]
+        frac = fit.q % 1.0
+        if abs(frac - 0.5) < 0.1:
+            why = (
+                f"the lenslets sample the ruling near a half-integer number of divisions per "
+                f"lenslet ({fit.q:.3f}), where magnifications above and below that look alike"
+            )
+        elif min(frac, 1.0 - frac) < 0.1:
+            why = (
+                f"the lenslets sample the ruling near a whole number of divisions per lenslet "
+                f"({fit.q:.3f}): its moiré is nearly as long as the field"
+            )
+        else:
+            why = "the ruled region is too small or too rotated to tell them apart"
         raise PixelSizeError(
             f"the ruling fits two scales alike ({um:.4f} and {division_um * alt_q / p:.4f} "
-            f"µm/px, cost difference {chi2:.1f} noise variances): the lenslets sample it near "
-            f"a half-integer number of divisions per lenslet ({fit.q:.3f}), where a "
-            "magnification above and below that are hard to tell apart; measure a ruling of "
-            "other divisions (e.g. the 100 µm marks over a wide field)"
+            f"µm/px, cost difference {chi2:.1f} noise variances): {why}; measure a ruling of "
+            "other divisions or a wider field"
         )
     if not um_std <= max_relative_std * um:
         raise PixelSizeError(

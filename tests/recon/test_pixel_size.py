@@ -172,6 +172,8 @@ def test_bad_arguments(nominal):
             measure_pixel_size(img, nominal, **kwargs)
     with pytest.raises(InputError):
         measure_pixel_size(np.zeros((2, 300, 300)), nominal, 10.0)
+    with pytest.raises(InputError, match="sensor is 300 × 300 px"):
+        measure_pixel_size(np.zeros((200, 300)), nominal, 10.0)
     grid = nominal_grid(nominal, (200, 200))
     with pytest.raises(InputError, match="calibrated on"):
         measure_pixel_size(img, nominal, 10.0, grid=grid)
