@@ -59,7 +59,7 @@ from .calibration_file import (
     dataset_optics,
     read_calibration,
 )
-from .errors import InputError
+from .errors import InputError, ReconError
 from .projector import PROJECTORS
 from .settings import BACKGROUND_MODELS, ReconSettings
 
@@ -84,6 +84,90 @@ def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
         "(default: all cores); calibration runs on one core",
     )
     return common
+
+
+def _cmd_pixel_size(args: argparse.Namespace) -> int:
+    """``recon pixel-size``: see :mod:`recon.pixel_size` (paper §4)."""
+    from hrvbase.io import check_output_file, write_json
+    from lfsim.scene import read_optics
+
+    from .calibration import LensletGrid
+    from .pixel_size import (
+        apply_pixel_size,
+        build_record,
+        image_metadata,
+        measure_pixel_size,
+        write_measured_scene,
+    )
+    from .preprocess import read_frame
+
+    t0 = time.perf_counter()
+    if not args.division_um > 0:  # also catches NaN
+        raise InputError(f"--division-um must be > 0 µm, got {args.division_um!r}")
+    image = read_frame(args.micrometer, what="micrometer image")
+    scene = args.scene
+    if scene is None:
+        named = image_metadata(args.micrometer).get("scene")
+        if not isinstance(named, str) or not Path(named).is_file():
+            raise InputError(
+                f"--scene is required: {args.micrometer} names no scene file that exists"
+            )
+        scene = Path(named)
+        log.info("using the scene named in %s: %s", args.micrometer, scene)
+    inputs = [p for p in (args.micrometer, scene, args.calib) if p is not None]
+    check_output_file(args.output, inputs=inputs, overwrite=args.overwrite)
+    if args.write_scene is not None:
+        check_output_file(
+            args.write_scene,
+            inputs=[*inputs, args.output],
+            overwrite=args.overwrite,
+            option="--write-scene",
+        )
+    optics = read_optics(scene)
+    grid = LensletGrid.load(args.calib) if args.calib is not None else None
+    try:
+        result = measure_pixel_size(
+            image,
+            optics,
+            args.division_um,
+            grid=grid,
+            axis=args.axis,
+            polarity=args.polarity,
+            tolerance=args.tolerance,
+        )
+    except ReconError as exc:
+        raise type(exc)(f"{args.micrometer}: {exc}") from None
+    written = None
+    if args.write_scene is not None:
+        measured = apply_pixel_size(optics, result)
+        written = write_measured_scene(
+            measured, args.write_scene, overwrite=args.overwrite, source=scene, result=result
+        )
+    record = build_record(
+        result,
+        optics,
+        image=image,
+        image_path=args.micrometer,
+        scene_path=scene,
+        calib_path=args.calib,
+        grid=grid,
+        settings={"axis": args.axis, "polarity": args.polarity, "tolerance": args.tolerance},
+        written_scene=written,
+        version=__version__,
+        elapsed_s=time.perf_counter() - t0,
+    )
+    write_json(args.output, record, overwrite=args.overwrite)
+    if not getattr(args, "quiet", False):
+        sys.stdout.write(
+            f"wrote {args.output}: {result.um_per_px:.5f} ± {result.um_per_px_std:.5f} µm/px "
+            f"(nominal {result.nominal_um_per_px:.5f}, {100 * result.relative_deviation:+.2f} %), "
+            f"magnification {result.magnification:.4f} (nominal "
+            f"{result.nominal_magnification:.4g}), scale along {result.axis} rotated "
+            f"{result.rotation_deg:+.2f} deg"
+            + (f"; scene {written}" if written is not None else "")
+            + "\n"
+        )
+    return 0
 
 
 #: ``recon run`` options that set :class:`recon.settings.ReconSettings` fields (their defaults
@@ -173,6 +257,74 @@ def build_parser() -> argparse.ArgumentParser:
         "warning; default: refuse it, the white image probably belongs to another microscope)",
     )
     cal.set_defaults(func=_cmd_calibrate)
+
+    pix = sub.add_parser(
+        "pixel-size",
+        parents=[common],
+        help="measure the object-space pixel size from a stage micrometer image",
+        description="Measure the object-space size of a sensor pixel (µm per pixel) and the "
+        "microscope's true magnification from a light-field image of a stage micrometer in "
+        "the native object plane (paper §4), with its standard uncertainty, and write them "
+        "to a JSON file; --write-scene also writes the scene with the measured magnification "
+        "(for `recon run`). Lines finer than two lenslets are measured from their moiré with "
+        "the lenslet grid, coarser ones from their lenslet columns (which needs many lines).",
+    )
+    pix.add_argument("micrometer", type=Path, metavar="MICROMETER.tif", help="one 2-D TIFF")
+    pix.add_argument(
+        "--division-um",
+        type=float,
+        required=True,
+        metavar="D",
+        help="spacing of the micrometer's divisions in µm (e.g. 10)",
+    )
+    pix.add_argument(
+        "--scene",
+        type=Path,
+        metavar="SCENE.xml",
+        help="scene file of the microscope (nominal optics); default: the scene named in the "
+        "image's metadata (lfsim images)",
+    )
+    pix.add_argument(
+        "--calib",
+        type=Path,
+        metavar="CALIB.json",
+        help="lenslet grid from `recon calibrate` (default: the scene's nominal grid)",
+    )
+    pix.add_argument(
+        "--axis",
+        choices=("auto", "x", "y"),
+        default="auto",
+        help="image axis along which the divisions run (default: auto)",
+    )
+    pix.add_argument(
+        "--polarity",
+        choices=("bright", "dark"),
+        default="bright",
+        help="lines brighter (fluorescent, default) or darker than the background",
+    )
+    pix.add_argument(
+        "--tolerance",
+        type=float,
+        default=0.2,
+        metavar="FRACTION",
+        help="search the magnification within nominal × (1 ± FRACTION) (default 0.2)",
+    )
+    pix.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="PIXEL.json", help="output file"
+    )
+    pix.add_argument(
+        "--write-scene",
+        type=Path,
+        metavar="SCENE_MEASURED.xml",
+        help="also write the scene with the measured magnification (tube-lens focal length); "
+        "use it as recon run --scene (default: none)",
+    )
+    pix.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing outputs, never an input (default: refuse)",
+    )
+    pix.set_defaults(func=_cmd_pixel_size)
 
     run = sub.add_parser(
         "run",

@@ -1,0 +1,367 @@
+"""Pixel-size calibration from a stage micrometer (recon.pixel_size, ``recon pixel-size``).
+
+Micrometers are rendered with ``lfsim`` (paraxial tracer, Gaussian noise at SNR 50, 12 bit)
+through a "true" microscope whose tube lens makes the magnification 4 % lower or 5 % higher
+than the scene's, rotated by up to 2°, and measured with the nominal scene. Measured when this
+file was written (relative error of ``um_per_px``; standard uncertainty in brackets):
+
+- 10 µm divisions, 300 × 300 px scene (20 lenslets): −4 %/+2°: −0.020 % (0.014 %), +5 %/−1.5°:
+  −0.011 % (0.013 %); over −4 %/+5 % × 0°/+2°/−1.5° at SNR 17 and 50 all within 0.09 %.
+- 100 µm divisions, 1200 × 300 px (80 lenslets): −4 %/−1.5°: +0.003 %, +5 %/+2°: −0.007 %;
+  on the 300 × 300 px scene (5 lines) the scale is undetermined and refused.
+- Five particles 170–184 µm from the axis at z = 150 µm, reconstructed with the scene
+  corrected by the measurement: distances from the axis within 0.24 % (0.2–0.6 µm); with the
+  nominal scene +4.8 … +5.3 %, the magnification error.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from recon.cli import main
+from recon.errors import InputError
+from recon.pixel_size import (
+    PIXEL_SIZE_FORMAT,
+    PixelSizeError,
+    apply_pixel_size,
+    load_pixel_record,
+    measure_pixel_size,
+    nominal_grid,
+    ruling_coverage,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENE = ROOT / "scenes" / "small.xml"
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    from lfsim.scene import read_optics
+
+    return read_optics(SCENE)
+
+
+def true_optics(optics, error: float):
+    """The microscope with its magnification off by ``error`` (tube lens)."""
+    return replace(optics, f_tube_um=optics.f_tube_um * (1.0 + error))
+
+
+def micrometer(optics, division_um, rotation_deg, *, axis="x", snr=50.0, seed=1):
+    """A noisy lfsim micrometer image (12-bit counts) through ``optics``."""
+    from lfsim.camera import add_gaussian_noise
+    from lfsim.render import render_micrometer
+
+    clean = render_micrometer(
+        optics,
+        division_um,
+        axis=axis,
+        rays_per_line=20_000,
+        seed=seed,
+        tracer="paraxial",
+        rotation_deg=rotation_deg,
+    )
+    img, _ = add_gaussian_noise(
+        clean.astype(np.float64), snr, np.random.default_rng(seed + 100), bit_depth=12
+    )
+    return img
+
+
+# -- the model ------------------------------------------------------------------------------
+def _coverage_by_sampling(c, r, q, theta, phi, rho, sigma, n=500):
+    from scipy.special import ndtr
+
+    t = (np.arange(n) + 0.5) / n - 0.5
+    xx, yy = np.meshgrid(c + t, r + t)
+    psi = q * (xx * math.cos(theta) + yy * math.sin(theta)) + phi
+    f = psi - np.round(psi)
+    return sum(
+        ndtr((f + m + rho / 2) / sigma) - ndtr((f + m - rho / 2) / sigma) for m in range(-4, 5)
+    ).mean()
+
+
+def test_ruling_coverage_is_the_cell_average():
+    rng = np.random.default_rng(7)
+    for k in range(12):
+        c, r = rng.uniform(-20, 20), rng.uniform(-8, 8)
+        q, phi = rng.uniform(0.2, 3.2), rng.uniform(-1, 1)
+        theta = 0.0 if k % 4 == 0 else rng.uniform(-0.2, 0.2)
+        rho, sigma = rng.uniform(0.01, 0.5), rng.uniform(0.003, 0.2 if k % 3 == 0 else 0.03)
+        got = ruling_coverage(np.array([c]), np.array([r]), q, theta, phi, rho, sigma)[0]
+        assert got == pytest.approx(
+            _coverage_by_sampling(c, r, q, theta, phi, rho, sigma), abs=1e-4
+        )
+
+
+# -- measurements ---------------------------------------------------------------------------
+@pytest.mark.parametrize(("error", "rotation"), [(-0.04, 2.0), (0.05, -1.5)])
+def test_fine_divisions(backend, nominal, error, rotation):
+    """10 µm divisions, finer than the 25 µm lenslets: measured from their moiré."""
+    true = true_optics(nominal, error)
+    res = measure_pixel_size(micrometer(true, 10.0, rotation), nominal, 10.0)
+    assert res.um_per_px == pytest.approx(true.object_pixel_um, rel=0.005)
+    assert abs(res.um_per_px / true.object_pixel_um - 1) < 4 * res.um_per_px_std / res.um_per_px
+    assert res.magnification == pytest.approx(true.magnification, rel=0.005)
+    assert res.relative_deviation == pytest.approx(1 / (1 + error) - 1, abs=0.005)
+    assert res.axis == "x" and res.rotation_deg == pytest.approx(rotation, abs=0.3)
+    assert 0 < res.um_per_px_std < 0.002 * res.um_per_px
+
+
+@pytest.mark.parametrize(("error", "rotation"), [(-0.04, -1.5), (0.05, 2.0)])
+def test_coarse_divisions_over_a_wide_field(backend, nominal, error, rotation):
+    """100 µm divisions (4 lenslets): each line lights one column of lenslets; the scale comes
+    from the vernier of 16 lines against the lenslets."""
+    wide = replace(nominal, sensor_px=(1200, 300), axis_px=None)
+    true = true_optics(wide, error)
+    res = measure_pixel_size(micrometer(true, 100.0, rotation), wide, 100.0)
+    assert res.um_per_px == pytest.approx(true.object_pixel_um, rel=0.005)
+    assert res.rotation_deg == pytest.approx(rotation, abs=0.3)
+
+
+def test_coarse_divisions_in_a_small_field_are_refused(backend, nominal):
+    """Five lines that all stay inside their lenslets cannot give the scale to 1 %."""
+    img = micrometer(true_optics(nominal, -0.04), 100.0, 0.0)
+    with pytest.raises(PixelSizeError, match="uncertainty on the scale"):
+        measure_pixel_size(img, nominal, 100.0)
+
+
+def test_dark_lines_along_y(backend, nominal):
+    true = true_optics(nominal, 0.05)
+    img = micrometer(true, 10.0, 1.0, axis="y")
+    dark = img.max() - img
+    res = measure_pixel_size(dark, nominal, 10.0, polarity="dark")
+    assert res.axis == "y" and res.angle_deg == pytest.approx(91.0, abs=0.3)
+    assert res.um_per_px == pytest.approx(true.object_pixel_um, rel=0.005)
+
+
+def test_near_a_half_integer_the_mirror_scale_is_not_hidden(backend, nominal):
+    """P/D = 2.525: the mirror-image unfolding (2.475) fits almost as well; the measurement
+    says so rather than picking one."""
+    img = micrometer(true_optics(nominal, -0.01), 10.0, 0.0)
+    with pytest.raises(PixelSizeError, match="two scales alike"):
+        measure_pixel_size(img, nominal, 10.0)
+
+
+def test_no_ruling(backend, nominal):
+    from lfsim.render import render_white
+
+    rng = np.random.default_rng(3)
+    with pytest.raises(PixelSizeError):
+        measure_pixel_size(rng.normal(100, 5, (300, 300)), nominal, 10.0)
+    white = render_white(nominal, rays_per_lenslet=2000, tracer="paraxial").astype(float)
+    with pytest.raises(PixelSizeError):
+        measure_pixel_size(white + rng.normal(0, 2, white.shape), nominal, 10.0)
+
+
+def test_bad_arguments(nominal):
+    img = np.zeros((300, 300))
+    for kwargs, what in (
+        ({"division_um": 0.0}, "division_um"),
+        ({"division_um": -10.0}, "division_um"),
+        ({"division_um": 10.0, "axis": "z"}, "axis"),
+        ({"division_um": 10.0, "polarity": "grey"}, "polarity"),
+        ({"division_um": 10.0, "tolerance": 0.7}, "tolerance"),
+    ):
+        with pytest.raises(InputError, match=what):
+            measure_pixel_size(img, nominal, **kwargs)
+    with pytest.raises(InputError):
+        measure_pixel_size(np.zeros((2, 300, 300)), nominal, 10.0)
+    with pytest.raises(InputError, match="sensor is 300 × 300 px"):
+        measure_pixel_size(np.zeros((200, 300)), nominal, 10.0)
+    grid = nominal_grid(nominal, (200, 200))
+    with pytest.raises(InputError, match="calibrated on"):
+        measure_pixel_size(img, nominal, 10.0, grid=grid)
+
+
+def test_apply_pixel_size(nominal):
+    record = {"format": PIXEL_SIZE_FORMAT, "um_per_px": 1.7, "optics": nominal.to_dict()}
+    out = apply_pixel_size(nominal, record)
+    assert out.object_pixel_um == pytest.approx(1.7, rel=1e-12)
+    assert out.magnification == pytest.approx(nominal.pixel_um / 1.7, rel=1e-12)
+    same = ("f_objective_um", "na", "pixel_um", "mla_pitch_um", "mla_focal_um", "axis_px")
+    assert all(getattr(out, k) == getattr(nominal, k) for k in same)
+    assert out.px_per_lenslet == nominal.px_per_lenslet
+    with pytest.raises(InputError, match="another camera"):
+        apply_pixel_size(replace(nominal, pixel_um=5.0), record)
+    with pytest.raises(InputError, match="not a pixel-size record"):
+        apply_pixel_size(nominal, {"format": "something else", "um_per_px": 1.7})
+    with pytest.raises(InputError, match="um_per_px"):
+        apply_pixel_size(nominal, {"format": PIXEL_SIZE_FORMAT, "um_per_px": -1})
+
+
+# -- the measurement puts reconstructed particles where they are -----------------------------
+def _lateral_centroids(vol_dir: Path, positions_um) -> np.ndarray:
+    """(x, y) in µm of the reconstructed blob nearest to each expected position."""
+    from scipy import ndimage
+
+    from lfsim.io import read_json, read_tiff
+
+    vol, _ = read_tiff(vol_dir / "000000.tif")
+    g = read_json(vol_dir / "recon.json")["grid"]
+    vox = g["lenslet_object_um"] / g["s"]
+    ox, oy = g["origin_um"]
+    out = []
+    for x, y, _ in positions_um:
+        i0, j0 = int((x - ox) / vox), int((y - oy) / vox)
+        w = math.ceil(30 / vox)  # search ±30 µm: covers a 5 % scale error at 200 µm
+        sub = vol[:, max(j0 - w, 0) : j0 + w + 1, max(i0 - w, 0) : i0 + w + 1]
+        k, j, i = np.unravel_index(np.argmax(sub), sub.shape)
+        j, i = j + max(j0 - w, 0), i + max(i0 - w, 0)
+        h = 3
+        patch = vol[max(k - 1, 0) : k + 2, j - h : j + h + 1, i - h : i + h + 1].sum(axis=0)
+        rim = np.r_[patch[0], patch[-1], patch[:, 0], patch[:, -1]]
+        cj, ci = ndimage.center_of_mass(np.clip(patch - np.median(rim), 0, None))
+        out.append((ox + (i - h + ci + 0.5) * vox, oy + (j - h + cj + 0.5) * vox))
+    return np.array(out)
+
+
+def test_reconstruction_with_the_measured_scale(backend, nominal, tmp_path):
+    from lfsim.camera import add_gaussian_noise
+    from lfsim.io import write_tiff
+    from lfsim.particles import Particles
+    from lfsim.render import render_particles
+    from lfsim.tracer import RenderSettings
+    from recon.pipeline import ReconSettings, reconstruct_series
+
+    error = 0.05
+    true = true_optics(nominal, error)
+    measured = measure_pixel_size(micrometer(true, 10.0, 1.0), nominal, 10.0)
+    corrected = apply_pixel_size(nominal, measured)
+    pos = np.array(
+        [[-180.0, 30, 150], [160, -90, 150], [40, 170, 150], [-60, -170, 150], [120, 120, 150]]
+    )
+    img = render_particles(
+        true, Particles(pos), RenderSettings(rays_per_particle=40_000, seed=3), tracer="paraxial"
+    )
+    img, _ = add_gaussian_noise(img.astype(np.float64), 40, np.random.default_rng(4), bit_depth=12)
+    frame = write_tiff(tmp_path / "frame.tif", img.astype(np.uint16), metadata={})
+    grid = nominal_grid(nominal, img.shape)  # the sensor side is unchanged
+    settings = ReconSettings(
+        z_min_um=100, z_max_um=220, z_step_um=10, s=5, iterations=3, rays_per_pattern=20_000
+    )
+    r_true = np.hypot(pos[:, 0], pos[:, 1])
+    ratio = {}
+    for name, optics in (("corrected", corrected), ("nominal", nominal)):
+        reconstruct_series(
+            [frame], tmp_path / name, optics=optics, grid=grid, settings=settings, progress=False
+        )
+        xy = _lateral_centroids(tmp_path / name, pos)
+        ratio[name] = np.hypot(xy[:, 0], xy[:, 1]) / r_true - 1
+    # Corrected: every distance from the axis within 0.5 % (measured: within 0.25 %).
+    assert np.all(np.abs(ratio["corrected"]) < 0.005), ratio
+    # Nominal: off by the magnification error, as expected.
+    assert np.all(np.abs(ratio["nominal"] - error) < 0.01), ratio
+
+
+# -- command line ---------------------------------------------------------------------------
+def _run(capsys, *argv):
+    rc = main(["-q", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _lfsim(*argv):
+    from lfsim.cli import main as lfsim_main
+
+    assert lfsim_main(["-q", *map(str, argv)]) == 0
+
+
+@pytest.fixture(scope="module")
+def true_micrometer(backend, tmp_path_factory):
+    """An lfsim micrometer through a microscope with 4 % less magnification than small.xml."""
+    d = tmp_path_factory.mktemp("mic")
+    _lfsim("scene", "--preset", "small", "--set", "f_tube_um=192000", "-o", d / "true.xml")
+    _lfsim(
+        "micrometer", d / "true.xml", "-o", d / "mic.tif", "--tracer", "paraxial",
+        "--rays-per-line", "20000", "--bit-depth", "12",
+    )  # fmt: skip
+    return d / "mic.tif"
+
+
+def test_cli_writes_record_and_scene(true_micrometer, nominal, tmp_path, capsys):
+    from hrvbase.io import sha256_file
+    from lfsim.scene import read_optics
+
+    out, scene_out = tmp_path / "pixel.json", tmp_path / "measured.xml"
+    rc, _, err = _run(
+        capsys, "pixel-size", true_micrometer, "--division-um", "10", "--scene", SCENE,
+        "-o", out, "--write-scene", scene_out,
+    )  # fmt: skip
+    assert rc == 0, err
+    rec = json.loads(out.read_text())
+    truth = nominal.object_pixel_um / 0.96
+    assert rec["format"] == PIXEL_SIZE_FORMAT
+    assert rec["um_per_px"] == pytest.approx(truth, rel=0.005)
+    assert 0 < rec["um_per_px_std"] < 0.01 * rec["um_per_px"]
+    assert rec["magnification"] == pytest.approx(0.96 * nominal.magnification, rel=0.005)
+    assert rec["nominal"]["um_per_px"] == pytest.approx(nominal.object_pixel_um)
+    assert rec["nominal"]["magnification"] == pytest.approx(nominal.magnification)
+    assert rec["relative_deviation"] == pytest.approx(1 / 0.96 - 1, abs=0.005)
+    assert rec["axis"] == "x" and abs(rec["angle_deg"]) < 0.3 and rec["division_um"] == 10
+    assert rec["input"]["sha256"] == sha256_file(true_micrometer)
+    assert rec["scene"] == {"path": str(SCENE.resolve()), "sha256": sha256_file(SCENE)}
+    assert rec["tool"]["name"] == "recon" and rec["tool"]["version"]
+    assert rec["lenslet_grid"]["source"] == "scene"
+    assert rec["measured_scene"]["sha256"] == sha256_file(scene_out)
+    measured = read_optics(scene_out)
+    assert measured.object_pixel_um == pytest.approx(rec["um_per_px"], rel=1e-9)
+    assert apply_pixel_size(nominal, load_pixel_record(out)) == measured
+    # Nothing is replaced without --overwrite.
+    before = out.read_bytes()
+    rc, _, err = _run(
+        capsys, "pixel-size", true_micrometer, "--division-um", "10", "--scene", SCENE, "-o", out
+    )
+    assert rc == 2 and "already exists" in err and err.count("\n") == 1
+    assert out.read_bytes() == before
+
+
+def test_cli_takes_the_scene_from_the_image(backend, nominal, tmp_path, capsys):
+    """An lfsim image names its scene; 9 µm divisions through the nominal microscope."""
+    mic = tmp_path / "mic9.tif"
+    _lfsim(
+        "micrometer", SCENE, "-o", mic, "--division-um", "9", "--tracer", "paraxial",
+        "--rays-per-line", "20000", "--bit-depth", "12",
+    )  # fmt: skip
+    out = tmp_path / "p.json"
+    rc, _, err = _run(capsys, "pixel-size", mic, "--division-um", "9", "-o", out)
+    assert rc == 0, err
+    rec = json.loads(out.read_text())
+    assert rec["um_per_px"] == pytest.approx(nominal.object_pixel_um, rel=0.005)
+    assert rec["scene"]["path"] == str(SCENE.resolve())
+
+
+def test_cli_bad_inputs(true_micrometer, tmp_path, capsys):
+    stack = tmp_path / "stack.tif"
+    tifffile.imwrite(stack, np.zeros((2, 30, 30), np.uint16))
+    noise = tmp_path / "noise.tif"
+    rng = np.random.default_rng(0)
+    tifffile.imwrite(noise, rng.integers(90, 110, (300, 300)).astype(np.uint16))
+    out = tmp_path / "p.json"
+    cases = [
+        ((tmp_path / "missing.tif", "--division-um", "10"), "does not exist"),
+        ((stack, "--division-um", "10"), "2-D"),
+        ((true_micrometer, "--division-um", "0"), "--division-um must be > 0"),
+        ((true_micrometer, "--division-um", "-10"), "--division-um must be > 0"),
+        ((noise, "--division-um", "10"), "noise.tif"),
+    ]
+    for args, message in cases:
+        rc, _, err = _run(capsys, "pixel-size", *args, "--scene", SCENE, "-o", out)
+        assert rc == 2 and message in err and err.count("\n") == 1, err
+        assert err.startswith("recon: error: ")
+        assert not out.exists()
+    # An output onto an input is refused, even with --overwrite; nothing is touched.
+    before = true_micrometer.read_bytes()
+    for extra in (["-o", true_micrometer], ["-o", out, "--write-scene", SCENE]):
+        rc, _, err = _run(
+            capsys, "pixel-size", true_micrometer, "--division-um", "10", "--scene", SCENE,
+            *extra, "--overwrite",
+        )  # fmt: skip
+        assert rc == 2 and "input" in err and err.count("\n") == 1, err
+    assert true_micrometer.read_bytes() == before
+    assert not out.exists()
