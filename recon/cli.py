@@ -4,19 +4,24 @@ Commands::
 
     recon calibrate WHITE.tif --scene SCENE.xml -o calib.json [--overwrite]
                     [--allow-pitch-mismatch]
+    recon pixel-size MICROMETER.tif --division-um D [--scene SCENE.xml] [--calib calib.json]
+                     -o pixel.json [--write-scene SCENE_MEASURED.xml] [--overwrite]
     recon run FRAMES... [--scene SCENE.xml] [--calib calib.json] [--z-range -80:720]
               [--z-step 5] [--iterations 3] [-s 5] [--frames START:STOP[:STEP]] [--fps HZ]
               [--allow-optics-mismatch] -o VOLDIR [--overwrite] ...
 
 ``calibrate`` refuses a white image whose size is not the scene's sensor size, and a fitted
-lenslet pitch more than 5 % off the scene's (``--allow-pitch-mismatch``: a warning). ``run``
-refuses a scene whose optics (NA, focal lengths, lenslet pitch and focal length, pixel size,
-sensor size, optical axis; relative tolerance 1e-6) differ from those recorded with the
-calibration, or with the dataset whose white image it calibrates, and a calibration made on
-images of another size (``--allow-optics-mismatch``: a warning). A scene with the glass
-lenslet mesh (``mla_kind="glass"``, e.g. an ``lfsim`` dataset rendered without inverse crime)
-is reconstructed with ideal lenslets of the same optics, with a warning. A run that fails
-before its first volume leaves nothing in ``VOLDIR`` that would block the corrected command.
+lenslet pitch more than 5 % off the scene's (``--allow-pitch-mismatch``: a warning). ``pixel-size``
+measures the object-space pixel size from a stage micrometer (:mod:`recon.pixel_size`, paper
+§4) and can write the scene with the measured magnification. ``run`` refuses a scene whose
+optics (NA, lenslet pitch and focal length, pixel size, sensor size, optical axis; relative
+tolerance 1e-6; not the magnification, which ``pixel-size`` measures) differ from those
+recorded with the calibration, or with the dataset whose white image it calibrates, and a
+calibration made on images of another size (``--allow-optics-mismatch``: a warning). A scene
+with the glass lenslet mesh (``mla_kind="glass"``, e.g. an ``lfsim`` dataset rendered without
+inverse crime) is reconstructed with ideal lenslets of the same optics, with a warning. A run
+that fails before its first volume leaves nothing in ``VOLDIR`` that would block the corrected
+command.
 
 ``FRAMES`` (any mix, in the order given; see :mod:`recon.frames`):
 
