@@ -55,7 +55,7 @@ def true_optics(optics, error: float):
 
 def micrometer(optics, division_um, rotation_deg, *, axis="x", snr=50.0, seed=1):
     """A noisy lfsim micrometer image (12-bit counts) through ``optics``."""
-    from lfsim.camera import add_gaussian_noise
+    from lfsim.noise import add_gaussian_noise
     from lfsim.render import render_micrometer
 
     clean = render_micrometer(
@@ -222,7 +222,7 @@ def _lateral_centroids(vol_dir: Path, positions_um) -> np.ndarray:
 
 
 def test_reconstruction_with_the_measured_scale(backend, nominal, tmp_path):
-    from lfsim.camera import add_gaussian_noise
+    from lfsim.noise import add_gaussian_noise
     from lfsim.io import write_tiff
     from lfsim.particles import Particles
     from lfsim.render import render_particles
