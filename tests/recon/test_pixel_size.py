@@ -222,8 +222,8 @@ def _lateral_centroids(vol_dir: Path, positions_um) -> np.ndarray:
 
 
 def test_reconstruction_with_the_measured_scale(backend, nominal, tmp_path):
-    from lfsim.noise import add_gaussian_noise
     from lfsim.io import write_tiff
+    from lfsim.noise import add_gaussian_noise
     from lfsim.particles import Particles
     from lfsim.render import render_particles
     from lfsim.tracer import RenderSettings
