@@ -155,8 +155,8 @@ def test_vti_holds_the_field_at_each_point(tmp_path, encoding):
 
 @pytest.mark.parametrize("encoding", ["binary", "ascii"])
 def test_vti_reads_in_vtk(tmp_path, encoding):
-    """VTK's own reader (what ParaView uses) sees the same points and values."""
-    pytest.importorskip("vtkmodules.vtkIOXML", reason="VTK is not installed (optional)")
+    """VTK's own reader (what ParaView uses; vtk is in the test extra) sees the same points and
+    values."""
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkIOXML import vtkXMLImageDataReader
 
