@@ -15,6 +15,9 @@ Public API
     The comparison with the truth (:mod:`hrvptm.analysis`, :mod:`hrvptm.compare`).
 :func:`collect`
     Gather reports into one page (:mod:`hrvptm.collect`).
+Errors
+    :class:`StudyError` and its :class:`StudyConfigError`, :class:`ReportExistsError`,
+    :class:`StageError`.
 Command line
     ``hrvptm study | demo | collect`` (:mod:`hrvptm.cli`).
 """

@@ -10,7 +10,13 @@ Public API (everything else is internal):
 - :class:`NoiseSpec`, :func:`apply_noise`, :func:`add_gaussian_noise`, :func:`measure_snr`,
   :func:`signal_reference` — noise models (:mod:`lfsim.noise`; SNR = S / sigma_noise);
   :class:`CameraModel` — the physical camera (:mod:`lfsim.camera`).
-- motions, seeding, experiments and datasets (see their modules).
+- :class:`Experiment`, :func:`load_experiment` — experiment files;
+  :func:`generate_dataset` — a dataset with ground truth, resumable.
+- :func:`read_tiff`, :func:`write_tiff` — images and volumes with their scale (:mod:`lfsim.io`).
+- :class:`BackendInfo`, :func:`find_libllvm` — what :func:`init_backend` chose and found.
+- Errors: :class:`LfsimError` and its :class:`BackendError`, :class:`ConfigError`,
+  :class:`SceneError`; :class:`OutputError` (the shared :mod:`hrvbase` one).
+- motions and seeding (see their modules).
 
 Importing :mod:`lfsim` never sets a Mitsuba variant.
 """

@@ -19,17 +19,22 @@ Detection (:mod:`track.detect`, :mod:`track.psf_estimate`)
 Linking (:mod:`track.matching`)
     :class:`LinkSettings`, :class:`LinkResult`, :func:`link_pair`.
 Strain (:mod:`track.strain`)
-    :func:`particle_deformation_gradient` (local least-squares ``F`` per particle),
-    :func:`green_lagrange`, :func:`infinitesimal`, :func:`engineering_shear`.
+    :func:`particle_deformation_gradient` (local least-squares ``F`` per particle, settings
+    :class:`LocalFitSettings`, result :class:`ParticleStrain`), :func:`green_lagrange`,
+    :func:`infinitesimal`, :func:`engineering_shear`.
 Fields (:mod:`track.fields`)
     :class:`GridSettings`, :class:`GridField`, :func:`gridded_field`,
     :func:`fit_displacement`, :func:`grid_axes`, :func:`gcv_smoothing` (the default smoothing,
     chosen by generalised cross-validation).
 Series (:mod:`track.series`)
-    :class:`SeriesSettings`, :func:`track_series` (incremental / cumulative modes,
+    :class:`SeriesSettings`, :func:`track_series` (returns a :class:`SeriesResult`;
+    incremental / cumulative modes,
     trajectories, Eulerian cumulation), :func:`link_tracks`, :func:`cumulate_eulerian`.
 Files (:mod:`track.io`)
     point/match/track CSV tables, ``.npz`` and ``.vti`` fields, volume series.
+Errors (:mod:`track.errors`)
+    :class:`TrackError` and its :class:`InputError`, :class:`TrackingError`,
+    :class:`FailedFramesError`.
 Command line (:mod:`track.cli`)
     ``track run | detect | link``, a thin layer over the pipeline.
 
