@@ -31,7 +31,7 @@ from .geometry import ReconGrid
 from .preprocess import Preprocess, prepare_image, read_frame
 from .projector import make_projector
 from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
-from .settings import ReconSettings
+from .settings import ReconSettings, default_z_step_um
 
 log = logging.getLogger(__name__)
 
@@ -42,23 +42,30 @@ class OutputExistsError(ReconError):
     """The output folder holds something this run must not overwrite."""
 
 
+#: Largest radius (lenslets) of a point's light pattern the PSF bank stores (its memory grows
+#: with the square of it).
+MAX_PATTERN_RADIUS_LENSLETS = 120
+
+
 def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> None:
     """Refuse depths whose light leaves the sensor (the optics cannot resolve them).
 
     A point at depth z lights a disc of lenslets of radius ``r(z)``; once that disc is wider
     than the image, most of the point's light misses the sensor and its depth cannot be
-    reconstructed.
+    reconstructed. The message gives the deepest resolvable ``|z|``, searched in steps of the
+    optics' default depth step (:func:`recon.settings.default_z_step_um`).
     """
     nx, ny = n_lenslets
-    limit = min(nx, ny) / 2
+    limit = min(nx / 2, ny / 2, MAX_PATTERN_RADIUS_LENSLETS)
     for z in (float(np.min(depths_um)), float(np.max(depths_um))):
         r = pattern_radius_lenslets(optics, z) - 2
-        if r > limit or r > 120:
+        if r > limit:
+            step = default_z_step_um(optics)
             zmax = next(
                 (
                     abs(zz)
-                    for zz in np.arange(0, abs(z), 5.0)[::-1]
-                    if pattern_radius_lenslets(optics, zz) - 2 <= min(limit, 120)
+                    for zz in np.arange(0, abs(z), step)[::-1]
+                    if pattern_radius_lenslets(optics, zz) - 2 <= limit
                 ),
                 0.0,
             )
