@@ -11,6 +11,9 @@ import math
 
 import numpy as np
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import positive_float
+
 from .errors import ConfigError
 from .particles import Particles
 from .tracer import RenderSettings, Sources, trace_mitsuba, trace_paraxial
@@ -171,9 +174,13 @@ def micrometer_sources(
     every 5th line is 1.5× and every 10th 2× longer, as on a real reticle. The scale is
     centred on the optical axis.
     """
-    if division_um <= 0 or line_width_um <= 0 or line_width_um >= division_um:
+    with raised_as(ConfigError):
+        division_um = positive_float(division_um, "division_um")
+        line_width_um = positive_float(line_width_um, "line_width_um")
+    if line_width_um >= division_um:
         raise ConfigError(
-            f"need 0 < line_width_um < division_um, got {line_width_um!r}, {division_um!r}"
+            f"line_width_um must be smaller than division_um, got {line_width_um:g} and "
+            f"{division_um:g} µm"
         )
     if axis not in ("x", "y"):
         raise ConfigError(f"axis must be 'x' or 'y', got {axis!r}")
@@ -181,6 +188,11 @@ def micrometer_sources(
     lo, hi = (x0, x1) if axis == "x" else (y0, y1)
     other = (y1 - y0) if axis == "x" else (x1 - x0)
     ks = np.arange(np.ceil(lo / division_um), np.floor(hi / division_um) + 1)
+    if len(ks) < 2:
+        raise ConfigError(
+            f"division_um {division_um:g} µm puts {len(ks)} line(s) in the {hi - lo:.4g} µm "
+            f"field of view along {axis}; a scale needs at least 2 (choose a smaller division)"
+        )
     base = 0.2 * other
     lengths = np.where(ks % 10 == 0, 2.0 * base, np.where(ks % 5 == 0, 1.5 * base, base))
     n = len(ks)

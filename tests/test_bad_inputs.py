@@ -1704,7 +1704,6 @@ case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.
 
 #: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
 DEFECTS = {
-    "D1": "lfsim options checked after tracing, named as library fields",
     "D2": "--device cuda without a GPU: Dr.Jit jargon",
     "D3": "track volume series: truncated, single-plane, mixed volumes, edge margin",
     "D4": "collect: malformed reports are internal errors",
@@ -1714,29 +1713,6 @@ DEFECTS = {
     "D8": "recon: options not named, dark frame checked late",
 }
 KNOWN_DEFECTS = {
-    "render-rays-zero": "D1",
-    "render-rays-negative": "D1",
-    "render-snr-zero": "D1",
-    "render-snr-negative": "D1",
-    "render-snr-nan": "D1",
-    "render-snr-inf": "D1",
-    "render-seed-negative": "D1",
-    "white-rays-per-lenslet-zero": "D1",
-    "white-rays-per-lenslet-negative": "D1",
-    "white-snr-zero": "D1",
-    "white-snr-nan": "D1",
-    "white-snr-negative": "D1",
-    "white-seed-negative": "D1",
-    "micrometer-division-zero": "D1",
-    "micrometer-division-negative": "D1",
-    "micrometer-division-nan": "D1",
-    "micrometer-division-beyond-the-field": "D1",
-    "micrometer-line-width-negative": "D1",
-    "micrometer-line-width-zero": "D1",
-    "micrometer-line-wider-than-division": "D1",
-    "micrometer-rays-per-line-zero": "D1",
-    "micrometer-snr-inf": "D1",
-    "render-particles-header-only": "D1",
     "lfsim-device-cuda-without-gpu": "D2",
     "render-device-cuda-without-gpu": "D2",
     "run-device-cuda-without-gpu": "D2",
