@@ -1704,7 +1704,6 @@ case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.
 
 #: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
 DEFECTS = {
-    "D2": "--device cuda without a GPU: Dr.Jit jargon",
     "D3": "track volume series: truncated, single-plane, mixed volumes, edge margin",
     "D4": "collect: malformed reports are internal errors",
     "D5": "no command: help text instead of one error line",
@@ -1713,9 +1712,6 @@ DEFECTS = {
     "D8": "recon: options not named, dark frame checked late",
 }
 KNOWN_DEFECTS = {
-    "lfsim-device-cuda-without-gpu": "D2",
-    "render-device-cuda-without-gpu": "D2",
-    "run-device-cuda-without-gpu": "D2",
     "track-run-truncated-volume": "D3",
     "track-detect-truncated-volume": "D3",
     "track-run-2d-volume": "D3",
