@@ -1704,7 +1704,6 @@ case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.
 
 #: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
 DEFECTS = {
-    "D3": "track volume series: truncated, single-plane, mixed volumes, edge margin",
     "D4": "collect: malformed reports are internal errors",
     "D5": "no command: help text instead of one error line",
     "D6": "study file: ill-typed values of the settings",
@@ -1712,14 +1711,6 @@ DEFECTS = {
     "D8": "recon: options not named, dark frame checked late",
 }
 KNOWN_DEFECTS = {
-    "track-run-truncated-volume": "D3",
-    "track-detect-truncated-volume": "D3",
-    "track-run-2d-volume": "D3",
-    "track-detect-2d-volume": "D3",
-    "track-run-mixed-shapes": "D3",
-    "track-detect-mixed-shapes": "D3",
-    "track-run-mixed-dtypes": "D3",
-    "track-run-edge-margin-beyond-the-volume": "D3",
     "collect-report-summary-json-a-list": "D4",
     "collect-report-summary-json-without-keys": "D4",
     "collect-report-summary-json-ill-typed": "D4",
