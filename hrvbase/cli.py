@@ -116,7 +116,15 @@ def run_main(
     except SystemExit as exc:  # --help/--version (0) or a usage error (already printed)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     if getattr(args, "func", None) is None:
-        parser.print_help(sys.stderr)
+        commands = [
+            name
+            for action in parser._actions
+            if isinstance(action, argparse._SubParsersAction)
+            for name in action.choices
+        ]
+        sys.stderr.write(
+            f"{prog}: error: missing COMMAND (one of: {', '.join(commands)}); see {prog} --help\n"
+        )
         return 2
     args.argv = argv
     handler = logging.StreamHandler(sys.stderr)

@@ -1720,15 +1720,11 @@ case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.
 
 #: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
 DEFECTS = {
-    "D5": "no command: help text instead of one error line",
     "D6": "study file: ill-typed values of the settings",
     "D7": "study and dataset refused only after work",
     "D8": "recon: options not named, dark frame checked late",
 }
 KNOWN_DEFECTS = {
-    "recon-command-missing": "D5",
-    "track-command-missing": "D5",
-    "hrvptm-command-missing": "D5",
     "study-track-grid-target-text": "D6",
     "study-track-grid-spacing-text": "D6",
     "study-track-link-seed-text": "D6",
