@@ -1720,16 +1720,10 @@ case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.
 
 #: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
 DEFECTS = {
-    "D6": "study file: ill-typed values of the settings",
     "D7": "study and dataset refused only after work",
     "D8": "recon: options not named, dark frame checked late",
 }
 KNOWN_DEFECTS = {
-    "study-track-grid-target-text": "D6",
-    "study-track-grid-spacing-text": "D6",
-    "study-track-link-seed-text": "D6",
-    "study-track-link-ratio-text": "D6",
-    "study-track-min-particles-text": "D6",
     "study-recon-scene-of-other-sensor": "D7",
     "study-particles-count-zero": "D7",
     "dataset-count-zero": "D7",
