@@ -65,6 +65,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from recon.settings import ReconSettings
 from track.detect import DetectSettings
 from track.fields import GridSettings
@@ -341,7 +343,52 @@ def study_from_dict(
         )
     if st.kind == "series" and exp.frames < 2:
         raise StudyConfigError(f"{where}: a 'series' study needs frames >= 2, got {exp.frames}")
-    return Study(exp, st, rc, tr, Path(source) if source else None)
+    study = Study(exp, st, rc, tr, Path(source) if source else None)
+    _check_recon_scene(where, study)
+    return study
+
+
+def _check_recon_scene(where: str, study: Study) -> None:
+    """Refuse, before any work, a reconstruction model of another microscope than the
+    experiment's (only the lenslet model may differ: glass vs ideal), and a
+    ``[track.grid] spacing_um`` that gives far too many nodes over the volumes."""
+    from hrvbase.errors import HrvError
+    from lfsim.scene import read_optics
+    from recon.pipeline import optics_differences
+    from track.series import check_grid
+
+    optics = read_optics(study.recon_scene)
+    diffs = optics_differences(
+        optics, study.experiment.optics, labels=("recon_scene", "experiment scene")
+    )
+    if diffs:
+        raise StudyConfigError(
+            f"{where}: [study] recon_scene {str(study.recon_scene)!r} is another microscope "
+            f"than the experiment's scene {str(study.experiment.scene)!r}: {'; '.join(diffs)}; "
+            "a study reconstructs with the optics it renders with (only the lenslet model, "
+            "glass or ideal, may differ)"
+        )
+    grid = study.track.series.grid
+    if study.study.kind != "series" or grid.spacing_um is None or study.recon.roi_px is not None:
+        return
+    try:
+        depths = study.recon.resolved(optics).depths_um
+    except HrvError as exc:
+        raise StudyConfigError(f"{where}: [recon] {exc}") from None
+    # A lower bound of the volumes' size (x, y, z): rectification keeps at least the whole
+    # lenslets but two, less one voxel.
+    whole = np.floor(np.asarray(optics.sensor_px) / optics.px_per_lenslet) - 3
+    lower = [*(np.maximum(whole, 0) * optics.lenslet_object_um), depths[-1] - depths[0]]
+    if grid.spacing_um < max(lower):  # the single-cell check needs the exact size: later
+        try:
+            check_grid(
+                lower,
+                grid,
+                where="a lower bound of the reconstructed volumes",
+                spacing_name="[track.grid] spacing_um",
+            )
+        except HrvError as exc:
+            raise StudyConfigError(f"{where}: {exc}") from None
 
 
 def load_study(path: str | os.PathLike) -> Study:

@@ -1720,14 +1720,9 @@ case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.
 
 #: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
 DEFECTS = {
-    "D7": "study and dataset refused only after work",
     "D8": "recon: options not named, dark frame checked late",
 }
 KNOWN_DEFECTS = {
-    "study-recon-scene-of-other-sensor": "D7",
-    "study-particles-count-zero": "D7",
-    "dataset-count-zero": "D7",
-    "study-track-grid-spacing-tiny": "D7",
     "run-s-zero": "D8",
     "run-s-negative": "D8",
     "run-background-nan": "D8",
