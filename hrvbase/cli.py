@@ -221,7 +221,8 @@ def add_setting_options(
 def rename_fields(message: str, names: Mapping[str, str]) -> str:
     """``message`` with dataclass field names replaced by the options the user typed."""
     for name, flag in names.items():
-        if len(name) < 3:  # "s": too likely to be an ordinary word or unit in a message
+        if len(name) < 3:  # "s": too likely to be an ordinary word or unit, but for a subject
+            message = re.sub(rf"^{re.escape(name)}(?= )", flag, message)
             continue
         message = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w-])", flag, message)
     return message
@@ -246,7 +247,7 @@ def settings_from_args(
         if getattr(args, f"{prefix}{o.field}", None) is not None
     }
     values.update(extra or {})
-    flags = {o.field: o.flags[-1] for o in options}
+    flags = {o.field: "/".join(o.flags) if len(o.field) < 3 else o.flags[-1] for o in options}
     flags.update(names or {})
     try:
         return cls(**values)

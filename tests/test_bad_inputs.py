@@ -831,7 +831,7 @@ for cid, make, needle in [
     (
         "other-lenslet-pitch",
         lambda e: e.b.scene_pitch,
-        "--allow-pitch-mismatch",
+        "p125.xml",
     ),
 ]:
     case(f"calibrate-scene-{cid}", "recon", lambda e, m=make: cal_argv(e, scene=m(e)), needle)
@@ -1718,25 +1718,6 @@ case(
 case("collect-reports-missing", "hrvptm", lambda e: ["collect", "-o", e.o("page.md")], "REPORT")
 
 
-#: Defect classes the corpus found that are not fixed yet; their cases are expected to fail.
-DEFECTS = {
-    "D8": "recon: options not named, dark frame checked late",
-}
-KNOWN_DEFECTS = {
-    "run-s-zero": "D8",
-    "run-s-negative": "D8",
-    "run-background-nan": "D8",
-    "run-dark-wrong-size": "D8",
-    "calibrate-scene-other-lenslet-pitch": "D8",
-}
-
-
-def _marks(c: Case) -> tuple:
-    if c.id in KNOWN_DEFECTS:
-        return (*c.marks, pytest.mark.xfail(strict=True, reason=DEFECTS[KNOWN_DEFECTS[c.id]]))
-    return c.marks
-
-
 # -- the runner --------------------------------------------------------------------------------
 def _main(prog: str):
     if prog == "lfsim":
@@ -1753,7 +1734,7 @@ def _main(prog: str):
 RESULTS: list[dict] = []
 
 
-@pytest.mark.parametrize("c", [pytest.param(c, id=c.id, marks=_marks(c)) for c in CASES])
+@pytest.mark.parametrize("c", [pytest.param(c, id=c.id, marks=c.marks) for c in CASES])
 def test_bad_input(c: Case, base: Base, tmp_path: Path, capsys) -> None:
     env = Env(base, tmp_path)
     argv = [str(a) for a in c.argv(env)]
