@@ -294,13 +294,14 @@ def cmd_micrometer(args) -> int:
 
 
 def cmd_dataset(args) -> int:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
 
     from .dataset import generate_dataset
     from .experiment import load_experiment
 
     exp = load_experiment(args.experiment)
     guard_output(args.output, [args.experiment, exp.scene])
+    check_output_folder(args.output)
     generate_dataset(exp, args.output, overwrite=args.overwrite, progress=not args.quiet)
     return 0
 

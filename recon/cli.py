@@ -404,7 +404,7 @@ def _resolve_inputs(args: argparse.Namespace):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
     from lfsim import init_backend
 
     from .frames import time_source
@@ -438,6 +438,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     dark = read_frame(args.dark, what="dark frame") if args.dark else None
     pre = Preprocess(dark=dark, background=background, hot_pixels=args.hot_pixels)
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
+    check_output_folder(args.output)
     frames, optics, grid, scene = _resolve_inputs(args)
     guard_output(args.output, sorted({f.path for f in frames}))
     if dark is not None and dark.shape != tuple(grid.image_shape):

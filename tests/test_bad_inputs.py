@@ -76,6 +76,9 @@ STUDY = {
 
 DROP = object()
 
+#: What the error says of an output below a regular file (``Env.blocker``).
+BLOCKED = "blocker is a file, not a folder"
+
 
 # -- small writers -----------------------------------------------------------------------------
 def _toml_value(v) -> str:
@@ -435,7 +438,7 @@ case(
     "scene-output-below-a-file",
     "lfsim",
     lambda e: scene_argv(e, out=e.blocker() / "s.xml"),
-    "blocker",
+    BLOCKED,
 )
 
 
@@ -556,7 +559,7 @@ case(
     "render-output-below-a-file",
     "lfsim",
     lambda e: render_argv(e, out=e.blocker() / "r.tif"),
-    "blocker",
+    BLOCKED,
 )
 case(
     "render-device-cuda-without-gpu",
@@ -599,7 +602,7 @@ case(
     "white-output-below-a-file",
     "lfsim",
     lambda e: white_argv(e, out=e.blocker() / "w.tif"),
-    "blocker",
+    BLOCKED,
 )
 
 
@@ -775,7 +778,7 @@ case(
     "dataset-output-below-a-file",
     "lfsim",
     lambda e: dataset_argv(e, e.b.exp, e.blocker() / "ds"),
-    "blocker",
+    BLOCKED,
 )
 case(
     "dataset-output-foreign-folder",
@@ -858,7 +861,7 @@ case(
     "calibrate-output-below-a-file",
     "recon",
     lambda e: cal_argv(e, None, None, e.blocker() / "c.json"),
-    "blocker",
+    BLOCKED,
 )
 case("calibrate-scene-option-missing", "recon", lambda e: ["calibrate", e.b.white], "--scene")
 
@@ -1111,7 +1114,7 @@ case(
     "inside the input folder",
 )
 case("run-output-is-a-file", "recon", lambda e: ds_argv(e, out=e.existing()), "existing.out")
-case("run-output-below-a-file", "recon", lambda e: ds_argv(e, out=e.blocker() / "v"), "blocker")
+case("run-output-below-a-file", "recon", lambda e: ds_argv(e, out=e.blocker() / "v"), BLOCKED)
 case("run-output-foreign-folder", "recon", lambda e: ds_argv(e, out=e.foreign()), "foreign")
 case(
     "run-output-of-other-settings",
@@ -1286,7 +1289,7 @@ case(
     "track-run-output-below-a-file",
     "track",
     lambda e: trk_argv(e, out=e.blocker() / "res"),
-    "blocker",
+    BLOCKED,
 )
 case("track-run-output-foreign-folder", "track", lambda e: trk_argv(e, out=e.foreign()), "foreign")
 
@@ -1403,7 +1406,7 @@ case(
     "track-link-output-below-a-file",
     "track",
     lambda e: link_argv(e, out=e.blocker() / "res"),
-    "blocker",
+    BLOCKED,
 )
 case(
     "track-link-output-foreign-folder", "track", lambda e: link_argv(e, out=e.foreign()), "foreign"
@@ -1508,7 +1511,7 @@ case(
     "study-output-below-a-file",
     "hrvptm",
     lambda e: study_argv(e, e.b.study, e.blocker() / "rep"),
-    "blocker",
+    BLOCKED,
 )
 case(
     "study-output-foreign-folder",
@@ -1553,7 +1556,7 @@ case(
 
 # ---- hrvptm demo (every case is refused before the study starts) ----
 case("demo-output-is-a-file", "hrvptm", lambda e: ["demo", "-o", e.existing()], "existing.out")
-case("demo-output-below-a-file", "hrvptm", lambda e: ["demo", "-o", e.blocker() / "d"], "blocker")
+case("demo-output-below-a-file", "hrvptm", lambda e: ["demo", "-o", e.blocker() / "d"], BLOCKED)
 case("demo-output-foreign-folder", "hrvptm", lambda e: ["demo", "-o", e.foreign()], "study.json")
 case("demo-output-of-another-study", "hrvptm", lambda e: ["demo", "-o", _other_study(e)], "'other'")
 case(
@@ -1687,7 +1690,7 @@ case(
     "collect-output-below-a-file",
     "hrvptm",
     lambda e: collect_argv(e, out=e.blocker() / "page.md"),
-    "blocker",
+    BLOCKED,
 )
 case(
     "collect-preamble-missing",

@@ -353,9 +353,10 @@ def _check_edge_margin(settings, volume: tio.VolumeInfo) -> None:
 
 
 def _common_kwargs(args) -> dict:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
 
     guard_output(args.output, getattr(args, "clouds", None) or [args.voldir])
+    check_output_folder(args.output)
     return {
         "overwrite": args.overwrite,
         "allow_partial": args.allow_partial,
