@@ -517,6 +517,7 @@ for cid, content, needle in [
     ("fractional-id", "id,x_um,y_um,z_um\n1.5,0,0,150\n", "id"),
     ("behind-the-objective", "x_um,y_um,z_um\n0,0,-60000\n", "objective"),
     ("far-outside-the-field", "x_um,y_um,z_um\n100000,0,150\n", "outside the field of view"),
+    ("all-dark", "x_um,y_um,z_um,brightness\n0,0,150,0\n", "no particles in the field of view"),
 ]:
     case(
         f"render-particles-{cid}",
@@ -629,6 +630,9 @@ case(
     "lfsim",
     lambda e: micro_argv(e, "--overwrite", out=e.b.scene),
     "is an input",
+)
+case(
+    "micrometer-output-exists", "lfsim", lambda e: micro_argv(e, out=e.existing()), "already exists"
 )
 case(
     "micrometer-scene-missing",
@@ -813,7 +817,11 @@ for cid, make, needle in [
     ("truncated", lambda e: e.trunc(e.b.white, "half.tif"), "half.tif"),
     ("text", lambda e: e.w("text.tif", "not an image\n"), "text.tif"),
     ("a-folder", lambda e: e.dir("white_dir"), "white_dir"),
-    ("stack", lambda e: e.tif("stack.tif", np.stack([frame_u16()] * 3)), "stack.tif"),
+    (
+        "stack",
+        lambda e: e.tif("stack.tif", np.stack([frame_u16()] * 3), photometric="minisblack"),
+        "stack.tif",
+    ),
     ("rgb", lambda e: e.tif("rgb.tif", np.zeros((300, 300, 3), np.uint8)), "rgb.tif"),
     ("wrong-size", lambda e: e.tif("small.tif", zeros_u16((100, 120))), "small.tif"),
     (
@@ -956,7 +964,15 @@ case(
             }
         ),
     ),
-    "2",
+    "missing frames 2",
+    kind="warning",
+    writes=True,
+)
+case(
+    "run-frames-past-the-end-is-a-warning",
+    "recon",
+    lambda e: run_argv(e, e.b.ds / "frames", extra=["--frames", "1:10"]),
+    "--frames 1:10",
     kind="warning",
     writes=True,
 )
@@ -1304,6 +1320,18 @@ case(
     "track-run-output-of-other-settings",
     "track",
     lambda e: trk_argv(e, "--threshold", "0.3", out=_copy_trk(e)),
+    "--overwrite",
+)
+case(
+    "track-detect-output-of-other-settings",
+    "track",
+    lambda e: trk_argv(e, "--threshold", "0.3", cmd="detect", out=_copy_trk(e)),
+    "--overwrite",
+)
+case(
+    "track-link-output-of-other-inputs",
+    "track",
+    lambda e: link_argv(e, out=_copy_trk(e)),
     "--overwrite",
 )
 case(
