@@ -117,7 +117,15 @@ def run_main(
     except SystemExit as exc:  # --help/--version (0) or a usage error (already printed)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     if getattr(args, "func", None) is None:
-        parser.print_help(sys.stderr)
+        commands = [
+            name
+            for action in parser._actions
+            if isinstance(action, argparse._SubParsersAction)
+            for name in action.choices
+        ]
+        sys.stderr.write(
+            f"{prog}: error: missing COMMAND (one of: {', '.join(commands)}); see {prog} --help\n"
+        )
         return 2
     args.argv = argv
     handler = logging.StreamHandler(sys.stderr)
@@ -250,7 +258,8 @@ def add_setting_options(
 def rename_fields(message: str, names: Mapping[str, str]) -> str:
     """``message`` with dataclass field names replaced by the options the user typed."""
     for name, flag in names.items():
-        if len(name) < 3:  # "s": too likely to be an ordinary word or unit in a message
+        if len(name) < 3:  # "s": too likely to be an ordinary word or unit, but for a subject
+            message = re.sub(rf"^{re.escape(name)}(?= )", flag, message)
             continue
         message = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w-])", flag, message)
     return message
@@ -275,7 +284,7 @@ def settings_from_args(
         if getattr(args, f"{prefix}{o.field}", None) is not None
     }
     values.update(extra or {})
-    flags = {o.field: o.flags[-1] for o in options}
+    flags = {o.field: "/".join(o.flags) if len(o.field) < 3 else o.flags[-1] for o in options}
     flags.update(names or {})
     try:
         return cls(**values)

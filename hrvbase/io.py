@@ -317,13 +317,40 @@ def check_output_file(
         raise OutputError(f"{option} {path} is a folder; expected a file name")
     if os.path.lexists(path) and not overwrite:
         raise OutputError(f"{path} already exists; pass --overwrite to replace it")
+    _check_parents(path, "write")
+    return path
+
+
+def _check_parents(path: Path, verb: str) -> None:
+    """The nearest existing folder above ``path`` is a writable folder."""
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
-                raise OutputError(f"cannot write {path}: {parent} is a file, not a folder")
+                raise OutputError(f"cannot {verb} {path}: {parent} is a file, not a folder")
             if not os.access(parent, os.W_OK):
-                raise OutputError(f"cannot write {path}: folder {parent} is not writable")
-            break
+                raise OutputError(f"cannot {verb} {path}: folder {parent} is not writable")
+            return
+
+
+def check_output_folder(path: str | os.PathLike) -> Path:
+    """Check, before any work, that the output folder ``path`` can be created or written.
+
+    Refuses (one line naming ``path``) a path below a file and one whose nearest existing
+    folder is not writable. A ``path`` that is itself a file, or a folder of other contents,
+    is the tool's to judge (its own message).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    if path.is_dir():
+        if not os.access(path, os.W_OK):
+            raise OutputError(f"cannot write into {path}: the folder is not writable")
+        return path
+    if not os.path.lexists(path):
+        _check_parents(path, "create")
     return path
 
 
@@ -332,6 +359,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "check_output_file",
+    "check_output_folder",
     "file_record",
     "guard_output",
     "read_json",

@@ -125,12 +125,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(path: Path, args, command: str) -> dict:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
 
     from .config import load_study
     from .study import run_study
 
     guard_output(args.output, [path])
+    check_output_folder(args.output)
     study = load_study(path)
     return run_study(
         study,

@@ -32,7 +32,35 @@ def _read_summary(report: Path) -> tuple[str, dict]:
         data = read_json(js)
     except HrvError as exc:
         raise StudyError(f"{js}: {exc}") from None
-    return md.read_text(encoding="utf-8"), data
+    try:
+        exp = data["study"]["experiment"]["experiment"]
+        ok = (
+            isinstance(exp["name"], str)
+            and isinstance(data["variants"], dict)
+            and all(isinstance(v, dict) for v in data["variants"].values())
+            and isinstance(data.get("comparison", []), list)
+            and all(isinstance(r, dict) for r in data.get("comparison", []))
+            and isinstance(data.get("plots", []), list)
+            and all(isinstance(p, str) for p in data.get("plots", []))
+        )
+    except (KeyError, TypeError):
+        ok = False
+    if not ok:
+        raise StudyError(
+            f"{js} is not the summary.json of a finished hrvptm study (its study name, "
+            "variants, comparison or plots are missing or of the wrong type); run the study "
+            "again"
+        )
+    return _read_text(md, "report page"), data
+
+
+def _read_text(path: Path, what: str) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise StudyError(f"{what} {path} is not UTF-8 text: {exc}") from None
+    except IsADirectoryError:
+        raise StudyError(f"{what} {path} is a folder; expected a Markdown file") from None
 
 
 def _fmt(v, unit: str) -> str:
@@ -54,32 +82,47 @@ def _overview(loaded) -> list[str]:
         "| study | frames | simulate (s) | reconstruct (s) | track (s) |",
         "|---|---|---|---|---|",
     ]
-    for _report, _md, data in loaded:
-        name = data["study"]["experiment"]["experiment"]["name"]
-        for row in data.get("comparison", []):
-            cells = []
-            for variant in ("mismatched", "matched"):
-                if variant not in row:
-                    cells.append("")
-                    continue
-                cell = _fmt(row[variant], row["unit"])
-                ok = row.get(f"{variant}_meets")
-                cells.append(cell + ("" if ok is None else (" ✓" if ok else " ✗")))
-            lines.append(
-                f"| {name} | {row['label']} | {_fmt(row['paper'], row['unit'])} | "
-                + " | ".join(cells)
-                + " |"
-            )
-        frames = data["study"]["experiment"]["experiment"]["frames"]
-        for variant, v in data["variants"].items():
-            t = v.get("seconds_total") or {}
-            times.append(
-                f"| {name} ({variant}) | {frames} | {t.get('simulate', 0):.0f} | "
-                f"{t.get('reconstruct', 0):.0f} | {t.get('track', 0):.0f} |"
-            )
+    for report, _md, data in loaded:
+        try:
+            rows, timings = _overview_rows(data)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise StudyError(
+                f"{report / 'summary.json'}: unexpected content ({type(exc).__name__}: {exc}); "
+                "is it the summary of a finished hrvptm study?"
+            ) from None
+        lines += rows
+        times += timings
     lines += ["", "✓/✗: within / beyond the paper's figure.", ""]
     lines += ["### Time on this machine (all runs of the stage, resumed ones included)"]
     return lines + times + [""]
+
+
+def _overview_rows(data: dict) -> tuple[list[str], list[str]]:
+    """One report's rows of the comparison table and of the table of times."""
+    lines, times = [], []
+    name = data["study"]["experiment"]["experiment"]["name"]
+    for row in data.get("comparison", []):
+        cells = []
+        for variant in ("mismatched", "matched"):
+            if variant not in row:
+                cells.append("")
+                continue
+            cell = _fmt(row[variant], row["unit"])
+            ok = row.get(f"{variant}_meets")
+            cells.append(cell + ("" if ok is None else (" ✓" if ok else " ✗")))
+        lines.append(
+            f"| {name} | {row['label']} | {_fmt(row['paper'], row['unit'])} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    frames = data["study"]["experiment"]["experiment"]["frames"]
+    for variant, v in data["variants"].items():
+        t = v.get("seconds_total") or {}
+        times.append(
+            f"| {name} ({variant}) | {frames} | {t.get('simulate', 0):.0f} | "
+            f"{t.get('reconstruct', 0):.0f} | {t.get('track', 0):.0f} |"
+        )
+    return lines, times
 
 
 #: First line of every page :func:`collect` writes; only such a page is ever replaced.
@@ -134,9 +177,9 @@ def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
     ]
     if preamble is not None:
         pre = Path(preamble)
-        if not pre.is_file():
+        if not pre.exists():
             raise StudyError(f"preamble {pre} does not exist")
-        lines = [pre.read_text(encoding="utf-8").rstrip("\n"), ""]
+        lines = [_read_text(pre, "preamble").rstrip("\n"), ""]
     lines += _overview(loaded)
     written: set[Path] = set()
     for report, md, data in loaded:

@@ -57,10 +57,14 @@ import dataclasses
 import math
 import os
 import tomllib
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from hrvbase.validate import check_table_keys
 from recon.settings import ReconSettings
@@ -207,16 +211,64 @@ class Study:
         }
 
 
+_TYPE_WORDS = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+
+
+def _expected_type(value: Any, hint: Any) -> str | None:
+    """What a TOML value of a field typed ``hint`` should be, or None when ``value`` fits.
+
+    Only the kinds of value TOML has are checked (numbers, strings, booleans, arrays); the
+    dataclass checks the values themselves."""
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        words = []
+        for member in typing.get_args(hint):
+            if member is type(None):
+                continue
+            word = _expected_type(value, member)
+            if word is None:
+                return None
+            words.append(word)
+        return " or ".join(dict.fromkeys(words)) or None
+    if hint is Path:
+        return None if isinstance(value, str | Path) else "a path (a string)"
+    if hint is tuple or typing.get_origin(hint) is tuple:
+        args = typing.get_args(hint)
+        fixed = bool(args) and Ellipsis not in args
+        words = f"a list of {len(args)} values" if fixed else "a list"
+        if not isinstance(value, list | tuple):
+            return words
+        if fixed and (
+            len(value) != len(args)
+            or any(_expected_type(v, a) for v, a in zip(value, args, strict=False))
+        ):
+            return f"{words} ({', '.join(_TYPE_WORDS.get(a, 'a value') for a in args)})"
+        return None
+    if hint in _TYPE_WORDS:
+        ok = {
+            int: lambda v: isinstance(v, int) and not isinstance(v, bool),
+            float: lambda v: isinstance(v, int | float) and not isinstance(v, bool),
+            str: lambda v: isinstance(v, str),
+            bool: lambda v: isinstance(v, bool),
+        }[hint](value)
+        return None if ok else _TYPE_WORDS[hint]
+    return None  # nested settings and the like: the dataclass checks them
+
+
 def _settings(cls, where: str, name: str, table: Mapping | None, skip=(), **extra):
     """The settings dataclass ``cls`` from a TOML table: its keys are the dataclass's fields
-    (``skip`` excepted), its defaults and checks the dataclass's own."""
+    (``skip`` excepted), of the fields' types; its defaults and checks the dataclass's own."""
     from hrvbase.errors import HrvError
 
     allowed = tuple(f.name for f in dataclasses.fields(cls) if f.name not in skip)
     tab = dict(_check_keys(where, name, table or {}, allowed))
+    hints = typing.get_type_hints(cls)
+    for key, value in tab.items():
+        expected = _expected_type(value, hints.get(key))
+        if expected is not None:
+            raise StudyConfigError(f"{where}: [{name}] {key} must be {expected}, got {value!r}")
     try:
         return cls(**tab, **extra)
-    except (HrvError, TypeError) as exc:  # TypeError: a value the dataclass cannot take
+    except (HrvError, TypeError, ValueError) as exc:  # a value the dataclass cannot take
         raise StudyConfigError(f"{where}: [{name}] {exc}") from None
 
 
@@ -233,7 +285,9 @@ def _study_spec(where: str, table: Mapping, base: Path) -> StudySpec:
 
 
 def _track_spec(where: str, table: Mapping | None) -> TrackSpec:
-    table = dict(table or {})
+    skip = ("grid", "link", "compute_fields")
+    allowed = [f.name for f in dataclasses.fields(SeriesSettings) if f.name not in skip]
+    table = dict(_check_keys(where, "track", table or {}, [*allowed, *TRACK_TABLES]))
     sub = {k: table.pop(k) for k in TRACK_TABLES if k in table}
     detect = _settings(DetectSettings, where, "track.detect", sub.get("detect"))
     grid = _settings(GridSettings, where, "track.grid", sub.get("grid"))
@@ -243,7 +297,7 @@ def _track_spec(where: str, table: Mapping | None) -> TrackSpec:
         where,
         "track",
         table,
-        skip=("grid", "link", "compute_fields"),
+        skip=skip,
         grid=grid,
         link=link,
     )
@@ -280,7 +334,52 @@ def study_from_dict(
         )
     if st.kind == "series" and exp.frames < 2:
         raise StudyConfigError(f"{where}: a 'series' study needs frames >= 2, got {exp.frames}")
-    return Study(exp, st, rc, tr, Path(source) if source else None)
+    study = Study(exp, st, rc, tr, Path(source) if source else None)
+    _check_recon_scene(where, study)
+    return study
+
+
+def _check_recon_scene(where: str, study: Study) -> None:
+    """Refuse, before any work, a reconstruction model of another microscope than the
+    experiment's (only the lenslet model may differ: glass vs ideal), and a
+    ``[track.grid] spacing_um`` that gives far too many nodes over the volumes."""
+    from hrvbase.errors import HrvError
+    from lfsim.scene import read_optics
+    from recon.pipeline import optics_differences
+    from track.series import check_grid
+
+    optics = read_optics(study.recon_scene)
+    diffs = optics_differences(
+        optics, study.experiment.optics, labels=("recon_scene", "experiment scene")
+    )
+    if diffs:
+        raise StudyConfigError(
+            f"{where}: [study] recon_scene {str(study.recon_scene)!r} is another microscope "
+            f"than the experiment's scene {str(study.experiment.scene)!r}: {'; '.join(diffs)}; "
+            "a study reconstructs with the optics it renders with (only the lenslet model, "
+            "glass or ideal, may differ)"
+        )
+    grid = study.track.series.grid
+    if study.study.kind != "series" or grid.spacing_um is None or study.recon.roi_px is not None:
+        return
+    try:
+        depths = study.recon.resolved(optics).depths_um
+    except HrvError as exc:
+        raise StudyConfigError(f"{where}: [recon] {exc}") from None
+    # A lower bound of the volumes' size (x, y, z): rectification keeps at least the whole
+    # lenslets but two, less one voxel.
+    whole = np.floor(np.asarray(optics.sensor_px) / optics.px_per_lenslet) - 3
+    lower = [*(np.maximum(whole, 0) * optics.lenslet_object_um), depths[-1] - depths[0]]
+    if grid.spacing_um < max(lower):  # the single-cell check needs the exact size: later
+        try:
+            check_grid(
+                lower,
+                grid,
+                where="a lower bound of the reconstructed volumes",
+                spacing_name="[track.grid] spacing_um",
+            )
+        except HrvError as exc:
+            raise StudyConfigError(f"{where}: {exc}") from None
 
 
 def load_study(path: str | os.PathLike) -> Study:

@@ -157,6 +157,11 @@ def init_backend(
     if threads is not None and threads < 1:
         raise BackendError(f"threads must be >= 1, got {threads}")
     cache_dir = cache_dir or os.environ.get("HRVPTM_KERNEL_CACHE")
+    if device == "cuda" and not _cuda_available():
+        raise BackendError(
+            "device 'cuda': no CUDA driver on this machine (no libcuda found, or "
+            "HRVPTM_DISABLE_CUDA is set); use device 'auto' or 'llvm' to run on the CPU"
+        )
 
     if _STATE is not None:
         if device not in ("auto", _STATE.device):
@@ -189,7 +194,11 @@ def init_backend(
             mi.set_variant("cuda_ad_mono")
         except (ImportError, AttributeError, RuntimeError) as exc:  # pragma: no cover - GPU
             if not auto:
-                raise BackendError(f"cannot use the CUDA backend: {exc}") from exc
+                raise BackendError(
+                    "device 'cuda': the CUDA driver is installed but Dr.Jit could not start "
+                    "on a GPU (none usable?); use device 'auto' or 'llvm' to run on the CPU "
+                    f"(Dr.Jit said: {exc})"
+                ) from exc
             # A CUDA driver library without a usable GPU: fall back to the CPU.
             log.warning("CUDA backend unavailable (%s); using the LLVM CPU backend", exc)
             device = "llvm"

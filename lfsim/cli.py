@@ -48,6 +48,29 @@ def _check_output(args, *inputs) -> Path:
     return check_output_file(args.output, inputs=inputs, overwrite=args.overwrite)
 
 
+def _check_numbers(args, rays: str) -> None:
+    """Refuse, before any tracing, option values the library would refuse later (or only
+    after tracing): rays, ``--snr``, ``--seed`` and the micrometer's lengths, named as typed."""
+    from hrvbase.errors import raised_as
+    from hrvbase.validate import int_in_range, positive_float
+
+    with raised_as(ConfigError):
+        int_in_range(getattr(args, rays.lstrip("-").replace("-", "_")), rays, 1)
+        if args.snr is not None:
+            positive_float(args.snr, "--snr")
+        int_in_range(args.seed, "--seed", 0)
+        if getattr(args, "division_um", None) is not None:
+            positive_float(args.division_um, "--division-um")
+            positive_float(args.line_width_um, "--line-width-um")
+
+
+def _option_names(exc: ConfigError, names: dict[str, str]) -> ConfigError:
+    """``exc`` with the library's parameter names replaced by the options the user typed."""
+    from hrvbase.cli import rename_fields
+
+    return ConfigError(rename_fields(str(exc), names))
+
+
 def _parse_set(items: list[str]) -> dict:
     """``KEY=VALUE`` strings → Optics keyword arguments of the right types."""
     from .optics import Optics
@@ -171,7 +194,13 @@ def cmd_render(args) -> int:
     from .tracer import RenderSettings
 
     out = _check_output(args, args.scene, args.particles)
+    _check_numbers(args, "--rays")
     particles = Particles.from_csv(args.particles)
+    if len(particles) == 0:
+        raise ConfigError(
+            f"particle table {args.particles} holds no particles (a header only); expected one "
+            "row per particle"
+        )
     if args.float and (args.snr is not None or args.bit_depth is not None or args.noise):
         raise ConfigError(
             "--float writes the noise-free image; it takes no --noise/--snr/--bit-depth"
@@ -222,6 +251,7 @@ def cmd_white(args) -> int:
     from .render import render_white
 
     out = _check_output(args, args.scene)
+    _check_numbers(args, "--rays-per-lenslet")
     scene = _read_scene(args.scene)
     clean = render_white(
         scene, args.rays_per_lenslet, seed=args.seed, tracer=args.tracer, progress=not args.quiet
@@ -232,10 +262,17 @@ def cmd_white(args) -> int:
 
 
 def cmd_micrometer(args) -> int:
-    from .render import render_micrometer
+    from .render import micrometer_sources, render_micrometer
 
     out = _check_output(args, args.scene)
+    _check_numbers(args, "--rays-per-line")
     scene = _read_scene(args.scene)
+    try:  # the reticle fits the field (before tracing)
+        micrometer_sources(scene.optics, args.division_um, args.line_width_um, args.axis)
+    except ConfigError as exc:
+        raise _option_names(
+            exc, {"division_um": "--division-um", "line_width_um": "--line-width-um"}
+        ) from None
     clean = render_micrometer(
         scene,
         args.division_um,
@@ -260,13 +297,14 @@ def cmd_micrometer(args) -> int:
 
 
 def cmd_dataset(args) -> int:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
 
     from .dataset import generate_dataset
     from .experiment import load_experiment
 
     exp = load_experiment(args.experiment)
     guard_output(args.output, [args.experiment, exp.scene])
+    check_output_folder(args.output)
     generate_dataset(exp, args.output, overwrite=args.overwrite, progress=not args.quiet)
     return 0
 

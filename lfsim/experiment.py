@@ -322,6 +322,12 @@ class Experiment:
             raise ConfigError(
                 f"{where}: [particles] csv: the particle table {particles.csv} does not exist"
             )
+        if particles.n_particles == 0:
+            key = "count" if particles.count is not None else "density_per_mm3"
+            raise ConfigError(
+                f"{where}: [particles] {key} = {ptab[key]!r} seeds no particles; expected at "
+                "least 1"
+            )
 
         # [motion]
         motion = None

@@ -11,6 +11,9 @@ import math
 
 import numpy as np
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import positive_float
+
 from .errors import ConfigError
 from .particles import Particles
 from .tracer import RenderSettings, Sources, trace_mitsuba, trace_paraxial
@@ -200,9 +203,13 @@ def micrometer_sources(
     Sources
         Box sources, brightness proportional to their length (uniform line brightness).
     """
-    if division_um <= 0 or line_width_um <= 0 or line_width_um >= division_um:
+    with raised_as(ConfigError):
+        division_um = positive_float(division_um, "division_um")
+        line_width_um = positive_float(line_width_um, "line_width_um")
+    if line_width_um >= division_um:
         raise ConfigError(
-            f"need 0 < line_width_um < division_um, got {line_width_um!r}, {division_um!r}"
+            f"line_width_um must be smaller than division_um, got {line_width_um:g} and "
+            f"{division_um:g} µm"
         )
     if axis not in ("x", "y"):
         raise ConfigError(f"axis must be 'x' or 'y', got {axis!r}")
@@ -218,6 +225,11 @@ def micrometer_sources(
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]) @ e_scale
     lo, hi = corners.min(), corners.max()
     ks = np.arange(np.ceil(lo / division_um - 1e-9), np.floor(hi / division_um + 1e-9) + 1)
+    if len(ks) < 2:
+        raise ConfigError(
+            f"division_um {division_um:g} µm puts {len(ks)} line(s) in the {hi - lo:.4g} µm "
+            f"field of view along {axis}; a scale needs at least 2 (choose a smaller division)"
+        )
     base = 0.2 * other
     lengths = np.where(ks % 10 == 0, 2.0 * base, np.where(ks % 5 == 0, 1.5 * base, base))
     pos = ks * division_um

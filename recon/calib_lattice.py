@@ -211,7 +211,7 @@ def spectral_lattice(spec: Spectrum, expected_pitch_px: float | None) -> Spectra
     ):
         raise CalibrationError(
             f"the lenslet grid of the image has a pitch of about {pitch:.4g} px, far from "
-            f"expected_pitch_px={expected_pitch_px:g}"
+            f"the expected {expected_pitch_px:g} px"
         )
     log.debug(
         "spectrum: pitch %.4f px, rotation %.4f deg, prominence %.3g / %.3g",

@@ -75,7 +75,9 @@ def calibrate_white_file(
     try:
         grid = calibrate_white(image, expected_pitch_px=nominal)
     except ReconError as exc:
-        raise type(exc)(f"{white}: {exc}") from None
+        raise type(exc)(
+            f"{white}: {exc} (the scene {scene} expects {nominal:.4g} px per lenslet)"
+        ) from None
     deviation = grid.pitch_px / nominal - 1.0
     if abs(deviation) > PITCH_MISMATCH_FRACTION:
         msg = (

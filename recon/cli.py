@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -550,7 +551,7 @@ def _resolve_inputs(args: argparse.Namespace):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
     from lfsim import init_backend
 
     from .frames import time_source
@@ -576,14 +577,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
         try:
             background = float(background)
         except ValueError:
+            background = math.nan
+        if not math.isfinite(background):
             raise InputError(
-                f"--background must be a number or 'auto', got {background!r}"
-            ) from None
+                f"--background must be a finite number, 'auto' or 'none', got {args.background!r}"
+            )
     dark = read_frame(args.dark, what="dark frame") if args.dark else None
     pre = Preprocess(dark=dark, background=background, hot_pixels=args.hot_pixels)
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
+    check_output_folder(args.output)
     frames, optics, grid, scene = _resolve_inputs(args)
     guard_output(args.output, sorted({f.path for f in frames}))
+    if dark is not None and dark.shape != tuple(grid.image_shape):
+        (h, w), (gh, gw) = dark.shape, grid.image_shape
+        raise InputError(
+            f"--dark {str(args.dark)!r} is {w} × {h} px but the frames and the calibration are "
+            f"{gw} × {gh} px"
+        )
     init_backend(device=args.device, threads=getattr(args, "threads", None))
     t0 = time.perf_counter()
     res = reconstruct_series(

@@ -88,7 +88,12 @@ OPTICS_MATCH_FIELDS = ("na", "mla_pitch_um", "mla_focal_um", "pixel_um", "sensor
 OPTICS_RTOL = 1e-6
 
 
-def optics_differences(scene, calibration, rtol: float = OPTICS_RTOL) -> list[str]:
+def optics_differences(
+    scene,
+    calibration,
+    rtol: float = OPTICS_RTOL,
+    labels: tuple[str, str] = ("scene", "calibration"),
+) -> list[str]:
     """The :data:`OPTICS_MATCH_FIELDS` in which two optics differ, as readable text.
 
     Parameters
@@ -97,6 +102,8 @@ def optics_differences(scene, calibration, rtol: float = OPTICS_RTOL) -> list[st
         The optics of a run's scene and those recorded with its calibration.
     rtol : float
         Relative tolerance per value.
+    labels : (str, str)
+        What the two optics are, in the text.
 
     Returns
     -------
@@ -113,7 +120,7 @@ def optics_differences(scene, calibration, rtol: float = OPTICS_RTOL) -> list[st
         a, b = getattr(scene, name), getattr(calibration, name)
         va, vb = np.atleast_1d(np.asarray(a, float)), np.atleast_1d(np.asarray(b, float))
         if va.shape != vb.shape or not np.allclose(va, vb, rtol=rtol, atol=0.0):
-            out.append(f"{name} {text(a)} (scene) vs {text(b)} (calibration)")
+            out.append(f"{name} {text(a)} ({labels[0]}) vs {text(b)} ({labels[1]})")
     return out
 
 

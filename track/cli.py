@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -284,10 +285,29 @@ def _check_grid_option(args, extent_xyz_um, where: str) -> None:
     )
 
 
+def _check_edge_margin(settings, volume: tio.VolumeInfo) -> None:
+    """Refuse an ``--edge-margin-um`` that leaves no voxel a blob could occupy (every blob
+    would be dropped, and every frame fail)."""
+    from hrvbase.errors import InputError
+
+    margin = settings.edge_margin_um
+    for n, d in zip(volume.shape, volume.voxel_size_um, strict=True):
+        if 2 * math.ceil(margin / d) >= n:
+            size = " × ".join(
+                f"{(m - 1) * v:.4g}"
+                for m, v in zip(volume.shape, volume.voxel_size_um, strict=True)
+            )
+            raise InputError(
+                f"--edge-margin-um {margin:g} µm leaves no room inside the volumes "
+                f"({size} µm, z × y × x): keep it below half the smallest size"
+            )
+
+
 def _common_kwargs(args) -> dict:
-    from hrvbase.io import guard_output
+    from hrvbase.io import check_output_folder, guard_output
 
     guard_output(args.output, getattr(args, "clouds", None) or [args.voldir])
+    check_output_folder(args.output)
     return {
         "overwrite": args.overwrite,
         "allow_partial": args.allow_partial,
@@ -320,6 +340,7 @@ def cmd_detect(args) -> int:
     from .pipeline import track_volumes
 
     settings = detect_settings(args)
+    _check_edge_margin(settings, tio.scan_volumes(args.voldir)[0])
     return _report(
         args,
         lambda: track_volumes(
@@ -334,6 +355,7 @@ def cmd_run(args) -> int:
 
     detect, series = detect_settings(args), series_settings(args)  # validate before any work
     vols = tio.scan_volumes(args.voldir)
+    _check_edge_margin(detect, vols[0])
     _check_grid_option(args, volume_extent_um(vols[0]), "the volume")
     return _report(
         args,

@@ -373,6 +373,18 @@ def _imagej_calibration(ij: Mapping | None, page) -> tuple[tuple | None, tuple |
     return vs, origin
 
 
+def _data_end(tif) -> int:
+    """Byte just past the last voxel data of the first series (headers only)."""
+    series = tif.series[0]
+    if series.dataoffset is not None:  # contiguous data
+        return int(series.dataoffset) + int(series.nbytes)
+    end = 0
+    for page in tif.pages:
+        for offset, count in zip(page.dataoffsets, page.databytecounts, strict=True):
+            end = max(end, int(offset) + int(count))
+    return end
+
+
 def _tiff_header(path: Path) -> _Header:
     """Shape, dtype and metadata of a volume file, without reading its voxels."""
     import tifffile
@@ -388,8 +400,15 @@ def _tiff_header(path: Path) -> _Header:
             shape = tuple(tif.series[0].shape)
             dtype = tif.series[0].dtype
             ij_vs, ij_origin = _imagej_calibration(tif.imagej_metadata, page)
+            end = _data_end(tif)
     except Exception as exc:  # tifffile raises assorted types on corrupt files
         raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
+    size = path.stat().st_size
+    if end > size:
+        raise InputError(
+            f"TIFF volume {path} is truncated: its voxels end at byte {end} but the file has "
+            f"{size} bytes (an interrupted copy or write?)"
+        )
     if tagvals[_SHAPE_TAG] is not None:
         with contextlib.suppress(ValueError, KeyError, TypeError):
             shape = tuple(json.loads(tagvals[_SHAPE_TAG])["shape"])
@@ -429,8 +448,10 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     Raises
     ------
     InputError
-        No volumes, a gap in the numbering ("volume NNNNNN.tif is missing"), a volume
-        without a voxel size, or voxel sizes/shapes that differ ("mismatched voxel sizes").
+        No volumes, a gap in the numbering ("volume NNNNNN.tif is missing"), a truncated
+        file, a volume without a voxel size, shapes (a 2-D image is one plane) or
+        voxel types that differ ("mixed series") or voxel sizes that differ ("mismatched voxel
+        sizes").
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -458,10 +479,11 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     recon_vs = None
     if recon.get("voxel_size_um") is not None:
         recon_vs = _voxel_size(recon["voxel_size_um"], str(folder / RECON_JSON))
-    out = []
+    out, dtypes = [], []
     for k in idx:
         p = files[k]
         head = _tiff_header(p)
+        dtypes.append(np.dtype(head.dtype))
         shape, meta = head.shape, head.meta
         if np.dtype(head.dtype).kind not in "uif":
             raise InputError(f"{p}: unsupported voxel type {head.dtype}")
@@ -483,7 +505,13 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
         )
         out.append(VolumeInfo(p, k, shape, vs, origin or (0.0, 0.0, 0.0)))
     first = out[0]
-    for v in out[1:]:
+    for v, dtype in zip(out[1:], dtypes[1:], strict=True):
+        if v.shape != first.shape or dtype != dtypes[0]:
+            raise InputError(
+                f"mixed series: {v.path} holds {' × '.join(map(str, v.shape))} voxels of "
+                f"{dtype}, {first.path} {' × '.join(map(str, first.shape))} of {dtypes[0]} "
+                "(z × y × x); the volumes of a series must match"
+            )
         if not np.allclose(v.voxel_size_um, first.voxel_size_um, rtol=1e-6, atol=0):
             raise InputError(
                 f"mismatched voxel sizes: {v.path} has {list(v.voxel_size_um)} µm, "

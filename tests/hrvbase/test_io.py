@@ -12,6 +12,7 @@ from hrvbase.errors import InputError, OutputError
 from hrvbase.io import (
     atomic_write_text,
     check_output_file,
+    check_output_folder,
     file_record,
     guard_output,
     read_json,
@@ -71,6 +72,18 @@ def test_check_output_file(tmp_path):
     with pytest.raises(OutputError, match="is a file, not a folder"):
         check_output_file(src / "x.tif")
     assert existing.read_bytes() == b"keep"
+
+
+def test_check_output_folder(tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file")
+    for out in (blocker / "out", blocker / "a" / "b"):
+        with pytest.raises(OutputError, match=f"cannot create {out}: {blocker} is a file"):
+            check_output_folder(out)
+    assert check_output_folder(tmp_path / "new" / "out") == tmp_path / "new" / "out"
+    assert check_output_folder(tmp_path) == tmp_path  # an existing folder: the tool judges it
+    assert check_output_folder(blocker) == blocker  # a file: the tool's own message
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker"]  # nothing created
 
 
 def test_json_policy_nan_is_null_and_no_silent_overwrite(tmp_path):
