@@ -1135,18 +1135,16 @@ def apply_pixel_size(optics, record) -> Any:
 
 # -- files ----------------------------------------------------------------------------------
 def image_metadata(path) -> dict:
-    """The JSON metadata of a TIFF written by :mod:`lfsim` (``{}`` if it has none)."""
-    import json
-
-    import tifffile
+    """The JSON metadata of a TIFF written by :mod:`lfsim` (``{}`` if it has none or cannot be
+    read: the caller then needs ``--scene``)."""
+    from hrvbase.errors import HrvError
+    from lfsim.io import read_tiff
 
     try:
-        with tifffile.TiffFile(path) as tif:
-            text = tif.pages[0].description or ""
-        data = json.loads(text)
-    except (OSError, ValueError, IndexError, tifffile.TiffFileError):
+        _, meta = read_tiff(path)
+    except HrvError:
         return {}
-    return data if isinstance(data, dict) else {}
+    return meta if isinstance(meta, dict) else {}
 
 
 def build_record(
