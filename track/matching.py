@@ -43,7 +43,13 @@ from track.features import (
     topology_descriptors,
 )
 from track.outliers import normalized_median_test, ransac_affine
-from track.regularize import METHODS, AffineDisplacement, fit_affine, fit_field
+from track.regularize import (
+    METHODS,
+    AffineDisplacement,
+    fit_affine,
+    fit_field,
+    local_affine_predict,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -121,6 +127,14 @@ class LinkSettings:
     ransac_threshold_um: float | None = None
     bootstrap_max_particles: int = 3000
     seed: int = 0
+    outlier_eps_xyz_um: tuple[float, float, float] | None = None
+    local_neighbors: int = 12
+    local_radius_um: float | None = None
+    local_scale_um: float | None = None
+    tolerance_sigmas: float = 4.0
+    guess_min_fraction: float = 0.3
+    growth_passes: int = 8
+    growth_q: float = 0.5
 
     def __post_init__(self) -> None:
         if self.n_neighbors_min < 3:
@@ -403,6 +417,70 @@ def match_displacement_histogram(
     return _one_to_one(pairs, -best[rows].astype(float))
 
 
+def match_predicted(
+    warped_ref: np.ndarray, def_xyz: np.ndarray, tolerance_xyz_um: np.ndarray, ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unambiguous deformed particle inside each predicted position's tolerance ellipsoid.
+
+    The distance of deformed particle ``j`` from warped reference particle ``i`` is
+    ``q_ij = |(def_j − warped_i) / tolerance_i|`` (per-axis tolerances, so anisotropic noise
+    gets an ellipsoid). A pair is kept when ``q ≤ 1`` and it beats every other candidate of
+    both ``i`` and ``j`` by the ratio: ``q < ratio × q_second``.
+
+    Parameters
+    ----------
+    warped_ref : ndarray, shape (N, 3)
+        Predicted deformed positions of the reference particles (µm).
+    def_xyz : ndarray, shape (M, 3)
+        Deformed particles (µm).
+    tolerance_xyz_um : ndarray, shape (N, 3)
+        Semi-axes (x, y, z) of each particle's tolerance ellipsoid (µm, > 0).
+    ratio : float
+        Ratio test, 0 < ratio ≤ 1.
+
+    Returns
+    -------
+    pairs : ndarray of int, shape (K, 2)
+        ``[row_ref, row_def]``.
+    q : ndarray, shape (K,)
+        Normalised distance of each pair.
+    """
+    n = warped_ref.shape[0]
+    tol = np.asarray(tolerance_xyz_um, dtype=float)
+    k = min(4, def_xyz.shape[0])
+    reach = float(np.max(tol)) / ratio
+    d, j = cKDTree(def_xyz).query(warped_ref, k, distance_upper_bound=reach)
+    d, j = d.reshape(n, k), j.reshape(n, k)
+    valid = np.isfinite(d)
+    safe = np.where(valid, j, 0)
+    q = np.sqrt(np.sum(((def_xyz[safe] - warped_ref[:, None, :]) / tol[:, None, :]) ** 2, axis=2))
+    q[~valid] = np.inf
+    order = np.argsort(q, axis=1)
+    q1 = np.take_along_axis(q, order[:, :1], axis=1)[:, 0]
+    q2 = np.take_along_axis(q, order[:, 1:2], axis=1)[:, 0] if k > 1 else np.full(n, np.inf)
+    best_j = np.take_along_axis(safe, order[:, :1], axis=1)[:, 0]
+    ok = (q1 <= 1.0) & (q1 < ratio * q2)
+    # deformed side: j's best claimant must be i and beat j's other claimants by the ratio
+    rows = np.repeat(np.arange(n), k)[valid.ravel()]
+    cols = safe.ravel()[valid.ravel()]
+    qq = q.ravel()[valid.ravel()]
+    srt = np.lexsort((qq, cols))
+    rows, cols, qq = rows[srt], cols[srt], qq[srt]
+    first = np.ones(cols.size, dtype=bool)
+    first[1:] = cols[1:] != cols[:-1]
+    nxt = np.full(cols.size, np.inf)
+    same_next = np.zeros(cols.size, dtype=bool)
+    same_next[:-1] = cols[1:] == cols[:-1]
+    nxt[:-1] = np.where(same_next[:-1], qq[1:], np.inf)
+    owner = np.full(def_xyz.shape[0], -1)
+    owner_ok = np.zeros(def_xyz.shape[0], dtype=bool)
+    owner[cols[first]] = rows[first]
+    owner_ok[cols[first]] = qq[first] < ratio * nxt[first]
+    ok &= (owner[best_j] == np.arange(n)) & owner_ok[best_j]
+    sel = np.flatnonzero(ok)
+    return np.column_stack([sel, best_j[sel]]).astype(np.int64), q1[sel]
+
+
 # ------------------------------------------------------------------------------- the loop
 
 
@@ -436,10 +514,26 @@ def _clean(ref, dfm, pairs, k, settings, eps_um, predicted):
     return pairs[keep]
 
 
+def _verify(ref, dfm, aff, settings, spacing, eps_um):
+    """Matches of the whole clouds that agree with a global hypothesis ``aff``."""
+    u = np.asarray(aff(ref), dtype=float)
+    tol = np.full(ref.shape, settings.nn_max_distance_um or 0.45 * spacing)
+    cand, _ = match_predicted(ref + u, dfm, tol, settings.nn_ratio)
+    return _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_um, ref + u)
+
+
 def _bootstrap(ref, dfm, settings, spacing, eps_um):
-    """Global topology match + affine consensus. Returns (field, pairs, n_candidates, label)."""
+    """Global topology match + affine consensus, verified on the whole clouds.
+
+    Each hypothesis (descriptor matches in raw and in moment-normalised coordinates, then
+    nearest neighbours of the unwarped clouds) gives a RANSAC affine map; the map that links
+    the most particles of the whole clouds (:func:`_verify`) wins. Returns (affine field,
+    pairs, n_candidates, label) or None.
+    """
     n_core = min(settings.descriptor_size, ref.shape[0] - 1, dfm.shape[0] - 1)
     scale = cloud_scale_um(ref)
+    n_min = min(ref.shape[0], dfm.shape[0])
+    enough = 0.3 * n_min
     # A subset of reference particles suffices for a consensus and keeps the global
     # descriptor search fast for large clouds; the mutual check runs against that subset.
     rng = np.random.default_rng(settings.seed)
@@ -454,8 +548,24 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
     except InputError:
         logger.debug("moment normalisation skipped: degenerate cloud")
     thr = settings.ransac_threshold_um or spacing
-    min_inl = max(4, min(8, int(0.5 * min(ref.shape[0], dfm.shape[0]))))
+    min_inl = max(4, min(8, int(0.5 * n_min)))
     best = None
+
+    def consider(label, cand, fit):
+        nonlocal best
+        if fit is None:
+            return
+        pairs = _verify(ref, dfm, fit[0], settings, spacing, eps_um)
+        logger.debug(
+            "bootstrap %s: %d candidates, %d agree, %d verified",
+            label,
+            cand.shape[0],
+            int(fit[1].sum()),
+            pairs.shape[0],
+        )
+        if pairs.shape[0] >= 4 and (best is None or pairs.shape[0] > best[0]):
+            best = (pairs.shape[0], label, cand[fit[1]], cand.shape[0], fit[0])
+
     for label, a, b in views:
         cand = match_descriptors_global(
             topology_descriptors(a, n_core)[sub],
@@ -466,13 +576,10 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
         fit = ransac_affine(
             ref[cand[:, 0]], dfm[cand[:, 1]], thr, seed=settings.seed, min_inliers=min_inl
         )
-        n_inl = -1 if fit is None else int(fit[1].sum())
-        logger.debug("bootstrap %s: %d candidates, %d agree", label, cand.shape[0], max(n_inl, 0))
-        if fit is not None and (best is None or n_inl > best[0]):
-            best = (n_inl, label, cand[fit[1]], cand.shape[0], fit[0])
-        if best is not None and best[0] >= 0.3 * min(sub.size, dfm.shape[0]):
-            break  # overwhelming consensus already
-    if best is None or best[0] < 0.3 * min(sub.size, dfm.shape[0]):
+        consider(label, cand, fit)
+        if best is not None and best[0] >= enough:
+            break  # most particles agree already
+    if best is None or best[0] < enough:
         # Small-motion hypothesis: increments well below the particle spacing (the usual case
         # at high frame rates) pair nearest neighbours of the unwarped clouds. It rescues
         # sparse, noisy clouds whose topology descriptors disagree (a few tens of particles
@@ -480,14 +587,18 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
         cand = match_nearest(ref, dfm, 0.5 * spacing, settings.nn_ratio)
         if cand.shape[0] >= min_inl:
             fit = ransac_affine(
-                ref[cand[:, 0]], dfm[cand[:, 1]], thr, seed=settings.seed, min_inliers=min_inl
+                ref[cand[:, 0]],
+                dfm[cand[:, 1]],
+                min(thr, 0.25 * spacing),
+                seed=settings.seed,
+                min_inliers=min_inl,
             )
-            n_inl = -1 if fit is None else int(fit[1].sum())
-            logger.debug("bootstrap nearest: %d candidates, %d agree", cand.shape[0], max(n_inl, 0))
-            if fit is not None and (best is None or n_inl > best[0]):
-                best = (n_inl, "nearest", cand[fit[1]], cand.shape[0], fit[0])
+            consider("nearest", cand, fit)
     if best is None:
         return None
+    # The seeds are the hypothesis' own consensus (descriptor matches that agree with its
+    # map), not the verified matches: where the field is far from affine, some of those are
+    # accidental neighbours.
     _, label, pairs, n_cand, aff0 = best
     pairs = _clean(ref, dfm, pairs, settings.n_neighbors_max, settings, eps_um, ref + aff0(ref))
     if pairs.shape[0] < 4:
@@ -521,6 +632,141 @@ def _failed(reason: str, spacing: float, history, t0: float) -> LinkResult:
     )
 
 
+def _loo_noise(resid: np.ndarray, spacing: float) -> np.ndarray:
+    """Robust per-axis standard deviation (x, y, z) of match residuals, floored."""
+    if resid.shape[0] < 4:
+        return np.full(3, 0.05 * spacing)
+    mad = np.median(np.abs(resid - np.median(resid, axis=0)), axis=0)
+    return np.maximum(1.4826 * mad, 1e-3 * spacing)
+
+
+def _predict(ref, dfm, pairs, base, settings, spacing, rows=None):
+    """Displacement prediction at reference particles from the current matches.
+
+    ``base`` plus a moving-least-squares affine fit (:func:`track.regularize.
+    local_affine_predict`) of the matched residuals about ``base``, leave-one-out for matched
+    particles. ``rows`` selects the reference rows to predict (default all). Returns
+    (prediction (R, 3), misfit (R, 3), neighbour count (R,)).
+    """
+    rows = np.arange(ref.shape[0]) if rows is None else rows
+    q = ref[rows]
+    x = ref[pairs[:, 0]]
+    r = dfm[pairs[:, 1]] - x - np.asarray(base(x), dtype=float)
+    slot = np.full(ref.shape[0], -1, dtype=np.int64)
+    slot[pairs[:, 0]] = np.arange(pairs.shape[0])
+    lp = local_affine_predict(
+        x,
+        r,
+        q,
+        n_neighbors=settings.local_neighbors,
+        radius_um=(settings.local_radius_um or 3.0 * spacing),
+        scale_um=(settings.local_scale_um or spacing),
+        exclude=slot[rows],
+    )
+    return np.asarray(base(q), dtype=float) + lp.values_um, lp.misfit_um, lp.n_neighbors
+
+
+def _tolerance_limits(settings, spacing):
+    hi = settings.nn_max_distance_um or 0.45 * spacing
+    return min(0.1 * spacing, hi), hi
+
+
+def _tolerance(misfit, noise, settings, spacing):
+    """Per-particle, per-axis tolerance: κ × (noise ⊕ local misfit), clipped."""
+    lo, hi = _tolerance_limits(settings, spacing)
+    sig = np.sqrt(noise**2 + np.where(np.isfinite(misfit), misfit, hi) ** 2)
+    return np.clip(settings.tolerance_sigmas * sig, lo, hi)
+
+
+def _pair_keys(pairs, m):
+    return np.sort(pairs[:, 0] * m + pairs[:, 1])
+
+
+def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
+    """Local matching grown from ``pairs`` until the match set is stable.
+
+    Each iteration (a) grows: passes that predict the unmatched reference particles with
+    at least three matched neighbours from those neighbours and add the unambiguous
+    matches to still free deformed particles; (b) validates: predicts every particle
+    leave-one-out, matches the whole clouds again and removes outliers with the normalised
+    median test (per-axis noise levels). It stops when an iteration changes nothing.
+    """
+    ratio = settings.nn_ratio
+    m = dfm.shape[0]
+    noise = np.full(3, 0.05 * spacing)
+    lo, hi = _tolerance_limits(settings, spacing)
+    refit_base = isinstance(base, AffineDisplacement)
+    seen: list[np.ndarray] = [_pair_keys(pairs, m)]
+    for it in range(start, settings.max_iterations + 1):
+        ts = time.perf_counter()
+        grown = 0
+        for _ in range(settings.growth_passes):
+            free_ref = np.ones(ref.shape[0], dtype=bool)
+            free_ref[pairs[:, 0]] = False
+            rows = np.flatnonzero(free_ref)
+            if rows.size == 0:
+                break
+            pred, misfit, nnb = _predict(ref, dfm, pairs, base, settings, spacing, rows)
+            near = nnb >= 3
+            rows, pred, misfit = rows[near], pred[near], misfit[near]
+            if rows.size == 0:
+                break
+            tol = _tolerance(misfit, noise, settings, spacing)
+            cand, q = match_predicted(ref[rows] + pred, dfm, tol, ratio)
+            taken = np.zeros(m, dtype=bool)
+            taken[pairs[:, 1]] = True
+            cand = cand[~taken[cand[:, 1]] & (q <= settings.growth_q)]
+            if cand.shape[0] == 0:
+                break
+            pairs = np.vstack([pairs, np.column_stack([rows[cand[:, 0]], cand[:, 1]])])
+            grown += cand.shape[0]
+        if refit_base:
+            base = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
+        pred, misfit, nnb = _predict(ref, dfm, pairs, base, settings, spacing)
+        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - pred[pairs[:, 0]]
+        noise = _loo_noise(resid, spacing)
+        tol = _tolerance(misfit, noise, settings, spacing)
+        # Particles without matched neighbours rely on the global field alone: only where
+        # it describes the matches well (a homogeneous field, sparse clouds).
+        lone = nnb < 3
+        if np.any(lone):
+            x = ref[pairs[:, 0]]
+            spread = _loo_noise(dfm[pairs[:, 1]] - x - np.asarray(base(x)), spacing)
+            t_base = settings.tolerance_sigmas * spread
+            if np.all(t_base <= hi):
+                pred[lone] = np.asarray(base(ref[lone]), dtype=float)
+                tol[lone] = np.maximum(t_base, lo)
+            else:
+                tol[lone] = 0.0
+        cand, _ = match_predicted(ref + pred, dfm, np.maximum(tol, 1e-9 * spacing), ratio)
+        cand = cand[tol[cand[:, 0], 0] > 0]
+        eps = eps_fixed if eps_fixed is not None else np.maximum(noise, 0.02 * spacing)
+        k = 2 * settings.n_neighbors_min
+        new = _clean(ref, dfm, cand, k, settings, eps, ref + pred)
+        history.append(
+            IterationRecord(
+                it,
+                "local",
+                k,
+                int(cand.shape[0] + grown),
+                int(new.shape[0]),
+                int(cand.shape[0] - new.shape[0]),
+                float("nan"),
+                float(np.sqrt(np.sum(noise**2))),
+                time.perf_counter() - ts,
+            )
+        )
+        logger.debug("iteration %d: %s (grown %d)", it, history[-1], grown)
+        if new.shape[0] < 4:
+            break
+        keys = _pair_keys(new, m)
+        pairs = new
+        if any(keys.shape == s.shape and np.array_equal(keys, s) for s in seen[-2:]):
+            break  # stable, or flipping between two sets
+        seen.append(keys)
+    return pairs
+
+
 def link_pair(
     ref_xyz,
     def_xyz,
@@ -540,8 +786,10 @@ def link_pair(
     settings : LinkSettings, optional
         Parameters; defaults when None.
     initial_guess : callable, optional
-        ``u(xyz_um (P, 3)) -> (P, 3)`` µm displacement estimate at reference points (e.g.
-        the previous increment's field). Replaces the global topology bootstrap.
+        ``u(xyz_um (P, 3)) -> (P, 3)`` µm displacement predictor at reference points (e.g.
+        the previous increment's field, :func:`previous_increment_predictor`). Its matches
+        replace the global topology bootstrap when they are consistent; otherwise the
+        bootstrap runs as without it.
 
     Returns
     -------
@@ -562,118 +810,82 @@ def link_pair(
     ref = _validate_cloud("ref_xyz", ref_xyz)
     dfm = _validate_cloud("def_xyz", def_xyz)
     spacing = _mean_spacing(ref)
-    eps_um = settings.outlier_eps_um or 0.02 * spacing
+    eps_fixed = None
+    if settings.outlier_eps_xyz_um is not None:
+        eps_fixed = np.asarray(settings.outlier_eps_xyz_um, dtype=float)
+    elif settings.outlier_eps_um is not None:
+        eps_fixed = np.full(3, settings.outlier_eps_um)
+    eps_boot = eps_fixed if eps_fixed is not None else 0.02 * spacing
     grid_um = settings.grid_spacing_um or 2.0 * spacing
     pad = 1e-6 * max(np.ptp(ref), 1.0)
     bounds = np.column_stack([ref.min(axis=0) - pad, ref.max(axis=0) + pad])
     n_min = min(ref.shape[0], dfm.shape[0])
     history: list[IterationRecord] = []
 
-    pairs = np.zeros((0, 2), dtype=np.int64)
-    if initial_guess is None:
+    pairs = None
+    base = None
+    if initial_guess is not None:
+        test = np.asarray(initial_guess(ref[:1]), dtype=float)
+        if test.shape != (1, 3) or not np.all(np.isfinite(test)):
+            raise InputError(
+                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
+            )
         ts = time.perf_counter()
-        boot = _bootstrap(ref, dfm, settings, spacing, eps_um)
+        u0 = np.asarray(initial_guess(ref), dtype=float)
+        if u0.shape != ref.shape or not np.all(np.isfinite(u0)):
+            raise InputError(
+                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
+            )
+        tol = np.full(ref.shape, settings.nn_max_distance_um or 0.45 * spacing)
+        cand, _ = match_predicted(ref + u0, dfm, tol, settings.nn_ratio)
+        guess_pairs = _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_boot, ref + u0)
+        history.append(
+            IterationRecord(
+                1,
+                "nearest",
+                settings.n_neighbors_max,
+                int(cand.shape[0]),
+                int(guess_pairs.shape[0]),
+                int(cand.shape[0] - guess_pairs.shape[0]),
+                float("nan"),
+                float("nan"),
+                time.perf_counter() - ts,
+            )
+        )
+        if guess_pairs.shape[0] >= max(4, settings.guess_min_fraction * n_min):
+            pairs, base = guess_pairs, initial_guess
+        else:
+            logger.info(
+                "initial_guess matched %d of %d particles; running the bootstrap instead",
+                guess_pairs.shape[0],
+                n_min,
+            )
+    if pairs is None:
+        ts = time.perf_counter()
+        boot = _bootstrap(ref, dfm, settings, spacing, eps_boot)
         if boot is None:
             return _failed(
                 "no consistent set of topology matches (bootstrap failed)", spacing, history, t0
             )
-        fld, pairs, n_cand, label = boot
-        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - fld(ref[pairs[:, 0]])
-        warp_err = _robust_rms(resid)
+        base, pairs, n_cand, label = boot
+        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - base(ref[pairs[:, 0]])
         history.append(
             IterationRecord(
-                1,
+                len(history) + 1,
                 label,
                 settings.n_neighbors_max,
                 n_cand,
                 int(pairs.shape[0]),
                 n_cand - int(pairs.shape[0]),
                 float("nan"),
-                warp_err,
+                _robust_rms(resid),
                 time.perf_counter() - ts,
             )
         )
-        start = 2
-    else:
-        fld = initial_guess
-        test = np.asarray(fld(ref[:1]), dtype=float)
-        if test.shape != (1, 3) or not np.all(np.isfinite(test)):
-            raise InputError(
-                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
-            )
-        warp_err = float("inf")
-        start = 1
-
-    prev_u = np.asarray(fld(ref), dtype=float)
-    stalled = 0
-    for it in range(start, settings.max_iterations + 1):
-        ts = time.perf_counter()
-        k = settings.n_neighbors(it)
-        warped = ref + prev_u
-        radius = settings.search_radius_um or float(np.clip(4.0 * warp_err, spacing, 3.0 * spacing))
-        if warp_err < settings.nn_switch * spacing:
-            matcher = "nearest"
-            max_d = settings.nn_max_distance_um or float(
-                np.clip(5.0 * warp_err, 0.1 * spacing, 0.5 * spacing)
-            )
-            cand = match_nearest(warped, dfm, max_d, settings.nn_ratio)
-        elif it % 2 == 0 or it == start:
-            matcher = "topology-local"
-            cand = match_topology_local(
-                warped, dfm, max(k, 8), radius, settings.descriptor_size, settings.descriptor_ratio
-            )
-        else:
-            matcher = "histogram"
-            cand = match_displacement_histogram(
-                warped, dfm, k, radius, settings.hist_bin_um or 0.3 * spacing
-            )
-        new_pairs = _clean(ref, dfm, cand, k, settings, eps_um, warped)
-        if new_pairs.shape[0] < 4:
-            if pairs.shape[0] >= 4:
-                logger.debug(
-                    "iteration %d (%s) found too few matches; keeping previous", it, matcher
-                )
-                break
-            return _failed(
-                f"iteration {it} ({matcher}) found {new_pairs.shape[0]} matches",
-                spacing,
-                history,
-                t0,
-            )
-        weight = max(
-            settings.smoothness,
-            settings.smoothness * settings.stiffness_factor * 0.1 ** (it - start),
-        )
-        if settings.smoothness == 0:
-            weight = 0.0
-        fld = _fit(ref, dfm, new_pairs, bounds, settings, grid_um, weight)
-        u = np.asarray(fld(ref))
-        update = float(np.sqrt(np.mean(np.sum((u - prev_u) ** 2, axis=1))))
-        resid = dfm[new_pairs[:, 1]] - ref[new_pairs[:, 0]] - fld(ref[new_pairs[:, 0]])
-        warp_err = _robust_rms(resid)
-        same_count = abs(new_pairs.shape[0] - pairs.shape[0]) <= max(0, int(1e-3 * n_min))
-        pairs, prev_u = new_pairs, u
-        history.append(
-            IterationRecord(
-                it,
-                matcher,
-                k,
-                int(cand.shape[0]),
-                int(pairs.shape[0]),
-                int(cand.shape[0] - pairs.shape[0]),
-                update,
-                warp_err,
-                time.perf_counter() - ts,
-            )
-        )
-        logger.debug("iteration %d: %s", it, history[-1])
-        converged = (
-            matcher == "nearest" and update < settings.stall_tolerance * spacing and same_count
-        )
-        stalled = stalled + 1 if converged else 0
-        if stalled >= 1 and weight <= settings.smoothness:
-            break
-
+    pairs = _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, len(history) + 1)
+    if pairs.shape[0] < 4:
+        return _failed(f"only {pairs.shape[0]} consistent matches", spacing, history, t0)
+    fld = _fit(ref, dfm, pairs, bounds, settings, grid_um, settings.smoothness)
     pairs = pairs[np.argsort(pairs[:, 0])]
     return LinkResult(
         matches=pairs.astype(np.int64),

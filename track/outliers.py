@@ -45,8 +45,10 @@ def normalized_median_test(
         Neighbours per test (≥ 3; reduced to P − 1 for small sets).
     threshold : float
         Normalised residual above which a match is rejected (> 0; 2 in W&S, 3 in the paper).
-    eps_um : float
-        Acceptable fluctuation level in µm (≥ 0), of the order of the displacement noise.
+    eps_um : float or array_like, shape (3,)
+        Acceptable fluctuation level in µm (≥ 0), of the order of the displacement noise:
+        one value, or one per component (x, y, z) when the noise is anisotropic (light-field
+        localisation: axial ≈ 10 × lateral).
 
     Returns
     -------
@@ -68,8 +70,9 @@ def normalized_median_test(
         raise InputError(f"n_neighbors must be ≥ 3, got {n_neighbors}")
     if not threshold > 0:
         raise InputError(f"threshold must be > 0, got {threshold}")
-    if not eps_um >= 0:
-        raise InputError(f"eps_um must be ≥ 0, got {eps_um}")
+    eps = np.asarray(eps_um, dtype=float)
+    if eps.shape not in ((), (3,)) or not np.all(eps >= 0) or not np.all(np.isfinite(eps)):
+        raise InputError(f"eps_um must be one value or 3 (x, y, z), finite and ≥ 0, got {eps_um}")
     p = x.shape[0]
     if p < 4:
         return np.ones(p, dtype=bool)
@@ -78,7 +81,7 @@ def normalized_median_test(
     nb = u[idx[:, 1:]]  # (P, k, 3)
     med = np.median(nb, axis=1)
     spread = np.median(np.abs(nb - med[:, None, :]), axis=1)
-    resid = np.abs(u - med) / (spread + eps_um)
+    resid = np.abs(u - med) / (spread + eps)
     return np.all(resid <= threshold, axis=1)
 
 

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import cg, splu
+from scipy.spatial import cKDTree
 
 from track.errors import InputError
 
@@ -402,3 +403,133 @@ def fit_field(
         extrapolation=extrapolation,
         info=info,
     )
+
+
+@dataclass(frozen=True)
+class LocalPrediction:
+    """Local affine regression of scattered values at query points.
+
+    Attributes
+    ----------
+    values_um : ndarray, shape (Q, 3)
+        Predicted value (e.g. displacement) at each query point, µm.
+    misfit_um : ndarray, shape (Q, 3)
+        Weighted RMS per component of the neighbours' values about the local fit, µm (how
+        well an affine map describes the neighbourhood); inf where no neighbour was found.
+    n_neighbors : ndarray of int, shape (Q,)
+        Neighbours used (within the radius, the query point itself excluded).
+    """
+
+    values_um: np.ndarray
+    misfit_um: np.ndarray
+    n_neighbors: np.ndarray
+
+
+def local_affine_predict(
+    points_um,
+    values_um,
+    query_um,
+    n_neighbors: int = 12,
+    radius_um: float = np.inf,
+    *,
+    scale_um: float | None = None,
+    exclude=None,
+    ridge: float = 0.01,
+) -> LocalPrediction:
+    """Moving-least-squares affine fit of scattered values around each query point.
+
+    For query point ``q`` the ``n_neighbors`` nearest ``points_um`` within ``radius_um``
+    (minus ``exclude[q]``, e.g. ``q`` itself for a leave-one-out prediction) are weighted by
+    ``exp(−d² / (2 h²))`` with ``h = scale_um`` and fitted by ``v ≈ a + B (x − q)``; the
+    prediction is ``a``. A ridge ``ridge · Σw · h²`` on ``B`` keeps the fit defined for one to
+    three neighbours or coplanar ones (it then tends to their weighted mean).
+
+    Parameters
+    ----------
+    points_um : array_like, shape (P, 3)
+        Positions of the known values (µm).
+    values_um : array_like, shape (P, 3)
+        Values at those positions.
+    query_um : array_like, shape (Q, 3)
+        Where to predict.
+    n_neighbors : int
+        Neighbours per fit (≥ 1).
+    radius_um : float
+        Largest neighbour distance (µm, > 0).
+    scale_um : float, optional
+        Weight length ``h``; default the median distance to the ``n_neighbors``-th neighbour.
+    exclude : array_like of int, shape (Q,), optional
+        Row of ``points_um`` not to use for each query point (−1: none).
+    ridge : float
+        Dimensionless ridge on the gradient terms (≥ 0).
+
+    Returns
+    -------
+    LocalPrediction
+        Query points without any neighbour get value 0 and misfit inf.
+
+    Raises
+    ------
+    InputError
+        Bad shapes or parameters.
+    """
+    x = _as_points("points_um", points_um)
+    v = _as_points("values_um", values_um)
+    q = _as_points("query_um", query_um, allow_empty=True)
+    if v.shape != x.shape:
+        raise InputError(f"points_um {x.shape} and values_um {v.shape} differ in shape")
+    if int(n_neighbors) < 1:
+        raise InputError(f"n_neighbors must be ≥ 1, got {n_neighbors}")
+    if not radius_um > 0:
+        raise InputError(f"radius_um must be > 0, got {radius_um}")
+    if not ridge >= 0:
+        raise InputError(f"ridge must be ≥ 0, got {ridge}")
+    nq = q.shape[0]
+    k = min(int(n_neighbors) + (exclude is not None), x.shape[0])
+    d, idx = cKDTree(x).query(q, k, distance_upper_bound=radius_um)
+    d, idx = d.reshape(nq, k), idx.reshape(nq, k)
+    valid = np.isfinite(d)
+    if exclude is not None:
+        ex = np.asarray(exclude, dtype=np.int64).reshape(nq)
+        valid &= idx != ex[:, None]
+    # keep the n_neighbors first valid ones
+    rank = np.cumsum(valid, axis=1)
+    valid &= rank <= int(n_neighbors)
+    safe = np.where(valid, idx, 0)
+    if scale_um is None:
+        last = np.where(valid, d, np.nan)
+        far = np.nanmax(last, axis=1) if np.any(valid) else np.array([1.0])
+        far = far[np.isfinite(far)]
+        h = float(np.median(far)) if far.size else 1.0
+        h = h if h > 0 else 1.0
+    else:
+        h = float(scale_um)
+        if not h > 0:
+            raise InputError(f"scale_um must be > 0, got {scale_um}")
+    w = np.exp(-0.5 * (np.where(valid, d, 0.0) / h) ** 2)
+    w[~valid] = 0.0  # (Q, k)
+    design = np.empty((nq, k, 4))
+    design[:, :, 0] = 1.0
+    design[:, :, 1:] = (x[safe] - q[:, None, :]) / h  # dimensionless offsets
+    vals = v[safe]  # (Q, k, 3)
+    wdt = (design * w[:, :, None]).transpose(0, 2, 1)  # (Q, 4, k)
+    normal = wdt @ design  # (Q, 4, 4)
+    rhs = wdt @ vals  # (Q, 4, 3)
+    sw = normal[:, 0, 0].copy()
+    none = sw <= 0
+    idx3 = np.arange(1, 4)
+    normal[:, idx3, idx3] += (ridge * sw)[:, None]
+    normal[:, 0, 0] += 1e-12 * sw
+    normal[none] = np.eye(4)
+    rhs[none] = 0.0
+    coef = np.linalg.solve(normal, rhs)  # (Q, 4, 3)
+    res = vals - design @ coef
+    res2 = np.einsum("qk,qkc->qc", w, res * res)
+    # Effective neighbour count (Kish) and a degrees-of-freedom correction: four or fewer
+    # neighbours fit an affine map exactly, so their misfit says nothing (inf).
+    k_eff = sw**2 / np.maximum(np.einsum("qk,qk->q", w, w), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(k_eff > 4.5, k_eff / (k_eff - 4.0), np.inf)
+        misfit = np.sqrt(res2 / np.where(none, 1.0, sw)[:, None] * dof[:, None])
+    misfit[none] = np.inf
+    return LocalPrediction(values_um=coef[:, 0, :], misfit_um=misfit, n_neighbors=valid.sum(axis=1))

@@ -375,9 +375,7 @@ def make_field(name: str, bounds_um, spacing_um: float, amplitude_um: float) -> 
     elif name == "shear_wave_front":
         n = _unit([0.2, 0.3, 1.0])
         p = _unit(np.cross(n, [0.0, 1.0, 0.0]))
-        f = ShearWaveFront(
-            name, a, centre_um=c, normal=n, polarisation=p, width_um=1.0 / (2.0 * g)
-        )
+        f = ShearWaveFront(name, a, centre_um=c, normal=n, polarisation=p, width_um=1.0 / (2.0 * g))
     else:
         raise InputError(f"unknown field {name!r}; expected one of {FIELD_NAMES}")
     axes = [np.linspace(lo, hi, 24) for lo, hi in b]
@@ -543,7 +541,7 @@ def make_pair(
     else:
         reach = (2.0 + amplitude_spacings) * cell_um
     outer = box + np.array([-1.0, 1.0]) * (reach if crop else 0.0)
-    n_all = int(round(n * np.prod(np.ptp(outer, axis=1)) / side**3))
+    n_all = int(np.rint(n * np.prod(np.ptp(outer, axis=1)) / side**3))
     seeds = poisson_disc_cloud(n_all, outer, min_distance_fraction * cell_um, seed=seed)
     inside = np.all((seeds >= box[:, 0]) & (seeds <= box[:, 1]), axis=1)
     d, _ = cKDTree(seeds).query(seeds[inside], 2)
