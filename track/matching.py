@@ -48,7 +48,7 @@ from track.regularize import (
     AffineDisplacement,
     fit_affine,
     fit_field,
-    local_affine_predict,
+    local_polynomial_predict,
 )
 
 logger = logging.getLogger(__name__)
@@ -129,6 +129,7 @@ class LinkSettings:
     seed: int = 0
     outlier_eps_xyz_um: tuple[float, float, float] | None = None
     local_neighbors: int = 12
+    local_degree: int = 1
     local_radius_um: float | None = None
     local_scale_um: float | None = None
     tolerance_sigmas: float = 4.0
@@ -644,7 +645,7 @@ def _predict(ref, dfm, pairs, base, settings, spacing, rows=None):
     """Displacement prediction at reference particles from the current matches.
 
     ``base`` plus a moving-least-squares affine fit (:func:`track.regularize.
-    local_affine_predict`) of the matched residuals about ``base``, leave-one-out for matched
+    local_polynomial_predict`) of the matched residuals about ``base``, leave-one-out for matched
     particles. ``rows`` selects the reference rows to predict (default all). Returns
     (prediction (R, 3), misfit (R, 3), neighbour count (R,)).
     """
@@ -654,7 +655,7 @@ def _predict(ref, dfm, pairs, base, settings, spacing, rows=None):
     r = dfm[pairs[:, 1]] - x - np.asarray(base(x), dtype=float)
     slot = np.full(ref.shape[0], -1, dtype=np.int64)
     slot[pairs[:, 0]] = np.arange(pairs.shape[0])
-    lp = local_affine_predict(
+    lp = local_polynomial_predict(
         x,
         r,
         q,
@@ -662,6 +663,7 @@ def _predict(ref, dfm, pairs, base, settings, spacing, rows=None):
         radius_um=(settings.local_radius_um or 3.0 * spacing),
         scale_um=(settings.local_scale_um or spacing),
         exclude=slot[rows],
+        degree=settings.local_degree,
     )
     return np.asarray(base(q), dtype=float) + lp.values_um, lp.misfit_um, lp.n_neighbors
 
@@ -671,11 +673,36 @@ def _tolerance_limits(settings, spacing):
     return min(0.1 * spacing, hi), hi
 
 
-def _tolerance(misfit, noise, settings, spacing):
-    """Per-particle, per-axis tolerance: κ × (noise ⊕ local misfit), clipped."""
+def _tolerance(sigma, noise, settings, spacing):
+    """Per-particle tolerance semi-axes (x, y, z): κ × (noise ⊕ local error σ).
+
+    Each semi-axis lies in [lo, 1.7 hi] and the ellipsoid's volume is at most that of the
+    ball of radius ``hi`` (``nn_max_distance_um``, default 0.45 mean spacings): the chance
+    that an unrelated particle falls inside is what limits it, and a thin ellipsoid (the
+    lateral error is often ten times smaller than the axial) may reach further along its
+    long axis.
+    """
     lo, hi = _tolerance_limits(settings, spacing)
-    sig = np.sqrt(noise**2 + np.where(np.isfinite(misfit), misfit, hi) ** 2)
-    return np.clip(settings.tolerance_sigmas * sig, lo, hi)
+    sig = np.sqrt(noise**2 + np.where(np.isfinite(sigma), sigma, hi) ** 2)
+    t = np.clip(settings.tolerance_sigmas * sig, lo, 1.7 * hi)
+    vol = np.prod(t, axis=1)
+    shrink = np.minimum(1.0, (hi**3 / vol) ** (1.0 / 3.0))
+    return np.maximum(t * shrink[:, None], lo)
+
+
+def _neighbour_rms(x, resid, query, k, radius, exclude):
+    """RMS per axis of the ``k`` nearest ``resid`` rows around each query (Q, 3); inf if none."""
+    kk = min(k + 1, x.shape[0])
+    d, idx = cKDTree(x).query(query, kk, distance_upper_bound=radius)
+    d, idx = d.reshape(len(query), kk), idx.reshape(len(query), kk)
+    valid = np.isfinite(d) & (idx != exclude[:, None])
+    valid &= np.cumsum(valid, axis=1) <= k
+    r2 = np.where(valid[:, :, None], resid[np.where(valid, idx, 0)] ** 2, 0.0)
+    cnt = valid.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.sqrt(r2.sum(axis=1) / cnt[:, None])
+    out[cnt == 0] = np.inf
+    return out
 
 
 def _pair_keys(pairs, m):
@@ -696,6 +723,9 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
     noise = np.full(3, 0.05 * spacing)
     lo, hi = _tolerance_limits(settings, spacing)
     refit_base = isinstance(base, AffineDisplacement)
+    calib = None  # (positions, leave-one-out residuals) of the last validated matches
+    k_cal = settings.local_neighbors
+    r_cal = settings.local_radius_um or 3.0 * spacing
     seen: list[np.ndarray] = [_pair_keys(pairs, m)]
     for it in range(start, settings.max_iterations + 1):
         ts = time.perf_counter()
@@ -711,7 +741,11 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
             rows, pred, misfit = rows[near], pred[near], misfit[near]
             if rows.size == 0:
                 break
-            tol = _tolerance(misfit, noise, settings, spacing)
+            sigma = misfit
+            if calib is not None:
+                none = np.full(rows.size, -1)
+                sigma = np.maximum(sigma, _neighbour_rms(*calib, ref[rows], k_cal, r_cal, none))
+            tol = _tolerance(sigma, noise, settings, spacing)
             cand, q = match_predicted(ref[rows] + pred, dfm, tol, ratio)
             taken = np.zeros(m, dtype=bool)
             taken[pairs[:, 1]] = True
@@ -725,7 +759,14 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
         pred, misfit, nnb = _predict(ref, dfm, pairs, base, settings, spacing)
         resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - pred[pairs[:, 0]]
         noise = _loo_noise(resid, spacing)
-        tol = _tolerance(misfit, noise, settings, spacing)
+        # The local error scale: the polynomial's misfit, or the leave-one-out errors of the
+        # matched neighbours where larger (they show what the misfit misses: curvature,
+        # one-sided neighbourhoods at faces and fronts).
+        calib = (ref[pairs[:, 0]], resid)
+        slot = np.full(ref.shape[0], -1, dtype=np.int64)
+        slot[pairs[:, 0]] = np.arange(pairs.shape[0])
+        sigma = np.maximum(misfit, _neighbour_rms(*calib, ref, k_cal, r_cal, slot))
+        tol = _tolerance(sigma, noise, settings, spacing)
         # Particles without matched neighbours rely on the global field alone: only where
         # it describes the matches well (a homogeneous field, sparse clouds).
         lone = nnb < 3
@@ -741,6 +782,10 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
         cand, _ = match_predicted(ref + pred, dfm, np.maximum(tol, 1e-9 * spacing), ratio)
         cand = cand[tol[cand[:, 0], 0] > 0]
         eps = eps_fixed if eps_fixed is not None else np.maximum(noise, 0.02 * spacing)
+        # Where the local polynomial misses part of the field (steep fronts, interfaces), a
+        # right match deviates from its prediction by up to the local misfit: the median
+        # test allows for it.
+        eps = np.maximum(eps, np.where(np.isfinite(sigma), sigma, 0.0))[cand[:, 0]]
         k = 2 * settings.n_neighbors_min
         new = _clean(ref, dfm, cand, k, settings, eps, ref + pred)
         history.append(

@@ -45,10 +45,10 @@ def normalized_median_test(
         Neighbours per test (≥ 3; reduced to P − 1 for small sets).
     threshold : float
         Normalised residual above which a match is rejected (> 0; 2 in W&S, 3 in the paper).
-    eps_um : float or array_like, shape (3,)
+    eps_um : float or array_like, shape (3,) or (P, 3)
         Acceptable fluctuation level in µm (≥ 0), of the order of the displacement noise:
-        one value, or one per component (x, y, z) when the noise is anisotropic (light-field
-        localisation: axial ≈ 10 × lateral).
+        one value, one per component (x, y, z) when the noise is anisotropic (light-field
+        localisation: axial ≈ 10 × lateral), or one per particle and component.
 
     Returns
     -------
@@ -71,8 +71,13 @@ def normalized_median_test(
     if not threshold > 0:
         raise InputError(f"threshold must be > 0, got {threshold}")
     eps = np.asarray(eps_um, dtype=float)
-    if eps.shape not in ((), (3,)) or not np.all(eps >= 0) or not np.all(np.isfinite(eps)):
-        raise InputError(f"eps_um must be one value or 3 (x, y, z), finite and ≥ 0, got {eps_um}")
+    if eps.shape not in ((), (3,), x.shape) or not np.all(eps >= 0):
+        raise InputError(
+            f"eps_um must be one value, 3 (x, y, z) or one row per point, ≥ 0, got shape "
+            f"{eps.shape}"
+        )
+    if not np.all(np.isfinite(eps)):
+        raise InputError("eps_um holds NaN or infinite values")
     p = x.shape[0]
     if p < 4:
         return np.ones(p, dtype=bool)

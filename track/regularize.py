@@ -407,25 +407,65 @@ def fit_field(
 
 @dataclass(frozen=True)
 class LocalPrediction:
-    """Local affine regression of scattered values at query points.
+    """Local polynomial regression of scattered values at query points.
 
     Attributes
     ----------
     values_um : ndarray, shape (Q, 3)
         Predicted value (e.g. displacement) at each query point, µm.
     misfit_um : ndarray, shape (Q, 3)
-        Weighted RMS per component of the neighbours' values about the local fit, µm (how
-        well an affine map describes the neighbourhood); inf where no neighbour was found.
+        Weighted RMS per component of the neighbours' values about the local fit, corrected
+        for the degrees of freedom, µm (how well the local polynomial describes the
+        neighbourhood); inf where too few neighbours were found to tell.
     n_neighbors : ndarray of int, shape (Q,)
-        Neighbours used (within the radius, the query point itself excluded).
+        Neighbours used (within the radius, the excluded point left out).
+    degree : ndarray of int, shape (Q,)
+        Degree of the polynomial fitted at each query point (0 where no neighbour).
     """
 
     values_um: np.ndarray
     misfit_um: np.ndarray
     n_neighbors: np.ndarray
+    degree: np.ndarray
 
 
-def local_affine_predict(
+def _monomials(dx: np.ndarray, degree: int) -> np.ndarray:
+    """Columns 1, x, y, z (and x², y², z², xy, xz, yz) of offsets ``dx`` (..., 3)."""
+    cols = [np.ones(dx.shape[:-1]), dx[..., 0], dx[..., 1], dx[..., 2]]
+    if degree == 2:
+        cols += [dx[..., 0] ** 2, dx[..., 1] ** 2, dx[..., 2] ** 2]
+        cols += [dx[..., 0] * dx[..., 1], dx[..., 0] * dx[..., 2], dx[..., 1] * dx[..., 2]]
+    return np.stack(cols, axis=-1)
+
+
+def _weighted_poly_fit(w, dx, vals, degree, ridge):
+    """Batched weighted least squares; returns (value at 0 (Q, 3), misfit (Q, 3))."""
+    design = _monomials(dx, degree)  # (Q, k, p)
+    p = design.shape[-1]
+    wdt = (design * w[:, :, None]).transpose(0, 2, 1)  # (Q, p, k)
+    normal = wdt @ design  # (Q, p, p)
+    rhs = wdt @ vals  # (Q, p, 3)
+    sw = normal[:, 0, 0].copy()
+    none = sw <= 0
+    idx = np.arange(1, p)
+    normal[:, idx, idx] += (ridge * sw)[:, None]
+    normal[:, 0, 0] += 1e-12 * sw
+    normal[none] = np.eye(p)
+    rhs[none] = 0.0
+    coef = np.linalg.solve(normal, rhs)  # (Q, p, 3)
+    res = vals - design @ coef
+    res2 = np.einsum("qk,qkc->qc", w, res * res)
+    # Effective neighbour count (Kish) and a degrees-of-freedom correction: p or fewer
+    # neighbours fit the polynomial exactly, so their misfit says nothing (inf).
+    k_eff = sw**2 / np.maximum(np.einsum("qk,qk->q", w, w), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(k_eff > p + 0.5, k_eff / (k_eff - p), np.inf)
+        misfit = np.sqrt(res2 / np.where(none, 1.0, sw)[:, None] * dof[:, None])
+    misfit[none] = np.inf
+    return coef[:, 0, :], misfit
+
+
+def local_polynomial_predict(
     points_um,
     values_um,
     query_um,
@@ -435,14 +475,19 @@ def local_affine_predict(
     scale_um: float | None = None,
     exclude=None,
     ridge: float = 0.01,
+    degree: int = 1,
+    min_quadratic: int = 16,
 ) -> LocalPrediction:
-    """Moving-least-squares affine fit of scattered values around each query point.
+    """Moving-least-squares polynomial fit of scattered values around each query point.
 
     For query point ``q`` the ``n_neighbors`` nearest ``points_um`` within ``radius_um``
     (minus ``exclude[q]``, e.g. ``q`` itself for a leave-one-out prediction) are weighted by
-    ``exp(−d² / (2 h²))`` with ``h = scale_um`` and fitted by ``v ≈ a + B (x − q)``; the
-    prediction is ``a``. A ridge ``ridge · Σw · h²`` on ``B`` keeps the fit defined for one to
-    three neighbours or coplanar ones (it then tends to their weighted mean).
+    ``exp(−d² / (2 h²))`` with ``h = scale_um`` and fitted by an affine (``degree=1``) or
+    quadratic (``degree=2``) polynomial in ``x − q``; the prediction is its constant term. A
+    ridge ``ridge · Σw`` on the other coefficients (offsets in units of ``h``) keeps the fit
+    defined for few or coplanar neighbours (it then tends to their weighted mean). With
+    ``degree=2``, query points with fewer than ``min_quadratic`` neighbours get the affine
+    fit.
 
     Parameters
     ----------
@@ -461,7 +506,11 @@ def local_affine_predict(
     exclude : array_like of int, shape (Q,), optional
         Row of ``points_um`` not to use for each query point (−1: none).
     ridge : float
-        Dimensionless ridge on the gradient terms (≥ 0).
+        Dimensionless ridge on the non-constant coefficients (≥ 0).
+    degree : {1, 2}
+        Polynomial degree.
+    min_quadratic : int
+        Fewest neighbours of a quadratic fit (≥ 11).
 
     Returns
     -------
@@ -484,6 +533,10 @@ def local_affine_predict(
         raise InputError(f"radius_um must be > 0, got {radius_um}")
     if not ridge >= 0:
         raise InputError(f"ridge must be ≥ 0, got {ridge}")
+    if degree not in (1, 2):
+        raise InputError(f"degree must be 1 or 2, got {degree}")
+    if int(min_quadratic) < 11:
+        raise InputError(f"min_quadratic must be ≥ 11, got {min_quadratic}")
     nq = q.shape[0]
     k = min(int(n_neighbors) + (exclude is not None), x.shape[0])
     d, idx = cKDTree(x).query(q, k, distance_upper_bound=radius_um)
@@ -492,44 +545,28 @@ def local_affine_predict(
     if exclude is not None:
         ex = np.asarray(exclude, dtype=np.int64).reshape(nq)
         valid &= idx != ex[:, None]
-    # keep the n_neighbors first valid ones
-    rank = np.cumsum(valid, axis=1)
-    valid &= rank <= int(n_neighbors)
+    valid &= np.cumsum(valid, axis=1) <= int(n_neighbors)  # the n_neighbors nearest
     safe = np.where(valid, idx, 0)
     if scale_um is None:
-        last = np.where(valid, d, np.nan)
-        far = np.nanmax(last, axis=1) if np.any(valid) else np.array([1.0])
-        far = far[np.isfinite(far)]
+        far = np.max(np.where(valid, d, -np.inf), axis=1)
+        far = far[np.isfinite(far) & (far > 0)]
         h = float(np.median(far)) if far.size else 1.0
-        h = h if h > 0 else 1.0
     else:
         h = float(scale_um)
         if not h > 0:
             raise InputError(f"scale_um must be > 0, got {scale_um}")
     w = np.exp(-0.5 * (np.where(valid, d, 0.0) / h) ** 2)
     w[~valid] = 0.0  # (Q, k)
-    design = np.empty((nq, k, 4))
-    design[:, :, 0] = 1.0
-    design[:, :, 1:] = (x[safe] - q[:, None, :]) / h  # dimensionless offsets
+    dx = (x[safe] - q[:, None, :]) / h  # dimensionless offsets
     vals = v[safe]  # (Q, k, 3)
-    wdt = (design * w[:, :, None]).transpose(0, 2, 1)  # (Q, 4, k)
-    normal = wdt @ design  # (Q, 4, 4)
-    rhs = wdt @ vals  # (Q, 4, 3)
-    sw = normal[:, 0, 0].copy()
-    none = sw <= 0
-    idx3 = np.arange(1, 4)
-    normal[:, idx3, idx3] += (ridge * sw)[:, None]
-    normal[:, 0, 0] += 1e-12 * sw
-    normal[none] = np.eye(4)
-    rhs[none] = 0.0
-    coef = np.linalg.solve(normal, rhs)  # (Q, 4, 3)
-    res = vals - design @ coef
-    res2 = np.einsum("qk,qkc->qc", w, res * res)
-    # Effective neighbour count (Kish) and a degrees-of-freedom correction: four or fewer
-    # neighbours fit an affine map exactly, so their misfit says nothing (inf).
-    k_eff = sw**2 / np.maximum(np.einsum("qk,qk->q", w, w), 1e-300)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dof = np.where(k_eff > 4.5, k_eff / (k_eff - 4.0), np.inf)
-        misfit = np.sqrt(res2 / np.where(none, 1.0, sw)[:, None] * dof[:, None])
-    misfit[none] = np.inf
-    return LocalPrediction(values_um=coef[:, 0, :], misfit_um=misfit, n_neighbors=valid.sum(axis=1))
+    count = valid.sum(axis=1)
+    value = np.zeros((nq, 3))
+    misfit = np.full((nq, 3), np.inf)
+    deg = np.where(count > 0, 1, 0)
+    if degree == 2:
+        deg[count >= int(min_quadratic)] = 2
+    for dg in (1, 2):
+        sel = np.flatnonzero(deg == dg)
+        if sel.size:
+            value[sel], misfit[sel] = _weighted_poly_fit(w[sel], dx[sel], vals[sel], dg, ridge)
+    return LocalPrediction(values_um=value, misfit_um=misfit, n_neighbors=count, degree=deg)
