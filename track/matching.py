@@ -48,6 +48,7 @@ from track.regularize import (
     AffineDisplacement,
     fit_affine,
     fit_field,
+    fit_field_refined,
     local_polynomial_predict,
 )
 
@@ -136,6 +137,7 @@ class LinkSettings:
     guess_min_fraction: float = 0.3
     growth_passes: int = 8
     growth_q: float = 0.5
+    refine_field: bool = True
 
     def __post_init__(self) -> None:
         if self.n_neighbors_min < 3:
@@ -608,12 +610,60 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
     return aff, pairs, n_cand, label
 
 
-def _fit(ref, dfm, pairs, bounds, settings, grid_um, weight):
+def fit_link_field(ref_xyz, def_xyz, matches, settings: LinkSettings | None = None):
+    """The regularised displacement field :func:`link_pair` returns, for given matches.
+
+    Fewer than 8 matches give an affine field; otherwise :func:`track.regularize.fit_field`
+    on a grid of ``grid_spacing_um`` (default 2 mean spacings) with ``smoothness``, refined
+    per component by :func:`track.regularize.fit_field_refined` unless ``refine_field`` is
+    off. Useful to compare a linker's field with the one the true matches give (its noise
+    floor).
+
+    Parameters
+    ----------
+    ref_xyz, def_xyz : array_like, shape (N, 3), (M, 3)
+        The clouds (µm).
+    matches : array_like of int, shape (K, 2)
+        ``[row_ref, row_def]``, K ≥ 4.
+    settings : LinkSettings, optional
+
+    Returns
+    -------
+    callable
+        ``u(xyz_um (P, 3)) -> (P, 3)`` µm.
+    """
+    settings = settings or LinkSettings()
+    ref = _validate_cloud("ref_xyz", ref_xyz)
+    dfm = _validate_cloud("def_xyz", def_xyz)
+    pairs = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    if pairs.shape[0] < 4:
+        raise InputError(f"matches must hold at least 4 pairs, got {pairs.shape[0]}")
+    if (
+        np.any(pairs < 0)
+        or np.any(pairs[:, 0] >= ref.shape[0])
+        or np.any(pairs[:, 1] >= dfm.shape[0])
+    ):
+        raise InputError("matches hold rows outside the clouds")
+    spacing = _mean_spacing(ref)
+    grid_um = settings.grid_spacing_um or 2.0 * spacing
+    pad = 1e-6 * max(np.ptp(ref), 1.0)
+    bounds = np.column_stack([ref.min(axis=0) - pad, ref.max(axis=0) + pad])
     x = ref[pairs[:, 0]]
     u = dfm[pairs[:, 1]] - x
     if pairs.shape[0] < 8:
         return fit_affine(x, u)
-    return fit_field(x, u, bounds, grid_um, settings.regularization, weight)
+    if settings.refine_field:
+        return fit_field_refined(
+            x,
+            u,
+            bounds,
+            grid_um,
+            settings.regularization,
+            settings.smoothness,
+            length_um=spacing,
+            seed=settings.seed,
+        )
+    return fit_field(x, u, bounds, grid_um, settings.regularization, settings.smoothness)
 
 
 def _failed(reason: str, spacing: float, history, t0: float) -> LinkResult:
@@ -861,9 +911,6 @@ def link_pair(
     elif settings.outlier_eps_um is not None:
         eps_fixed = np.full(3, settings.outlier_eps_um)
     eps_boot = eps_fixed if eps_fixed is not None else 0.02 * spacing
-    grid_um = settings.grid_spacing_um or 2.0 * spacing
-    pad = 1e-6 * max(np.ptp(ref), 1.0)
-    bounds = np.column_stack([ref.min(axis=0) - pad, ref.max(axis=0) + pad])
     n_min = min(ref.shape[0], dfm.shape[0])
     history: list[IterationRecord] = []
 
@@ -930,7 +977,7 @@ def link_pair(
     pairs = _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, len(history) + 1)
     if pairs.shape[0] < 4:
         return _failed(f"only {pairs.shape[0]} consistent matches", spacing, history, t0)
-    fld = _fit(ref, dfm, pairs, bounds, settings, grid_um, settings.smoothness)
+    fld = fit_link_field(ref, dfm, pairs, settings)
     pairs = pairs[np.argsort(pairs[:, 0])]
     return LinkResult(
         matches=pairs.astype(np.int64),
