@@ -13,8 +13,10 @@ cropped to the same box, 5 % of the particles missing from each frame, localisat
 * ``wrong%``: wrong links / links (goal ≤ 0.5 %);
 * ``excess``: displacement RMSE of the links above the localisation-noise floor, in mean
   spacings (goal ≤ 0.01; see :class:`track.synthetic.LinkScore`);
-* ``fld_xyz``: RMSE of the linker's regularised field at the true positions per axis (mean
-  spacings), for information;
+* ``fld_x/y/z``: RMSE of the linker's regularised field at the true positions per axis (mean
+  spacings), for information, and ``floor_x/y/z``: the same for the field that
+  :func:`track.matching.fit_link_field` fits to the true matches (what the noise and the
+  field's resolution allow);
 * ``time_s``: wall time of :func:`link_pair`.
 
 ``--baseline REV`` also links the same pairs with ``track`` as it was at git revision ``REV``
@@ -49,6 +51,11 @@ def run_cases(fields, sizes, amplitudes, seed):
     from track.matching import link_pair
     from track.synthetic import make_pair, score_link
 
+    try:  # the field the true matches give: the noise floor of the linker's field
+        from track.matching import fit_link_field
+    except ImportError:  # an older revision (--baseline)
+        fit_link_field = None
+
     rows = []
     for n in sizes:
         for name in fields:
@@ -58,6 +65,11 @@ def run_cases(fields, sizes, amplitudes, seed):
                 res = link_pair(pair.ref_xyz_um, pair.def_xyz_um)
                 dt = time.perf_counter() - t0
                 sc = score_link(pair, res.matches, res.displacement_field if res.ok else None)
+                floor = [float("nan")] * 3
+                if fit_link_field is not None:
+                    true = pair.true_matches()
+                    oracle = fit_link_field(pair.ref_xyz_um, pair.def_xyz_um, true)
+                    floor = list(score_link(pair, true, oracle).field_rmse_xyz_spacings)
                 rows.append(
                     {
                         "field": name,
@@ -69,6 +81,7 @@ def run_cases(fields, sizes, amplitudes, seed):
                         "wrong": sc.wrong_fraction,
                         "excess": sc.excess_rmse_spacings,
                         "field_xyz": list(sc.field_rmse_xyz_spacings),
+                        "field_floor_xyz": floor,
                         "time_s": dt,
                         "iterations": res.iterations,
                     }
@@ -129,7 +142,8 @@ def main(argv=None) -> None:
         for r in run_baseline(args.baseline, args.fields, args.sizes, args.amplitudes, args.seed):
             base[(r["field"], r["n"], r["amplitude"])] = r
     rows = run_cases(args.fields, args.sizes, args.amplitudes, args.seed)
-    head = ["field", "N", "amp", "grad", "ratio", "face", "wrong%", "excess", "fld_x/y/z", "time_s"]
+    head = ["field", "N", "amp", "grad", "ratio", "face", "wrong%", "excess", "fld_x/y/z"]
+    head += ["floor_x/y/z", "time_s"]
     if base:
         head += ["base_time_s", "base_ratio"]
     table = []
@@ -145,6 +159,7 @@ def main(argv=None) -> None:
             f"{100 * r['wrong']:.2f}",
             f"{r['excess']:.4f}",
             "/".join(f"{v:.3f}" for v in r["field_xyz"]),
+            "/".join(f"{v:.3f}" for v in r.get("field_floor_xyz", [float("nan")] * 3)),
             f"{r['time_s']:.2f}" + ("" if ok else " FAIL"),
         ]
         b = base.get((r["field"], r["n"], r["amplitude"]))

@@ -525,6 +525,42 @@ def _verify(ref, dfm, aff, settings, spacing, eps_um):
     return _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_um, ref + u)
 
 
+def _filter_seeds(ref, dfm, pairs, spacing):
+    """Drop seed matches that disagree with their seed neighbours.
+
+    Each seed's displacement is predicted, leave-one-out, by an affine moving-least-squares
+    fit of the seeds within 4 mean spacings; a seed with at least three such neighbours
+    whose displacement differs from the prediction by more than max(4 σ, 0.1 spacing) on an
+    axis (σ: robust spread of those differences over all seeds) is dropped, twice over. A
+    global hypothesis (an affine map, or no motion) collects accidental pairs where the
+    field departs from it; they sit among right seeds, or among each other at random, and
+    fail this test, while a lone seed (no evidence either way) is kept.
+    """
+    keep = np.ones(pairs.shape[0], dtype=bool)
+    for _ in range(2):
+        idx = np.flatnonzero(keep)
+        if idx.size < 5:
+            break
+        x = ref[pairs[idx, 0]]
+        d = dfm[pairs[idx, 1]] - x
+        lp = local_polynomial_predict(
+            x, d, x, 8, 4.0 * spacing, scale_um=1.5 * spacing, exclude=np.arange(idx.size)
+        )
+        r = np.abs(d - lp.values_um)
+        has = lp.n_neighbors >= 3
+        if not np.any(has):
+            break
+        sig = 1.4826 * np.median(r[has], axis=0)
+        tau = np.maximum(4.0 * sig, 0.1 * spacing)
+        bad = has & np.any(r > tau, axis=1)
+        if not np.any(bad):
+            break
+        keep[idx[bad]] = False
+    if keep.sum() < 4:
+        return pairs
+    return pairs[keep]
+
+
 def _bootstrap(ref, dfm, settings, spacing, eps_um):
     """Global topology match + affine consensus, verified on the whole clouds.
 
@@ -606,6 +642,7 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
     pairs = _clean(ref, dfm, pairs, settings.n_neighbors_max, settings, eps_um, ref + aff0(ref))
     if pairs.shape[0] < 4:
         return None
+    pairs = _filter_seeds(ref, dfm, pairs, spacing)
     aff = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
     return aff, pairs, n_cand, label
 
@@ -691,31 +728,31 @@ def _loo_noise(resid: np.ndarray, spacing: float) -> np.ndarray:
     return np.maximum(1.4826 * mad, 1e-3 * spacing)
 
 
-def _predict(ref, dfm, pairs, base, settings, spacing, rows=None):
+def _predict(ref, dfm, pairs, u_base, settings, spacing, rows=None):
     """Displacement prediction at reference particles from the current matches.
 
-    ``base`` plus a moving-least-squares affine fit (:func:`track.regularize.
-    local_polynomial_predict`) of the matched residuals about ``base``, leave-one-out for matched
-    particles. ``rows`` selects the reference rows to predict (default all). Returns
-    (prediction (R, 3), misfit (R, 3), neighbour count (R,)).
+    ``u_base`` (the global field at every reference particle, (N, 3)) plus a
+    moving-least-squares polynomial fit (:func:`track.regularize.local_polynomial_predict`)
+    of the matched residuals about it, leave-one-out for matched particles. ``rows`` selects
+    the reference rows to predict (default all). Returns (prediction (R, 3), misfit (R, 3),
+    neighbour count (R,)).
     """
     rows = np.arange(ref.shape[0]) if rows is None else rows
-    q = ref[rows]
     x = ref[pairs[:, 0]]
-    r = dfm[pairs[:, 1]] - x - np.asarray(base(x), dtype=float)
+    r = dfm[pairs[:, 1]] - x - u_base[pairs[:, 0]]
     slot = np.full(ref.shape[0], -1, dtype=np.int64)
     slot[pairs[:, 0]] = np.arange(pairs.shape[0])
     lp = local_polynomial_predict(
         x,
         r,
-        q,
+        ref[rows],
         n_neighbors=settings.local_neighbors,
         radius_um=(settings.local_radius_um or 3.0 * spacing),
         scale_um=(settings.local_scale_um or spacing),
         exclude=slot[rows],
         degree=settings.local_degree,
     )
-    return np.asarray(base(q), dtype=float) + lp.values_um, lp.misfit_um, lp.n_neighbors
+    return u_base[rows] + lp.values_um, lp.misfit_um, lp.n_neighbors
 
 
 def _tolerance_limits(settings, spacing):
@@ -759,7 +796,7 @@ def _pair_keys(pairs, m):
     return np.sort(pairs[:, 0] * m + pairs[:, 1])
 
 
-def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
+def _grow(ref, dfm, pairs, u_base, refit_base, settings, spacing, eps_fixed, history, start):
     """Local matching grown from ``pairs`` until the match set is stable.
 
     Each iteration (a) grows: passes that predict the unmatched reference particles with
@@ -772,7 +809,6 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
     m = dfm.shape[0]
     noise = np.full(3, 0.05 * spacing)
     lo, hi = _tolerance_limits(settings, spacing)
-    refit_base = isinstance(base, AffineDisplacement)
     calib = None  # (positions, leave-one-out residuals) of the last validated matches
     k_cal = settings.local_neighbors
     r_cal = settings.local_radius_um or 3.0 * spacing
@@ -786,7 +822,7 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
             rows = np.flatnonzero(free_ref)
             if rows.size == 0:
                 break
-            pred, misfit, nnb = _predict(ref, dfm, pairs, base, settings, spacing, rows)
+            pred, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing, rows)
             near = nnb >= 3
             rows, pred, misfit = rows[near], pred[near], misfit[near]
             if rows.size == 0:
@@ -805,8 +841,9 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
             pairs = np.vstack([pairs, np.column_stack([rows[cand[:, 0]], cand[:, 1]])])
             grown += cand.shape[0]
         if refit_base:
-            base = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
-        pred, misfit, nnb = _predict(ref, dfm, pairs, base, settings, spacing)
+            aff = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
+            u_base = aff(ref)
+        pred, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing)
         resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - pred[pairs[:, 0]]
         noise = _loo_noise(resid, spacing)
         # The local error scale: the polynomial's misfit, or the leave-one-out errors of the
@@ -817,15 +854,16 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
         slot[pairs[:, 0]] = np.arange(pairs.shape[0])
         sigma = np.maximum(misfit, _neighbour_rms(*calib, ref, k_cal, r_cal, slot))
         tol = _tolerance(sigma, noise, settings, spacing)
-        # Particles without matched neighbours rely on the global field alone: only where
-        # it describes the matches well (a homogeneous field, sparse clouds).
+        # Particles without matched neighbours rely on the global field alone: only once
+        # the growth has stopped, and where that field describes the matches well (a
+        # homogeneous field, sparse clouds).
         lone = nnb < 3
-        if np.any(lone):
+        if np.any(lone) and grown == 0:
             x = ref[pairs[:, 0]]
-            spread = _loo_noise(dfm[pairs[:, 1]] - x - np.asarray(base(x)), spacing)
+            spread = _loo_noise(dfm[pairs[:, 1]] - x - u_base[pairs[:, 0]], spacing)
             t_base = settings.tolerance_sigmas * spread
             if np.all(t_base <= hi):
-                pred[lone] = np.asarray(base(ref[lone]), dtype=float)
+                pred[lone] = u_base[lone]
                 tol[lone] = np.maximum(t_base, lo)
             else:
                 tol[lone] = 0.0
@@ -860,6 +898,62 @@ def _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, start):
             break  # stable, or flipping between two sets
         seen.append(keys)
     return pairs
+
+
+def increment_predictor(
+    previous_field: Callable[[np.ndarray], np.ndarray],
+    *,
+    scale: float = 1.0,
+    lagrangian: bool = True,
+    n_iterations: int = 4,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Predictor of the next increment of a series from the previous one.
+
+    For frames ``i−2 → i−1 → i`` linked incrementally, ``previous_field`` is the
+    displacement field of ``i−2 → i−1`` (e.g. ``LinkResult.displacement_field``), a function
+    of positions in frame ``i−2``. The returned callable predicts the displacement
+    ``i−1 → i`` at positions ``y`` of frame ``i−1`` as ``scale × previous_field(z)`` with
+    ``z + previous_field(z) = y`` (each particle repeats its previous step: constant
+    velocity of material points, ``lagrangian=True``; solved by fixed-point iteration) or
+    ``scale × previous_field(y)`` (a steady flow, ``lagrangian=False``). ``scale`` is the
+    ratio of the frame intervals (1 at a constant frame rate).
+
+    Pass it as ``link_pair(..., initial_guess=increment_predictor(prev.displacement_field))``;
+    :func:`link_pair` checks the guess against the clouds and falls back to its global
+    bootstrap when the motion changed too much.
+
+    Parameters
+    ----------
+    previous_field : callable
+        ``u(xyz_um (P, 3)) -> (P, 3)`` µm.
+    scale : float
+        Finite factor on the predicted increment.
+    lagrangian : bool
+        Follow material points (default) or hold the field in space.
+    n_iterations : int
+        Fixed-point iterations of the Lagrangian inversion (≥ 1).
+
+    Returns
+    -------
+    callable
+        ``guess(xyz_um (P, 3)) -> (P, 3)`` µm.
+    """
+    if not callable(previous_field):
+        raise InputError("previous_field must be a callable u(xyz_um) -> (P, 3) µm")
+    if not np.isfinite(scale):
+        raise InputError(f"scale must be finite, got {scale}")
+    if int(n_iterations) < 1:
+        raise InputError(f"n_iterations must be ≥ 1, got {n_iterations}")
+
+    def guess(xyz_um):
+        y = np.asarray(xyz_um, dtype=float)
+        u = np.asarray(previous_field(y), dtype=float)
+        if lagrangian:
+            for _ in range(int(n_iterations)):
+                u = np.asarray(previous_field(y - u), dtype=float)
+        return scale * u
+
+    return guess
 
 
 def link_pair(
@@ -915,7 +1009,6 @@ def link_pair(
     history: list[IterationRecord] = []
 
     pairs = None
-    base = None
     if initial_guess is not None:
         test = np.asarray(initial_guess(ref[:1]), dtype=float)
         if test.shape != (1, 3) or not np.all(np.isfinite(test)):
@@ -945,7 +1038,7 @@ def link_pair(
             )
         )
         if guess_pairs.shape[0] >= max(4, settings.guess_min_fraction * n_min):
-            pairs, base = guess_pairs, initial_guess
+            pairs, u_base, refit = guess_pairs, u0, False
         else:
             logger.info(
                 "initial_guess matched %d of %d particles; running the bootstrap instead",
@@ -959,8 +1052,9 @@ def link_pair(
             return _failed(
                 "no consistent set of topology matches (bootstrap failed)", spacing, history, t0
             )
-        base, pairs, n_cand, label = boot
-        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - base(ref[pairs[:, 0]])
+        aff, pairs, n_cand, label = boot
+        u_base, refit = aff(ref), True
+        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - u_base[pairs[:, 0]]
         history.append(
             IterationRecord(
                 len(history) + 1,
@@ -974,7 +1068,9 @@ def link_pair(
                 time.perf_counter() - ts,
             )
         )
-    pairs = _grow(ref, dfm, pairs, base, settings, spacing, eps_fixed, history, len(history) + 1)
+    pairs = _grow(
+        ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history, len(history) + 1
+    )
     if pairs.shape[0] < 4:
         return _failed(f"only {pairs.shape[0]} consistent matches", spacing, history, t0)
     fld = fit_link_field(ref, dfm, pairs, settings)

@@ -456,14 +456,18 @@ class SyntheticPair:
         Particle id of each row (index into ``seeds_um``).
     seeds_um : ndarray, shape (P, 3)
         Noise-free reference positions of every seeded particle.
+    true_displacement_um : ndarray, shape (P, 3)
+        Noise-free displacement of every seeded particle from the reference to the deformed
+        frame.
     ref_noise_um, def_noise_um : ndarray, shape (N, 3), (M, 3)
         The localisation noise added to each row.
     field : KnownField
-        The displacement field (``seeds + field(seeds)`` are the deformed positions).
+        The field that made the deformation (for a pair of :func:`make_pair`,
+        ``true_displacement_um = field(seeds_um)``).
     bounds_um : ndarray, shape (3, 2)
         The imaged box (both frames are cropped to it).
     spacing_um : float
-        Mean nearest-neighbour distance of the noise-free reference particles.
+        Mean nearest-neighbour distance of the noise-free particles in the box at frame 0.
     noise_xyz_um : tuple of float
         Localisation noise σ per axis (x, y, z), µm.
     """
@@ -473,6 +477,7 @@ class SyntheticPair:
     ref_ids: np.ndarray
     def_ids: np.ndarray
     seeds_um: np.ndarray
+    true_displacement_um: np.ndarray
     ref_noise_um: np.ndarray
     def_noise_um: np.ndarray
     field: KnownField
@@ -484,6 +489,168 @@ class SyntheticPair:
     def common_ids(self) -> np.ndarray:
         """Ids of the particles present in both frames."""
         return np.intersect1d(self.ref_ids, self.def_ids)
+
+    def true_matches(self) -> np.ndarray:
+        """The right links ``[row_ref, row_def]`` (K, 2) of the particles in both frames."""
+        ids = self.common_ids
+        order_a = np.argsort(self.ref_ids)
+        rows_a = order_a[np.searchsorted(self.ref_ids, ids, sorter=order_a)]
+        order_b = np.argsort(self.def_ids)
+        rows_b = order_b[np.searchsorted(self.def_ids, ids, sorter=order_b)]
+        return np.column_stack([rows_a, rows_b]).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class SyntheticSeries:
+    """Frames of noisy particle clouds under a loading that grows linearly in time.
+
+    Frame ``k`` holds the particles at ``seeds + k · field(seeds)`` (each material point
+    moves by the same step every frame) that lie in the box, minus independent drop-outs,
+    plus independent noise; rows of frames ≥ 1 are shuffled.
+
+    Attributes
+    ----------
+    frames_xyz_um : tuple of ndarray, shape (N_k, 3)
+        Observed positions per frame (µm).
+    frame_ids : tuple of ndarray of int, shape (N_k,)
+        Particle id of each row.
+    frame_noise_um : tuple of ndarray, shape (N_k, 3)
+        Noise added to each row.
+    seeds_um : ndarray, shape (P, 3)
+        Noise-free positions of every particle at frame 0.
+    field : KnownField
+        The step per frame, a function of frame-0 positions.
+    bounds_um, spacing_um, noise_xyz_um
+        As :class:`SyntheticPair`.
+    """
+
+    frames_xyz_um: tuple
+    frame_ids: tuple
+    frame_noise_um: tuple
+    seeds_um: np.ndarray
+    field: KnownField
+    bounds_um: np.ndarray
+    spacing_um: float
+    noise_xyz_um: tuple[float, float, float]
+
+    def positions_um(self, k: int) -> np.ndarray:
+        """Noise-free positions (P, 3) of every particle at frame ``k``."""
+        return self.seeds_um + k * self.field(self.seeds_um)
+
+    def pair(self, a: int, b: int) -> SyntheticPair:
+        """Frames ``a → b`` as a :class:`SyntheticPair` (reference positions at frame a)."""
+        n = len(self.frames_xyz_um)
+        if not (0 <= a < n and 0 <= b < n and a != b):
+            raise InputError(f"frames must be two different indices in 0..{n - 1}, got {a}, {b}")
+        pa = self.positions_um(a)
+        return SyntheticPair(
+            ref_xyz_um=self.frames_xyz_um[a],
+            def_xyz_um=self.frames_xyz_um[b],
+            ref_ids=self.frame_ids[a],
+            def_ids=self.frame_ids[b],
+            seeds_um=pa,
+            true_displacement_um=self.positions_um(b) - pa,
+            ref_noise_um=self.frame_noise_um[a],
+            def_noise_um=self.frame_noise_um[b],
+            field=self.field,
+            bounds_um=self.bounds_um,
+            spacing_um=self.spacing_um,
+            noise_xyz_um=self.noise_xyz_um,
+        )
+
+
+def make_series(
+    field_name: str | KnownField,
+    n: int = 1000,
+    amplitude_spacings: float = 1.0,
+    n_frames: int = 2,
+    *,
+    seed: int = 0,
+    noise_xyz_um=NOISE_XYZ_UM,
+    drop_fraction: float = 0.05,
+    cell_um: float = CELL_UM,
+    min_distance_fraction: float = MIN_DISTANCE_FRACTION,
+    crop: bool = True,
+) -> SyntheticSeries:
+    """Synthetic frames of about ``n`` particles, each step the same known field.
+
+    Parameters
+    ----------
+    field_name : str or KnownField
+        A name of :data:`FIELD_NAMES` (sized by :func:`make_field` to the box, the spacing
+        and the amplitude) or a ready field (``amplitude_spacings`` is then ignored).
+    n : int
+        Particles seeded in the imaged cube before drop-outs (its side is
+        ``cell_um · n^(1/3)``).
+    amplitude_spacings : float
+        Largest displacement of one step, in mean spacings.
+    n_frames : int
+        Frames (≥ 2).
+    seed : int
+        Seed of the cloud, the drop-outs, the noise and the shuffles.
+    noise_xyz_um : sequence of 3 float
+        Localisation noise σ per axis (x, y, z), µm, added independently to every frame.
+    drop_fraction : float
+        Probability that a particle is missing from a frame (independently per frame).
+    cell_um, min_distance_fraction : float
+        Cube root of the volume per particle (µm) and the smallest distance in cells.
+    crop : bool
+        Seed particles around the box too and crop every frame to the box (particles cross
+        the faces); with False only the box's particles exist, and leave it freely.
+
+    Returns
+    -------
+    SyntheticSeries
+    """
+    if int(n) != n or n < 8:
+        raise InputError(f"n must be an integer ≥ 8, got {n}")
+    if int(n_frames) != n_frames or n_frames < 2:
+        raise InputError(f"n_frames must be an integer ≥ 2, got {n_frames}")
+    noise = np.asarray(noise_xyz_um, dtype=float).reshape(3)
+    if not np.all(np.isfinite(noise) & (noise >= 0)):
+        raise InputError(f"noise_xyz_um must be 3 finite values ≥ 0, got {noise_xyz_um}")
+    if not 0 <= drop_fraction < 1:
+        raise InputError(f"drop_fraction must be in [0, 1), got {drop_fraction}")
+    rng = np.random.default_rng(seed)
+    side = cell_um * n ** (1 / 3)
+    box = np.array([[0.0, side]] * 3)
+    steps = n_frames - 1
+    if isinstance(field_name, KnownField):
+        reach = 2.0 * cell_um + steps * field_name.amplitude_um
+    else:
+        reach = (2.0 + steps * amplitude_spacings) * cell_um
+    outer = box + np.array([-1.0, 1.0]) * (reach if crop else 0.0)
+    n_all = int(np.rint(n * np.prod(np.ptp(outer, axis=1)) / side**3))
+    seeds = poisson_disc_cloud(n_all, outer, min_distance_fraction * cell_um, seed=seed)
+    inside = np.all((seeds >= box[:, 0]) & (seeds <= box[:, 1]), axis=1)
+    d, _ = cKDTree(seeds).query(seeds[inside], 2)
+    spacing = float(d[:, 1].mean())
+    if isinstance(field_name, KnownField):
+        fld = field_name
+    else:
+        fld = make_field(field_name, box, spacing, amplitude_spacings * spacing)
+    step = fld(seeds)
+    frames, ids, noises = [], [], []
+    for k in range(n_frames):
+        pos = seeds + k * step
+        inb = np.all((pos >= box[:, 0]) & (pos <= box[:, 1]), axis=1) if crop else inside
+        rows = np.flatnonzero(inb & (rng.random(seeds.shape[0]) >= drop_fraction))
+        if k:
+            rows = rng.permutation(rows)
+        nz = rng.normal(0.0, 1.0, (rows.size, 3)) * noise
+        frames.append(pos[rows] + nz)
+        ids.append(rows)
+        noises.append(nz)
+    return SyntheticSeries(
+        frames_xyz_um=tuple(frames),
+        frame_ids=tuple(ids),
+        frame_noise_um=tuple(noises),
+        seeds_um=seeds,
+        field=fld,
+        bounds_um=box,
+        spacing_um=spacing,
+        noise_xyz_um=tuple(float(v) for v in noise),
+    )
 
 
 def make_pair(
@@ -498,79 +665,28 @@ def make_pair(
     min_distance_fraction: float = MIN_DISTANCE_FRACTION,
     crop: bool = True,
 ) -> SyntheticPair:
-    """A synthetic reference / deformed pair of about ``n`` particles.
+    """A synthetic reference / deformed pair: :func:`make_series` with two frames.
 
-    Parameters
-    ----------
-    field_name : str or KnownField
-        A name of :data:`FIELD_NAMES` (sized by :func:`make_field` to the box, the spacing
-        and the amplitude) or a ready field (``amplitude_spacings`` is then ignored).
-    n : int
-        Particles seeded in the imaged cube before drop-outs (its side is
-        ``cell_um · n^(1/3)``).
-    amplitude_spacings : float
-        Largest displacement in mean spacings.
-    seed : int
-        Seed of the cloud, the drop-outs, the noise and the shuffle.
-    noise_xyz_um : sequence of 3 float
-        Localisation noise σ per axis (x, y, z), µm, added independently to both frames.
-    drop_fraction : float
-        Probability that a particle is missing from a frame (independently per frame).
-    cell_um, min_distance_fraction : float
-        Cube root of the volume per particle (µm) and the smallest distance in cells.
-    crop : bool
-        Seed particles around the box too and crop both frames to the box (particles cross
-        the faces); with False only the box's particles exist, and leave it freely.
+    Parameters are those of :func:`make_series`; ``amplitude_spacings`` is the largest
+    displacement in mean spacings.
 
     Returns
     -------
     SyntheticPair
+        ``true_displacement_um = field(seeds_um)``.
     """
-    if int(n) != n or n < 8:
-        raise InputError(f"n must be an integer ≥ 8, got {n}")
-    noise = np.asarray(noise_xyz_um, dtype=float).reshape(3)
-    if not np.all(np.isfinite(noise) & (noise >= 0)):
-        raise InputError(f"noise_xyz_um must be 3 finite values ≥ 0, got {noise_xyz_um}")
-    if not 0 <= drop_fraction < 1:
-        raise InputError(f"drop_fraction must be in [0, 1), got {drop_fraction}")
-    rng = np.random.default_rng(seed)
-    side = cell_um * n ** (1 / 3)
-    box = np.array([[0.0, side]] * 3)
-    if isinstance(field_name, KnownField):
-        reach = 2.0 * cell_um + field_name.amplitude_um
-    else:
-        reach = (2.0 + amplitude_spacings) * cell_um
-    outer = box + np.array([-1.0, 1.0]) * (reach if crop else 0.0)
-    n_all = int(np.rint(n * np.prod(np.ptp(outer, axis=1)) / side**3))
-    seeds = poisson_disc_cloud(n_all, outer, min_distance_fraction * cell_um, seed=seed)
-    inside = np.all((seeds >= box[:, 0]) & (seeds <= box[:, 1]), axis=1)
-    d, _ = cKDTree(seeds).query(seeds[inside], 2)
-    spacing = float(d[:, 1].mean())
-    if isinstance(field_name, KnownField):
-        fld = field_name
-    else:
-        fld = make_field(field_name, box, spacing, amplitude_spacings * spacing)
-    moved = fld.deform(seeds)
-    in_def = np.all((moved >= box[:, 0]) & (moved <= box[:, 1]), axis=1) if crop else inside
-    keep_a = inside & (rng.random(seeds.shape[0]) >= drop_fraction)
-    keep_b = in_def & (rng.random(seeds.shape[0]) >= drop_fraction)
-    ia = np.flatnonzero(keep_a)
-    ib = rng.permutation(np.flatnonzero(keep_b))
-    na = rng.normal(0.0, 1.0, (ia.size, 3)) * noise
-    nb = rng.normal(0.0, 1.0, (ib.size, 3)) * noise
-    return SyntheticPair(
-        ref_xyz_um=seeds[ia] + na,
-        def_xyz_um=moved[ib] + nb,
-        ref_ids=ia,
-        def_ids=ib,
-        seeds_um=seeds,
-        ref_noise_um=na,
-        def_noise_um=nb,
-        field=fld,
-        bounds_um=box,
-        spacing_um=spacing,
-        noise_xyz_um=tuple(float(v) for v in noise),
-    )
+    return make_series(
+        field_name,
+        n,
+        amplitude_spacings,
+        2,
+        seed=seed,
+        noise_xyz_um=noise_xyz_um,
+        drop_fraction=drop_fraction,
+        cell_um=cell_um,
+        min_distance_fraction=min_distance_fraction,
+        crop=crop,
+    ).pair(0, 1)
 
 
 # ------------------------------------------------------------------------------- scoring
@@ -637,7 +753,7 @@ def score_link(pair: SyntheticPair, matches, displacement_field=None) -> LinkSco
     good = ida == idb
     common = pair.common_ids
     x = pair.seeds_um[ida]
-    truth = pair.field(x)
+    truth = pair.true_displacement_um[ida]
     d = pair.def_xyz_um[m[:, 1]] - pair.ref_xyz_um[m[:, 0]]
     err = d - truth
     sig2 = 2.0 * np.asarray(pair.noise_xyz_um) ** 2
