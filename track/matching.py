@@ -138,6 +138,7 @@ class LinkSettings:
     growth_passes: int = 8
     growth_q: float = 0.5
     refine_field: bool = True
+    polish_iterations: int = 2
 
     def __post_init__(self) -> None:
         if self.n_neighbors_min < 3:
@@ -796,7 +797,9 @@ def _pair_keys(pairs, m):
     return np.sort(pairs[:, 0] * m + pairs[:, 1])
 
 
-def _grow(ref, dfm, pairs, u_base, refit_base, settings, spacing, eps_fixed, history, start):
+def _grow(
+    ref, dfm, pairs, u_base, refit_base, settings, spacing, eps_fixed, history, start, stop=None
+):
     """Local matching grown from ``pairs`` until the match set is stable.
 
     Each iteration (a) grows: passes that predict the unmatched reference particles with
@@ -813,7 +816,8 @@ def _grow(ref, dfm, pairs, u_base, refit_base, settings, spacing, eps_fixed, his
     k_cal = settings.local_neighbors
     r_cal = settings.local_radius_um or 3.0 * spacing
     seen: list[np.ndarray] = [_pair_keys(pairs, m)]
-    for it in range(start, settings.max_iterations + 1):
+    stop = settings.max_iterations if stop is None else stop
+    for it in range(start, stop + 1):
         ts = time.perf_counter()
         grown = 0
         for _ in range(settings.growth_passes):
@@ -1074,6 +1078,27 @@ def link_pair(
     if pairs.shape[0] < 4:
         return _failed(f"only {pairs.shape[0]} consistent matches", spacing, history, t0)
     fld = fit_link_field(ref, dfm, pairs, settings)
+    if settings.polish_iterations and pairs.shape[0] >= 8:
+        # Polish: the local predictions relative to the regularised field of all matches
+        # rather than to the starting field (an affine map or the previous increment),
+        # which leaves the local fits only what that field misses.
+        before = _pair_keys(pairs, dfm.shape[0])
+        start = len(history) + 1
+        pairs = _grow(
+            ref,
+            dfm,
+            pairs,
+            np.asarray(fld(ref), dtype=float),
+            False,
+            settings,
+            spacing,
+            eps_fixed,
+            history,
+            start,
+            stop=min(settings.max_iterations, start + settings.polish_iterations - 1),
+        )
+        if pairs.shape[0] >= 4 and not np.array_equal(before, _pair_keys(pairs, dfm.shape[0])):
+            fld = fit_link_field(ref, dfm, pairs, settings)
     pairs = pairs[np.argsort(pairs[:, 0])]
     return LinkResult(
         matches=pairs.astype(np.int64),
