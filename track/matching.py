@@ -1,29 +1,43 @@
 """SerialTrack-class linking of two 3-D particle clouds (reference → deformed).
 
-The linker (:func:`link_pair`) follows the iterative scheme of SerialTrack (Yang et al.,
-"SerialTrack: ScalE and Rotation Invariant Augmented Lagrangian Particle Tracking",
-SoftwareX 19, 101204, 2022), which alternates a *local* matching step with a *global*
-regularised displacement fit:
+The linker (:func:`link_pair`) matches particles *locally*, in neighbourhoods grown from
+reliable regions, and regularises the result globally, in the spirit of SerialTrack (Yang et
+al., "SerialTrack: ScalE and Rotation Invariant Augmented Lagrangian Particle Tracking",
+SoftwareX 19, 101204, 2022). Heterogeneous fields (indentation, shear bands, vortices,
+inclusions, fronts) with local gradients up to about 0.6 and displacements beyond one
+particle spacing are tracked as well as homogeneous ones.
 
-1. **Bootstrap** (no initial guess). Both clouds are described by rotation-invariant
+1. **Seeds.** Without a guess: both clouds are described by rotation-invariant
    neighbourhood-topology descriptors (:mod:`track.features`) and matched globally by nearest
-   descriptor with a ratio test and a mutual-consistency check, once in raw coordinates and
-   once after moment normalisation (each cloud whitened by its own covariance, which turns any
-   homogeneous stretch or shear into a rotation). The candidate set with the larger RANSAC
-   affine consensus (:func:`track.outliers.ransac_affine`) wins; its consensus, cleaned by the
-   normalised median test, gives a stiff affine first estimate of the field. Nothing here
-   assumes small displacements.
-2. **Iterations**. The reference is warped by the current field and matched to the deformed
-   cloud with a matcher chosen from the state: plain mutual nearest neighbour once the warp
-   error is a small fraction of the particle spacing, otherwise alternately a local
-   topology-descriptor match or a histogram-of-displacement vote (Janke et al., SoftwareX 11,
-   100413, 2020). The neighbour count k shrinks from ``n_neighbors_max`` to
-   ``n_neighbors_min``.
-3. Each candidate set is cleaned with the normalised median test (Westerweel & Scarano,
-   Exp. Fluids 39, 2005) and a global field is fitted on a regular grid
-   (:func:`track.regularize.fit_field`, direct or ADMM), stiff at first and relaxed to
-   ``smoothness``.
-4. The loop stops when the field update and the match count stall.
+   descriptor with a ratio test and a mutual check, in raw coordinates and after moment
+   normalisation (each cloud whitened by its covariance, which turns any homogeneous stretch
+   or shear into a rotation); a small-motion hypothesis (nearest neighbours of the unwarped
+   clouds) is the last resort. Each hypothesis gives a RANSAC affine map
+   (:func:`track.outliers.ransac_affine`); the map that links the most particles of the whole
+   clouds wins, and its consensus, cleaned by the normalised median test and by agreement
+   with neighbouring seeds, is the seed set. Nothing here assumes small displacements. With a
+   guess (``initial_guess``, e.g. the previous increment of a series through
+   :func:`increment_predictor`): the matches it predicts, if they are consistent and numerous
+   enough; otherwise the bootstrap above.
+2. **Growth.** Unmatched particles with at least three matched neighbours are predicted by a
+   moving-least-squares polynomial fit of their neighbours' displacements (relative to a
+   global field: the affine map, the guess, later the regularised field of all matches;
+   :func:`track.regularize.local_polynomial_predict`) and matched to the only deformed
+   particle inside a tolerance ellipsoid around the prediction (:func:`match_predicted`: per
+   axis, from the localisation noise and the local prediction error, volume-capped, with a
+   ratio test on both sides). The matched region grows front by front from the seeds; no
+   global field has to be right where no particle is matched yet.
+3. **Validation.** Every iteration predicts every particle leave-one-out from its matched
+   neighbours, matches the clouds again and removes outliers with the normalised median test
+   (Westerweel & Scarano, Exp. Fluids 39, 2005) on the residuals, with per-axis noise levels
+   (light-field localisation noise is about ten times larger along z) estimated from the
+   data, widened where the local fit misses part of the field. Particles near the faces of
+   the volume, whose neighbourhoods are one-sided, get the larger tolerance their neighbours'
+   leave-one-out errors show. The loop stops when an iteration changes nothing.
+4. **Field.** A global field on a regular grid (:func:`track.regularize.fit_field`, direct or
+   ADMM) refined per component by local corrections where cross-validation shows detail
+   finer than the grid (:func:`track.regularize.fit_field_refined`: adaptive resolution),
+   then two polishing iterations that predict relative to it.
 """
 
 from __future__ import annotations
@@ -63,9 +77,10 @@ class LinkSettings:
 
     Attributes
     ----------
-    n_neighbors_max, n_neighbors_min : int
-        Neighbour count k of the first and last iterations (paper Table 1: max 16/5/10);
-        k is used by the histogram vote, the local topology search and the median test.
+    n_neighbors_max : int
+        Neighbours of the median test that cleans the seeds (paper Table 1: 16).
+    n_neighbors_min : int
+        Half the neighbours of the median test of every iteration (≥ 3).
     descriptor_size : int
         Neighbours in a topology descriptor (≥ 2).
     descriptor_ratio : float
@@ -73,39 +88,56 @@ class LinkSettings:
     outlier_threshold : float
         Normalised-median-test threshold (paper: 3).
     outlier_eps_um : float or None
-        Median-test noise level ε; default 0.02 × the mean particle spacing.
+        Median-test noise level ε, the same on every axis. Default (with
+        ``outlier_eps_xyz_um`` None too): per axis, the robust spread of the matches'
+        leave-one-out residuals, at least 0.02 × the mean spacing.
+    outlier_eps_xyz_um : tuple of 3 float or None
+        Median-test noise levels per axis (x, y, z) in µm; wins over ``outlier_eps_um``.
     max_iterations : int
-        Iteration cap (bootstrap included).
-    stall_tolerance : float
-        Stop when the RMS field update is below this fraction of the mean spacing and the
-        match count no longer changes.
+        Iteration cap of seeding, growth and validation (the polishing iterations come on
+        top).
     regularization : {"gridded", "admm"}
         Global field solver (:func:`track.regularize.fit_field`).
     grid_spacing_um : float or None
         Node spacing of the field grid; default 2 × the mean particle spacing.
     smoothness : float
-        Dimensionless smoothness weight of the final field fits.
-    stiffness_factor : float
-        The first gridded fit uses ``smoothness × stiffness_factor``; it falls ×10 per
-        iteration down to ``smoothness``.
-    hist_bin_um : float or None
-        Tolerance of the histogram-of-displacement vote; default 0.3 × mean spacing.
-    search_radius_um : float or None
-        Search radius of the warped matchers; default adapts to the warp error
-        (between 1 and 3 mean spacings).
+        Dimensionless smoothness weight of the gridded field (≥ 0).
+    refine_field : bool
+        Refine the gridded field per component where the data show finer detail
+        (:func:`track.regularize.fit_field_refined`).
     nn_max_distance_um : float or None
-        Largest accepted nearest-neighbour residual; default adapts to the warp error
-        (5 × its RMS, clipped to 0.1 … 0.5 mean spacings).
+        Radius of the ball whose volume caps every tolerance ellipsoid (a semi-axis may reach
+        1.7 ×), and the tolerance of the seeding matches; default 0.45 mean spacings.
     nn_ratio : float
-        Nearest / second-nearest distance ratio a nearest-neighbour match must beat.
-    nn_switch : float
-        Warp error (fraction of the mean spacing) below which nearest neighbour is used.
+        Ratio test of the local matches (normalised distances, both sides; 0 < r ≤ 1).
     ransac_threshold_um : float or None
         Consensus radius of the affine bootstrap; default 1 mean spacing.
     bootstrap_max_particles : int
         Reference particles (random subset) used by the global bootstrap match.
     seed : int
-        Seed of the RANSAC sampler and of the bootstrap subset.
+        Seed of the RANSAC sampler and of the random subsets.
+    local_neighbors : int
+        Matched neighbours of each local prediction (≥ 3).
+    local_degree : {1, 2}
+        Degree of the local polynomial predictor (affine by default; quadratic fits the
+        curvature but amplifies the axial noise).
+    local_radius_um : float or None
+        Largest distance of a matched neighbour used by a prediction; default 3 mean
+        spacings.
+    local_scale_um : float or None
+        Gaussian weight length of the local fits; default 1 mean spacing.
+    tolerance_sigmas : float
+        Tolerance semi-axis per estimated standard deviation of the prediction error (> 0).
+    growth_passes : int
+        Growth passes per iteration (≥ 0).
+    growth_q : float
+        Normalised distance (fraction of the tolerance, 0 < q ≤ 1) a growth match must be
+        within; validation then accepts up to 1.
+    guess_min_fraction : float
+        Fraction of the particles an ``initial_guess`` must link consistently to replace
+        the bootstrap (0 ≤ f ≤ 1).
+    polish_iterations : int
+        Iterations predicting relative to the regularised field of all matches (≥ 0).
     """
 
     n_neighbors_max: int = 16
@@ -114,30 +146,25 @@ class LinkSettings:
     descriptor_ratio: float = 0.8
     outlier_threshold: float = 3.0
     outlier_eps_um: float | None = None
+    outlier_eps_xyz_um: tuple[float, float, float] | None = None
     max_iterations: int = 20
-    stall_tolerance: float = 1e-3
     regularization: str = "gridded"
     grid_spacing_um: float | None = None
     smoothness: float = 1.0
-    stiffness_factor: float = 100.0
-    hist_bin_um: float | None = None
-    search_radius_um: float | None = None
+    refine_field: bool = True
     nn_max_distance_um: float | None = None
     nn_ratio: float = 0.5
-    nn_switch: float = 0.15
     ransac_threshold_um: float | None = None
     bootstrap_max_particles: int = 3000
     seed: int = 0
-    outlier_eps_xyz_um: tuple[float, float, float] | None = None
     local_neighbors: int = 12
     local_degree: int = 1
     local_radius_um: float | None = None
     local_scale_um: float | None = None
     tolerance_sigmas: float = 4.0
-    guess_min_fraction: float = 0.3
     growth_passes: int = 8
     growth_q: float = 0.5
-    refine_field: bool = True
+    guess_min_fraction: float = 0.3
     polish_iterations: int = 2
 
     def __post_init__(self) -> None:
@@ -150,20 +177,18 @@ class LinkSettings:
             )
         if self.descriptor_size < 2:
             raise InputError(f"descriptor_size must be ≥ 2, got {self.descriptor_size}")
-        for name in ("descriptor_ratio", "nn_ratio"):
+        for name in ("descriptor_ratio", "nn_ratio", "growth_q"):
             v = getattr(self, name)
             if not 0 < v <= 1:
                 raise InputError(f"{name} must be in (0, 1], got {v}")
-        for name in ("outlier_threshold", "stall_tolerance", "nn_switch"):
+        if not 0 <= self.guess_min_fraction <= 1:
+            raise InputError(f"guess_min_fraction must be in [0, 1], got {self.guess_min_fraction}")
+        for name in ("outlier_threshold", "tolerance_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be finite and > 0, got {v}")
-        for name in ("smoothness",):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"{name} must be finite and ≥ 0, got {v}")
-        if not (np.isfinite(self.stiffness_factor) and self.stiffness_factor >= 1):
-            raise InputError(f"stiffness_factor must be ≥ 1, got {self.stiffness_factor}")
+        if not (np.isfinite(self.smoothness) and self.smoothness >= 0):
+            raise InputError(f"smoothness must be finite and ≥ 0, got {self.smoothness}")
         if self.bootstrap_max_particles < MIN_PARTICLES:
             raise InputError(
                 f"bootstrap_max_particles must be ≥ {MIN_PARTICLES}, "
@@ -171,6 +196,13 @@ class LinkSettings:
             )
         if self.max_iterations < 1:
             raise InputError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
+        if self.local_neighbors < 3:
+            raise InputError(f"local_neighbors must be ≥ 3, got {self.local_neighbors}")
+        if self.local_degree not in (1, 2):
+            raise InputError(f"local_degree must be 1 or 2, got {self.local_degree}")
+        for name in ("growth_passes", "polish_iterations"):
+            if getattr(self, name) < 0:
+                raise InputError(f"{name} must be ≥ 0, got {getattr(self, name)}")
         if self.regularization not in METHODS:
             raise InputError(
                 f"regularization must be one of {METHODS}, got {self.regularization!r}"
@@ -178,24 +210,51 @@ class LinkSettings:
         for name in (
             "outlier_eps_um",
             "grid_spacing_um",
-            "hist_bin_um",
-            "search_radius_um",
             "nn_max_distance_um",
             "ransac_threshold_um",
+            "local_radius_um",
+            "local_scale_um",
         ):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be None or finite and > 0, got {v}")
-
-    def n_neighbors(self, iteration: int) -> int:
-        """Neighbour count k of 1-based ``iteration``: halves the excess over the minimum."""
-        excess = self.n_neighbors_max - self.n_neighbors_min
-        return self.n_neighbors_min + round(excess * 0.5 ** (iteration - 1))
+        if self.outlier_eps_xyz_um is not None:
+            try:
+                eps = np.asarray(self.outlier_eps_xyz_um, dtype=float)
+            except (TypeError, ValueError):
+                eps = np.zeros(0)
+            if eps.shape != (3,) or not np.all(np.isfinite(eps) & (eps > 0)):
+                raise InputError(
+                    "outlier_eps_xyz_um must be None or 3 finite values > 0 (x, y, z in µm), "
+                    f"got {self.outlier_eps_xyz_um!r}"
+                )
+            object.__setattr__(self, "outlier_eps_xyz_um", tuple(float(v) for v in eps))
 
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """What one iteration did (counts are numbers of matches)."""
+    """What one iteration did (counts are numbers of matches).
+
+    Attributes
+    ----------
+    iteration : int
+        1-based.
+    matcher : str
+        ``"topology"``, ``"topology-moment"`` or ``"nearest"`` (seeding: the winning
+        bootstrap hypothesis, or ``"nearest"`` for the matches of an ``initial_guess``),
+        ``"local"`` (growth and validation) or ``"polish"``.
+    n_neighbors : int
+        Neighbours of the median test.
+    n_candidates, n_matches, n_outliers : int
+        Candidate matches (grown ones included), matches kept, candidates removed.
+    update_rms_um : float
+        RMS change of the predicted displacements since the previous iteration (nan for
+        seeding and for the first iteration).
+    residual_rms_um : float
+        Robust RMS length of the matches' residuals about their predictions.
+    seconds : float
+        Wall time.
+    """
 
     iteration: int
     matcher: str
@@ -301,17 +360,6 @@ def match_descriptors_global(
     return np.column_stack([rows[ok], i[ok, 0]])
 
 
-def _one_to_one(pairs: np.ndarray, cost: np.ndarray) -> np.ndarray:
-    """Keep, for every deformed row claimed more than once, the lowest-cost pair."""
-    if pairs.shape[0] == 0:
-        return pairs
-    order = np.lexsort((cost, pairs[:, 1]))
-    p = pairs[order]
-    first = np.ones(p.shape[0], dtype=bool)
-    first[1:] = p[1:, 1] != p[:-1, 1]
-    return p[first]
-
-
 def match_nearest(
     warped_ref: np.ndarray, def_xyz: np.ndarray, max_distance_um: float, ratio: float
 ) -> np.ndarray:
@@ -328,97 +376,6 @@ def match_nearest(
     if k == 2:
         ok &= d[:, 0] < ratio * d[:, 1]
     return np.column_stack([rows[ok], i[ok, 0]])
-
-
-def _candidates(warped_ref, def_xyz, k, radius_um):
-    k = min(k, def_xyz.shape[0])
-    d, i = cKDTree(def_xyz).query(warped_ref, k, distance_upper_bound=radius_um)
-    return d.reshape(len(d), -1), i.reshape(len(i), -1)
-
-
-def match_topology_local(
-    warped_ref: np.ndarray,
-    def_xyz: np.ndarray,
-    n_candidates: int,
-    radius_um: float,
-    descriptor_size: int,
-    ratio: float,
-) -> np.ndarray:
-    """Best topology-descriptor match among the deformed particles near each warped one.
-
-    Descriptors of the warped reference and of the deformed cloud are compared for the
-    ``n_candidates`` deformed particles within ``radius_um`` of each warped position; the
-    best must beat ``ratio`` × the second best. Returns (K, 2) ``[row_ref, row_def]``.
-    """
-    n_core = min(descriptor_size, warped_ref.shape[0] - 1, def_xyz.shape[0] - 1)
-    da = topology_descriptors(warped_ref, n_core)
-    db = topology_descriptors(def_xyz, n_core)
-    dist, idx = _candidates(warped_ref, def_xyz, n_candidates, radius_um)
-    valid = np.isfinite(dist)
-    safe = np.where(valid, idx, 0)
-    cost = np.linalg.norm(db[safe] - da[:, None, :], axis=-1)
-    cost[~valid] = np.inf
-    order = np.argsort(cost, axis=1)
-    best = np.take_along_axis(cost, order[:, :1], axis=1)[:, 0]
-    second = (
-        np.take_along_axis(cost, order[:, 1:2], axis=1)[:, 0]
-        if cost.shape[1] > 1
-        else np.full(best.shape, np.inf)
-    )
-    ok = np.isfinite(best) & (best < ratio * second)
-    rows = np.flatnonzero(ok)
-    pairs = np.column_stack([rows, safe[rows, order[rows, 0]]])
-    return _one_to_one(pairs, best[rows])
-
-
-def match_displacement_histogram(
-    warped_ref: np.ndarray,
-    def_xyz: np.ndarray,
-    n_neighbors: int,
-    radius_um: float,
-    bin_um: float,
-    n_candidates: int = 8,
-    min_votes: int = 3,
-) -> np.ndarray:
-    """Histogram-of-displacement vote among neighbouring particles.
-
-    Each candidate displacement ``d = def_c − warped_a`` of particle ``a`` (deformed particles
-    within ``radius_um``) earns one vote from every one of ``a``'s ``n_neighbors`` nearest
-    reference neighbours that has a candidate displacement within ``bin_um`` of ``d``. The
-    candidate with the most votes wins if it has ≥ ``min_votes`` and is unique.
-    Returns (K, 2) ``[row_ref, row_def]``.
-    """
-    n = warped_ref.shape[0]
-    dist, idx = _candidates(warped_ref, def_xyz, n_candidates, radius_um)
-    valid = np.isfinite(dist)
-    safe = np.where(valid, idx, 0)
-    disp = def_xyz[safe] - warped_ref[:, None, :]
-    disp[~valid] = np.nan
-    k = min(n_neighbors, n - 1)
-    _, nb = cKDTree(warped_ref).query(warped_ref, k + 1)
-    nb = nb[:, 1:]
-    votes = np.zeros(dist.shape, dtype=np.int32)
-    chunk = max(1, 200_000 // max(1, k * dist.shape[1] ** 2))
-    for s in range(0, n, chunk):
-        e = min(n, s + chunk)
-        own = disp[s:e]  # (c, C, 3)
-        other = disp[nb[s:e]]  # (c, k, C, 3)
-        diff = other[:, :, None, :, :] - own[:, None, :, None, :]  # (c, k, C, C, 3)
-        close = np.nansum(diff**2, axis=-1) < bin_um**2
-        close &= np.all(np.isfinite(diff), axis=-1)
-        votes[s:e] = np.any(close, axis=3).sum(axis=1)
-    votes[~valid] = -1
-    order = np.argsort(-votes, axis=1, kind="stable")
-    best = np.take_along_axis(votes, order[:, :1], axis=1)[:, 0]
-    second = (
-        np.take_along_axis(votes, order[:, 1:2], axis=1)[:, 0]
-        if votes.shape[1] > 1
-        else np.full(n, -1)
-    )
-    ok = (best >= min_votes) & (best > second)
-    rows = np.flatnonzero(ok)
-    pairs = np.column_stack([rows, safe[rows, order[rows, 0]]])
-    return _one_to_one(pairs, -best[rows].astype(float))
 
 
 def match_predicted(
@@ -798,7 +755,18 @@ def _pair_keys(pairs, m):
 
 
 def _grow(
-    ref, dfm, pairs, u_base, refit_base, settings, spacing, eps_fixed, history, start, stop=None
+    ref,
+    dfm,
+    pairs,
+    u_base,
+    refit_base,
+    settings,
+    spacing,
+    eps_fixed,
+    history,
+    start,
+    stop=None,
+    label="local",
 ):
     """Local matching grown from ``pairs`` until the match set is stable.
 
@@ -811,6 +779,7 @@ def _grow(
     ratio = settings.nn_ratio
     m = dfm.shape[0]
     noise = np.full(3, 0.05 * spacing)
+    last_pred = None
     lo, hi = _tolerance_limits(settings, spacing)
     calib = None  # (positions, leave-one-out residuals) of the last validated matches
     k_cal = settings.local_neighbors
@@ -880,15 +849,19 @@ def _grow(
         eps = np.maximum(eps, np.where(np.isfinite(sigma), sigma, 0.0))[cand[:, 0]]
         k = 2 * settings.n_neighbors_min
         new = _clean(ref, dfm, cand, k, settings, eps, ref + pred)
+        update = float("nan")
+        if last_pred is not None:
+            update = float(np.sqrt(np.mean(np.sum((pred - last_pred) ** 2, axis=1))))
+        last_pred = pred
         history.append(
             IterationRecord(
                 it,
-                "local",
+                label,
                 k,
                 int(cand.shape[0] + grown),
                 int(new.shape[0]),
                 int(cand.shape[0] - new.shape[0]),
-                float("nan"),
+                update,
                 float(np.sqrt(np.sum(noise**2))),
                 time.perf_counter() - ts,
             )
@@ -1095,7 +1068,8 @@ def link_pair(
             eps_fixed,
             history,
             start,
-            stop=min(settings.max_iterations, start + settings.polish_iterations - 1),
+            stop=start + settings.polish_iterations - 1,
+            label="polish",
         )
         if pairs.shape[0] >= 4 and not np.array_equal(before, _pair_keys(pairs, dfm.shape[0])):
             fld = fit_link_field(ref, dfm, pairs, settings)
