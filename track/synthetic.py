@@ -253,8 +253,9 @@ class StiffInclusion(KnownField):
         ed = d * e
         k = 1.0 - self.inner_fraction
         outside = r >= self.radius_um
-        phi = np.where(outside, k * (self.radius_um / r) ** 3, k)
-        dphi = np.where(outside, -3.0 * k * self.radius_um**3 / r**4, 0.0)
+        ro = np.maximum(r, self.radius_um)
+        phi = np.where(outside, k * (self.radius_um / ro) ** 3, k)
+        dphi = np.where(outside, -3.0 * k * self.radius_um**3 / ro**4, 0.0)
         return d, r, e, ed, phi, dphi
 
     def __call__(self, xyz_um) -> np.ndarray:
