@@ -393,7 +393,7 @@ def poisson_disc_cloud(n: int, bounds_um, min_distance_um: float, seed: int = 0)
 
     Random sequential addition in batches (candidates too close to an accepted point or to
     an earlier candidate of their batch are dropped), so the points are uniform and
-    unordered in space.
+    unordered in space. Stops with an error when batches no longer add points.
 
     Parameters
     ----------
@@ -422,20 +422,23 @@ def poisson_disc_cloud(n: int, bounds_um, min_distance_um: float, seed: int = 0)
         raise InputError(f"min_distance_um must be finite and ≥ 0, got {min_distance_um}")
     rng = np.random.default_rng(seed)
     acc = np.zeros((0, 3))
+    stalled = 0
     for _ in range(200):
         need = n - acc.shape[0]
-        if need <= 0:
+        if need <= 0 or stalled >= 5:  # done, or the box is full
             break
         cand = rng.uniform(b[:, 0], b[:, 1], size=(max(2 * need, 64), 3))
         if acc.shape[0] and min_distance_um > 0:
             d, _ = cKDTree(acc).query(cand, 1)
             cand = cand[d >= min_distance_um]
         if min_distance_um > 0 and cand.shape[0] > 1:
+            # drop every candidate with an earlier one of its batch too close (a few more
+            # than needed; the next batch fills in)
+            close = cKDTree(cand).query_pairs(min_distance_um, output_type="ndarray")
             bad = np.zeros(cand.shape[0], dtype=bool)
-            for i, j in sorted(cKDTree(cand).query_pairs(min_distance_um)):
-                if not bad[i]:
-                    bad[j] = True
+            bad[close.max(axis=1) if close.size else []] = True
             cand = cand[~bad]
+        stalled = stalled + 1 if cand.shape[0] < max(1, need // 100) else 0
         acc = np.vstack([acc, cand[:need]])
     if acc.shape[0] < n:
         raise InputError(
