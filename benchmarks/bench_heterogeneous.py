@@ -17,7 +17,9 @@ cropped to the same box, 5 % of the particles missing from each frame, localisat
   spacings), for information, and ``floor_x/y/z``: the same for the field that
   :func:`track.matching.fit_link_field` fits to the true matches (what the noise and the
   field's resolution allow);
-* ``time_s``: wall time of :func:`link_pair`.
+* ``time_s``, ``cpu_s``: wall and CPU time (all threads) of :func:`link_pair`, ``load``: the
+  1-min load average before the case (on a shared machine the wall times grow with the other
+  load, the CPU seconds much less).
 
 ``--baseline REV`` also links the same pairs with ``track`` as it was at git revision ``REV``
 (extracted to a temporary folder, run in a subprocess), side by side: its time and ratio.
@@ -61,9 +63,10 @@ def run_cases(fields, sizes, amplitudes, seed):
         for name in fields:
             for amp in amplitudes:
                 pair = make_pair(name, n, amp, seed=seed)
-                t0 = time.perf_counter()
+                load = os.getloadavg()[0]
+                t0, c0 = time.perf_counter(), time.process_time()
                 res = link_pair(pair.ref_xyz_um, pair.def_xyz_um)
-                dt = time.perf_counter() - t0
+                dt, cpu = time.perf_counter() - t0, time.process_time() - c0
                 sc = score_link(pair, res.matches, res.displacement_field if res.ok else None)
                 floor = [float("nan")] * 3
                 if fit_link_field is not None:
@@ -83,6 +86,8 @@ def run_cases(fields, sizes, amplitudes, seed):
                         "field_xyz": list(sc.field_rmse_xyz_spacings),
                         "field_floor_xyz": floor,
                         "time_s": dt,
+                        "cpu_s": cpu,
+                        "load": load,
                         "iterations": res.iterations,
                     }
                 )
@@ -143,9 +148,9 @@ def main(argv=None) -> None:
             base[(r["field"], r["n"], r["amplitude"])] = r
     rows = run_cases(args.fields, args.sizes, args.amplitudes, args.seed)
     head = ["field", "N", "amp", "grad", "ratio", "face", "wrong%", "excess", "fld_x/y/z"]
-    head += ["floor_x/y/z", "time_s"]
+    head += ["floor_x/y/z", "time_s", "cpu_s", "load"]
     if base:
-        head += ["base_time_s", "base_ratio"]
+        head += ["base_time_s", "base_cpu_s", "base_ratio", "base_wrong%"]
     table = []
     for r in rows:
         ok = r["ratio"] >= 0.99 and r["wrong"] <= 0.005 and r["excess"] <= 0.01
@@ -161,10 +166,21 @@ def main(argv=None) -> None:
             "/".join(f"{v:.3f}" for v in r["field_xyz"]),
             "/".join(f"{v:.3f}" for v in r.get("field_floor_xyz", [float("nan")] * 3)),
             f"{r['time_s']:.2f}" + ("" if ok else " FAIL"),
+            f"{r.get('cpu_s', float('nan')):.2f}",
+            f"{r.get('load', float('nan')):.1f}",
         ]
         b = base.get((r["field"], r["n"], r["amplitude"]))
         if base:
-            line += [f"{b['time_s']:.2f}", f"{b['ratio']:.4f}"] if b else ["", ""]
+            line += (
+                [
+                    f"{b['time_s']:.2f}",
+                    f"{b.get('cpu_s', float('nan')):.2f}",
+                    f"{b['ratio']:.4f}",
+                    f"{100 * b['wrong']:.2f}",
+                ]
+                if b
+                else [""] * 4
+            )
         table.append(line)
     widths = [max(len(x[i]) for x in [head, *table]) for i in range(len(head))]
     for x in [head, *table]:
@@ -175,7 +191,12 @@ def main(argv=None) -> None:
     )
     for n in args.sizes:
         t = [r["time_s"] for r in rows if r["n"] == n]
-        print(f"N={n}: median time {np.median(t):.2f} s, max {np.max(t):.2f} s")
+        line = f"N={n}: median time {np.median(t):.2f} s, max {np.max(t):.2f} s"
+        tb = [r["time_s"] for k, r in base.items() if k[1] == n]
+        if tb:
+            line += f"; baseline median {np.median(tb):.2f} s, max {np.max(tb):.2f} s"
+        print(line)
+    print(f"machine: {os.cpu_count()} cores; load average now {os.getloadavg()[0]:.1f}")
     if args.json:
         Path(args.json).write_text(json.dumps({"rows": rows, "baseline": list(base.values())}))
 
