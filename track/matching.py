@@ -767,14 +767,16 @@ def _grow(
     start,
     stop=None,
     label="local",
+    grow=True,
 ):
     """Local matching grown from ``pairs`` until the match set is stable.
 
     Each iteration (a) grows: passes that predict the unmatched reference particles with
     at least three matched neighbours from those neighbours and add the unambiguous
-    matches to still free deformed particles; (b) validates: predicts every particle
-    leave-one-out, matches the whole clouds again and removes outliers with the normalised
-    median test (per-axis noise levels). It stops when an iteration changes nothing.
+    matches to still free deformed particles (within ``growth_q`` of their tolerance);
+    (b) validates: predicts every particle leave-one-out, matches the whole clouds again and
+    removes outliers with the normalised median test (per-axis noise levels). It stops when
+    an iteration without growth changes nothing (or the set flips between two states).
     """
     ratio = settings.nn_ratio
     m = dfm.shape[0]
@@ -786,11 +788,13 @@ def _grow(
     r_cal = settings.local_radius_um or 3.0 * spacing
     seen: list[np.ndarray] = [_pair_keys(pairs, m)]
     stop = settings.max_iterations if stop is None else stop
+    settle = not grow  # an iteration without growth passes
+    tabu = np.zeros(ref.shape[0], dtype=bool)  # rejected by the last median test
     for it in range(start, stop + 1):
         ts = time.perf_counter()
         grown = 0
-        for _ in range(settings.growth_passes):
-            free_ref = np.ones(ref.shape[0], dtype=bool)
+        for _ in range(0 if settle else settings.growth_passes):
+            free_ref = ~tabu
             free_ref[pairs[:, 0]] = False
             rows = np.flatnonzero(free_ref)
             if rows.size == 0:
@@ -840,8 +844,16 @@ def _grow(
                 tol[lone] = np.maximum(t_base, lo)
             else:
                 tol[lone] = 0.0
-        cand, _ = match_predicted(ref + pred, dfm, np.maximum(tol, 1e-9 * spacing), ratio)
-        cand = cand[tol[cand[:, 0], 0] > 0]
+        cand, q = match_predicted(ref + pred, dfm, np.maximum(tol, 1e-9 * spacing), ratio)
+        # While the front still moves, a particle matched for the first time must meet the
+        # growth criterion: the outer part of a tolerance ellipsoid is for re-validating
+        # matches and, once the growth has stopped, for the particles left among matched
+        # neighbours, not for guessing at the front.
+        was = np.zeros(ref.shape[0], dtype=bool)
+        was[pairs[:, 0]] = True
+        first_ok = (q <= settings.growth_q) | (grown == 0)
+        keep = (tol[cand[:, 0], 0] > 0) & (was[cand[:, 0]] | first_ok)
+        cand, q = cand[keep], q[keep]
         eps = eps_fixed if eps_fixed is not None else np.maximum(noise, 0.02 * spacing)
         # Where the local polynomial misses part of the field (steep fronts, interfaces), a
         # right match deviates from its prediction by up to the local misfit: the median
@@ -849,6 +861,17 @@ def _grow(
         eps = np.maximum(eps, np.where(np.isfinite(sigma), sigma, 0.0))[cand[:, 0]]
         k = 2 * settings.n_neighbors_min
         new = _clean(ref, dfm, cand, k, settings, eps, ref + pred)
+        # A match deep inside its ellipsoid (q ≤ growth_q / 2: an unrelated particle that
+        # close is improbable and the ratio test excludes a second one) stays: the median
+        # test couples neighbours and would flip a few right ones in and out.
+        sure = cand[q <= 0.5 * settings.growth_q]
+        if sure.shape[0]:
+            new = np.unique(np.vstack([new, sure]), axis=0)
+        # growth does not offer the median test's rejects again right away (it would
+        # flip between adding and removing them)
+        tabu[:] = False
+        tabu[cand[:, 0]] = True
+        tabu[new[:, 0]] = False
         update = float("nan")
         if last_pred is not None:
             update = float(np.sqrt(np.mean(np.sum((pred - last_pred) ** 2, axis=1))))
@@ -868,12 +891,17 @@ def _grow(
         )
         logger.debug("iteration %d: %s (grown %d)", it, history[-1], grown)
         if new.shape[0] < 4:
-            break
+            return new  # nothing consistent is left: the caller reports it
         keys = _pair_keys(new, m)
         pairs = new
-        if any(keys.shape == s.shape and np.array_equal(keys, s) for s in seen[-2:]):
-            break  # stable, or flipping between two sets
+        repeated = any(keys.shape == s.shape and np.array_equal(keys, s) for s in seen[-2:])
         seen.append(keys)
+        if repeated:  # stable, or flipping between two sets
+            if grown == 0:
+                break
+            settle = True  # once more without growth: first matches may then use q ≤ 1
+        else:
+            settle = not grow
     return pairs
 
 
@@ -1057,7 +1085,7 @@ def link_pair(
         # which leaves the local fits only what that field misses.
         before = _pair_keys(pairs, dfm.shape[0])
         start = len(history) + 1
-        pairs = _grow(
+        polished = _grow(
             ref,
             dfm,
             pairs,
@@ -1070,8 +1098,11 @@ def link_pair(
             start,
             stop=start + settings.polish_iterations - 1,
             label="polish",
+            grow=False,
         )
-        if pairs.shape[0] >= 4 and not np.array_equal(before, _pair_keys(pairs, dfm.shape[0])):
+        changed = not np.array_equal(before, _pair_keys(polished, dfm.shape[0]))
+        if polished.shape[0] >= 4 and changed:
+            pairs = polished
             fld = fit_link_field(ref, dfm, pairs, settings)
     pairs = pairs[np.argsort(pairs[:, 0])]
     return LinkResult(
