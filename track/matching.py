@@ -1,29 +1,43 @@
 """SerialTrack-class linking of two 3-D particle clouds (reference → deformed).
 
-The linker (:func:`link_pair`) follows the iterative scheme of SerialTrack (Yang et al.,
-"SerialTrack: ScalE and Rotation Invariant Augmented Lagrangian Particle Tracking",
-SoftwareX 19, 101204, 2022), which alternates a *local* matching step with a *global*
-regularised displacement fit:
+The linker (:func:`link_pair`) matches particles *locally*, in neighbourhoods grown from
+reliable regions, and regularises the result globally, in the spirit of SerialTrack (Yang et
+al., "SerialTrack: ScalE and Rotation Invariant Augmented Lagrangian Particle Tracking",
+SoftwareX 19, 101204, 2022). Heterogeneous fields (indentation, shear bands, vortices,
+inclusions, fronts) with local gradients up to about 0.6 and displacements beyond one
+particle spacing are tracked as well as homogeneous ones.
 
-1. **Bootstrap** (no initial guess). Both clouds are described by rotation-invariant
+1. **Seeds.** Without a guess: both clouds are described by rotation-invariant
    neighbourhood-topology descriptors (:mod:`track.features`) and matched globally by nearest
-   descriptor with a ratio test and a mutual-consistency check, once in raw coordinates and
-   once after moment normalisation (each cloud whitened by its own covariance, which turns any
-   homogeneous stretch or shear into a rotation). The candidate set with the larger RANSAC
-   affine consensus (:func:`track.outliers.ransac_affine`) wins; its consensus, cleaned by the
-   normalised median test, gives a stiff affine first estimate of the field. Nothing here
-   assumes small displacements.
-2. **Iterations**. The reference is warped by the current field and matched to the deformed
-   cloud with a matcher chosen from the state: plain mutual nearest neighbour once the warp
-   error is a small fraction of the particle spacing, otherwise alternately a local
-   topology-descriptor match or a histogram-of-displacement vote (Janke et al., SoftwareX 11,
-   100413, 2020). The neighbour count k shrinks from ``n_neighbors_max`` to
-   ``n_neighbors_min``.
-3. Each candidate set is cleaned with the normalised median test (Westerweel & Scarano,
-   Exp. Fluids 39, 2005) and a global field is fitted on a regular grid
-   (:func:`track.regularize.fit_field`, direct or ADMM), stiff at first and relaxed to
-   ``smoothness``.
-4. The loop stops when the field update and the match count stall.
+   descriptor with a ratio test and a mutual check, in raw coordinates and after moment
+   normalisation (each cloud whitened by its covariance, which turns any homogeneous stretch
+   or shear into a rotation); a small-motion hypothesis (nearest neighbours of the unwarped
+   clouds) is the last resort. Each hypothesis gives a RANSAC affine map
+   (:func:`track.outliers.ransac_affine`); the map that links the most particles of the whole
+   clouds wins, and its consensus, cleaned by the normalised median test and by agreement
+   with neighbouring seeds, is the seed set. Nothing here assumes small displacements. With a
+   guess (``initial_guess``, e.g. the previous increment of a series through
+   :func:`increment_predictor`): the matches it predicts, if they are consistent and numerous
+   enough; otherwise the bootstrap above.
+2. **Growth.** Unmatched particles with at least three matched neighbours are predicted by a
+   moving-least-squares polynomial fit of their neighbours' displacements (relative to a
+   global field: the affine map, the guess, later the regularised field of all matches;
+   :func:`track.regularize.local_polynomial_predict`) and matched to the only deformed
+   particle inside a tolerance ellipsoid around the prediction (:func:`match_predicted`: per
+   axis, from the localisation noise and the local prediction error, volume-capped, with a
+   ratio test on both sides). The matched region grows front by front from the seeds; no
+   global field has to be right where no particle is matched yet.
+3. **Validation.** Every iteration predicts every particle leave-one-out from its matched
+   neighbours, matches the clouds again and removes outliers with the normalised median test
+   (Westerweel & Scarano, Exp. Fluids 39, 2005) on the residuals, with per-axis noise levels
+   (light-field localisation noise is about ten times larger along z) estimated from the
+   data, widened where the local fit misses part of the field. Particles near the faces of
+   the volume, whose neighbourhoods are one-sided, get the larger tolerance their neighbours'
+   leave-one-out errors show. The loop stops when an iteration changes nothing.
+4. **Field.** A global field on a regular grid (:func:`track.regularize.fit_field`, direct or
+   ADMM) refined per component by local corrections where cross-validation shows detail
+   finer than the grid (:func:`track.regularize.fit_field_refined`: adaptive resolution),
+   then two polishing iterations that predict relative to it.
 """
 
 from __future__ import annotations
@@ -43,7 +57,14 @@ from track.features import (
     topology_descriptors,
 )
 from track.outliers import normalized_median_test, ransac_affine
-from track.regularize import METHODS, AffineDisplacement, fit_affine, fit_field
+from track.regularize import (
+    METHODS,
+    AffineDisplacement,
+    fit_affine,
+    fit_field,
+    fit_field_refined,
+    local_polynomial_predict,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -56,9 +77,10 @@ class LinkSettings:
 
     Attributes
     ----------
-    n_neighbors_max, n_neighbors_min : int
-        Neighbour count k of the first and last iterations (paper Table 1: max 16/5/10);
-        k is used by the histogram vote, the local topology search and the median test.
+    n_neighbors_max : int
+        Neighbours of the median test that cleans the seeds (paper Table 1: 16).
+    n_neighbors_min : int
+        Half the neighbours of the median test of every iteration (≥ 3).
     descriptor_size : int
         Neighbours in a topology descriptor (≥ 2).
     descriptor_ratio : float
@@ -66,39 +88,56 @@ class LinkSettings:
     outlier_threshold : float
         Normalised-median-test threshold (paper: 3).
     outlier_eps_um : float or None
-        Median-test noise level ε; default 0.02 × the mean particle spacing.
+        Median-test noise level ε, the same on every axis. Default (with
+        ``outlier_eps_xyz_um`` None too): per axis, the robust spread of the matches'
+        leave-one-out residuals, at least 0.02 × the mean spacing.
+    outlier_eps_xyz_um : tuple of 3 float or None
+        Median-test noise levels per axis (x, y, z) in µm; wins over ``outlier_eps_um``.
     max_iterations : int
-        Iteration cap (bootstrap included).
-    stall_tolerance : float
-        Stop when the RMS field update is below this fraction of the mean spacing and the
-        match count no longer changes.
+        Iteration cap of seeding, growth and validation (the polishing iterations come on
+        top).
     regularization : {"gridded", "admm"}
         Global field solver (:func:`track.regularize.fit_field`).
     grid_spacing_um : float or None
         Node spacing of the field grid; default 2 × the mean particle spacing.
     smoothness : float
-        Dimensionless smoothness weight of the final field fits.
-    stiffness_factor : float
-        The first gridded fit uses ``smoothness × stiffness_factor``; it falls ×10 per
-        iteration down to ``smoothness``.
-    hist_bin_um : float or None
-        Tolerance of the histogram-of-displacement vote; default 0.3 × mean spacing.
-    search_radius_um : float or None
-        Search radius of the warped matchers; default adapts to the warp error
-        (between 1 and 3 mean spacings).
+        Dimensionless smoothness weight of the gridded field (≥ 0).
+    refine_field : bool
+        Refine the gridded field per component where the data show finer detail
+        (:func:`track.regularize.fit_field_refined`).
     nn_max_distance_um : float or None
-        Largest accepted nearest-neighbour residual; default adapts to the warp error
-        (5 × its RMS, clipped to 0.1 … 0.5 mean spacings).
+        Radius of the ball whose volume caps every tolerance ellipsoid (a semi-axis may reach
+        1.7 ×), and the tolerance of the seeding matches; default 0.45 mean spacings.
     nn_ratio : float
-        Nearest / second-nearest distance ratio a nearest-neighbour match must beat.
-    nn_switch : float
-        Warp error (fraction of the mean spacing) below which nearest neighbour is used.
+        Ratio test of the local matches (normalised distances, both sides; 0 < r ≤ 1).
     ransac_threshold_um : float or None
         Consensus radius of the affine bootstrap; default 1 mean spacing.
     bootstrap_max_particles : int
         Reference particles (random subset) used by the global bootstrap match.
     seed : int
-        Seed of the RANSAC sampler and of the bootstrap subset.
+        Seed of the RANSAC sampler and of the random subsets.
+    local_neighbors : int
+        Matched neighbours of each local prediction (≥ 3).
+    local_degree : {1, 2}
+        Degree of the local polynomial predictor (affine by default; quadratic fits the
+        curvature but amplifies the axial noise).
+    local_radius_um : float or None
+        Largest distance of a matched neighbour used by a prediction; default 3 mean
+        spacings.
+    local_scale_um : float or None
+        Gaussian weight length of the local fits; default 1 mean spacing.
+    tolerance_sigmas : float
+        Tolerance semi-axis per estimated standard deviation of the prediction error (> 0).
+    growth_passes : int
+        Growth passes per iteration (≥ 0).
+    growth_q : float
+        Normalised distance (fraction of the tolerance, 0 < q ≤ 1) a growth match must be
+        within; validation then accepts up to 1.
+    guess_min_fraction : float
+        Fraction of the particles an ``initial_guess`` must link consistently to replace
+        the bootstrap (0 ≤ f ≤ 1).
+    polish_iterations : int
+        Iterations predicting relative to the regularised field of all matches (≥ 0).
     """
 
     n_neighbors_max: int = 16
@@ -107,20 +146,26 @@ class LinkSettings:
     descriptor_ratio: float = 0.8
     outlier_threshold: float = 3.0
     outlier_eps_um: float | None = None
+    outlier_eps_xyz_um: tuple[float, float, float] | None = None
     max_iterations: int = 20
-    stall_tolerance: float = 1e-3
     regularization: str = "gridded"
     grid_spacing_um: float | None = None
     smoothness: float = 1.0
-    stiffness_factor: float = 100.0
-    hist_bin_um: float | None = None
-    search_radius_um: float | None = None
+    refine_field: bool = True
     nn_max_distance_um: float | None = None
     nn_ratio: float = 0.5
-    nn_switch: float = 0.15
     ransac_threshold_um: float | None = None
     bootstrap_max_particles: int = 3000
     seed: int = 0
+    local_neighbors: int = 12
+    local_degree: int = 1
+    local_radius_um: float | None = None
+    local_scale_um: float | None = None
+    tolerance_sigmas: float = 4.0
+    growth_passes: int = 8
+    growth_q: float = 0.5
+    guess_min_fraction: float = 0.3
+    polish_iterations: int = 2
 
     def __post_init__(self) -> None:
         if self.n_neighbors_min < 3:
@@ -132,20 +177,18 @@ class LinkSettings:
             )
         if self.descriptor_size < 2:
             raise InputError(f"descriptor_size must be ≥ 2, got {self.descriptor_size}")
-        for name in ("descriptor_ratio", "nn_ratio"):
+        for name in ("descriptor_ratio", "nn_ratio", "growth_q"):
             v = getattr(self, name)
             if not 0 < v <= 1:
                 raise InputError(f"{name} must be in (0, 1], got {v}")
-        for name in ("outlier_threshold", "stall_tolerance", "nn_switch"):
+        if not 0 <= self.guess_min_fraction <= 1:
+            raise InputError(f"guess_min_fraction must be in [0, 1], got {self.guess_min_fraction}")
+        for name in ("outlier_threshold", "tolerance_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be finite and > 0, got {v}")
-        for name in ("smoothness",):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"{name} must be finite and ≥ 0, got {v}")
-        if not (np.isfinite(self.stiffness_factor) and self.stiffness_factor >= 1):
-            raise InputError(f"stiffness_factor must be ≥ 1, got {self.stiffness_factor}")
+        if not (np.isfinite(self.smoothness) and self.smoothness >= 0):
+            raise InputError(f"smoothness must be finite and ≥ 0, got {self.smoothness}")
         if self.bootstrap_max_particles < MIN_PARTICLES:
             raise InputError(
                 f"bootstrap_max_particles must be ≥ {MIN_PARTICLES}, "
@@ -153,6 +196,13 @@ class LinkSettings:
             )
         if self.max_iterations < 1:
             raise InputError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
+        if self.local_neighbors < 3:
+            raise InputError(f"local_neighbors must be ≥ 3, got {self.local_neighbors}")
+        if self.local_degree not in (1, 2):
+            raise InputError(f"local_degree must be 1 or 2, got {self.local_degree}")
+        for name in ("growth_passes", "polish_iterations"):
+            if getattr(self, name) < 0:
+                raise InputError(f"{name} must be ≥ 0, got {getattr(self, name)}")
         if self.regularization not in METHODS:
             raise InputError(
                 f"regularization must be one of {METHODS}, got {self.regularization!r}"
@@ -160,24 +210,51 @@ class LinkSettings:
         for name in (
             "outlier_eps_um",
             "grid_spacing_um",
-            "hist_bin_um",
-            "search_radius_um",
             "nn_max_distance_um",
             "ransac_threshold_um",
+            "local_radius_um",
+            "local_scale_um",
         ):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be None or finite and > 0, got {v}")
-
-    def n_neighbors(self, iteration: int) -> int:
-        """Neighbour count k of 1-based ``iteration``: halves the excess over the minimum."""
-        excess = self.n_neighbors_max - self.n_neighbors_min
-        return self.n_neighbors_min + round(excess * 0.5 ** (iteration - 1))
+        if self.outlier_eps_xyz_um is not None:
+            try:
+                eps = np.asarray(self.outlier_eps_xyz_um, dtype=float)
+            except (TypeError, ValueError):
+                eps = np.zeros(0)
+            if eps.shape != (3,) or not np.all(np.isfinite(eps) & (eps > 0)):
+                raise InputError(
+                    "outlier_eps_xyz_um must be None or 3 finite values > 0 (x, y, z in µm), "
+                    f"got {self.outlier_eps_xyz_um!r}"
+                )
+            object.__setattr__(self, "outlier_eps_xyz_um", tuple(float(v) for v in eps))
 
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """What one iteration did (counts are numbers of matches)."""
+    """What one iteration did (counts are numbers of matches).
+
+    Attributes
+    ----------
+    iteration : int
+        1-based.
+    matcher : str
+        ``"topology"``, ``"topology-moment"`` or ``"nearest"`` (seeding: the winning
+        bootstrap hypothesis, or ``"nearest"`` for the matches of an ``initial_guess``),
+        ``"local"`` (growth and validation) or ``"polish"``.
+    n_neighbors : int
+        Neighbours of the median test.
+    n_candidates, n_matches, n_outliers : int
+        Candidate matches (grown ones included), matches kept, candidates removed.
+    update_rms_um : float
+        RMS change of the predicted displacements since the previous iteration (nan for
+        seeding and for the first iteration).
+    residual_rms_um : float
+        Robust RMS length of the matches' residuals about their predictions.
+    seconds : float
+        Wall time.
+    """
 
     iteration: int
     matcher: str
@@ -283,17 +360,6 @@ def match_descriptors_global(
     return np.column_stack([rows[ok], i[ok, 0]])
 
 
-def _one_to_one(pairs: np.ndarray, cost: np.ndarray) -> np.ndarray:
-    """Keep, for every deformed row claimed more than once, the lowest-cost pair."""
-    if pairs.shape[0] == 0:
-        return pairs
-    order = np.lexsort((cost, pairs[:, 1]))
-    p = pairs[order]
-    first = np.ones(p.shape[0], dtype=bool)
-    first[1:] = p[1:, 1] != p[:-1, 1]
-    return p[first]
-
-
 def match_nearest(
     warped_ref: np.ndarray, def_xyz: np.ndarray, max_distance_um: float, ratio: float
 ) -> np.ndarray:
@@ -312,95 +378,68 @@ def match_nearest(
     return np.column_stack([rows[ok], i[ok, 0]])
 
 
-def _candidates(warped_ref, def_xyz, k, radius_um):
-    k = min(k, def_xyz.shape[0])
-    d, i = cKDTree(def_xyz).query(warped_ref, k, distance_upper_bound=radius_um)
-    return d.reshape(len(d), -1), i.reshape(len(i), -1)
+def match_predicted(
+    warped_ref: np.ndarray, def_xyz: np.ndarray, tolerance_xyz_um: np.ndarray, ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unambiguous deformed particle inside each predicted position's tolerance ellipsoid.
 
+    The distance of deformed particle ``j`` from warped reference particle ``i`` is
+    ``q_ij = |(def_j − warped_i) / tolerance_i|`` (per-axis tolerances, so anisotropic noise
+    gets an ellipsoid). A pair is kept when ``q ≤ 1`` and it beats every other candidate of
+    both ``i`` and ``j`` by the ratio: ``q < ratio × q_second``.
 
-def match_topology_local(
-    warped_ref: np.ndarray,
-    def_xyz: np.ndarray,
-    n_candidates: int,
-    radius_um: float,
-    descriptor_size: int,
-    ratio: float,
-) -> np.ndarray:
-    """Best topology-descriptor match among the deformed particles near each warped one.
+    Parameters
+    ----------
+    warped_ref : ndarray, shape (N, 3)
+        Predicted deformed positions of the reference particles (µm).
+    def_xyz : ndarray, shape (M, 3)
+        Deformed particles (µm).
+    tolerance_xyz_um : ndarray, shape (N, 3)
+        Semi-axes (x, y, z) of each particle's tolerance ellipsoid (µm, > 0).
+    ratio : float
+        Ratio test, 0 < ratio ≤ 1.
 
-    Descriptors of the warped reference and of the deformed cloud are compared for the
-    ``n_candidates`` deformed particles within ``radius_um`` of each warped position; the
-    best must beat ``ratio`` × the second best. Returns (K, 2) ``[row_ref, row_def]``.
-    """
-    n_core = min(descriptor_size, warped_ref.shape[0] - 1, def_xyz.shape[0] - 1)
-    da = topology_descriptors(warped_ref, n_core)
-    db = topology_descriptors(def_xyz, n_core)
-    dist, idx = _candidates(warped_ref, def_xyz, n_candidates, radius_um)
-    valid = np.isfinite(dist)
-    safe = np.where(valid, idx, 0)
-    cost = np.linalg.norm(db[safe] - da[:, None, :], axis=-1)
-    cost[~valid] = np.inf
-    order = np.argsort(cost, axis=1)
-    best = np.take_along_axis(cost, order[:, :1], axis=1)[:, 0]
-    second = (
-        np.take_along_axis(cost, order[:, 1:2], axis=1)[:, 0]
-        if cost.shape[1] > 1
-        else np.full(best.shape, np.inf)
-    )
-    ok = np.isfinite(best) & (best < ratio * second)
-    rows = np.flatnonzero(ok)
-    pairs = np.column_stack([rows, safe[rows, order[rows, 0]]])
-    return _one_to_one(pairs, best[rows])
-
-
-def match_displacement_histogram(
-    warped_ref: np.ndarray,
-    def_xyz: np.ndarray,
-    n_neighbors: int,
-    radius_um: float,
-    bin_um: float,
-    n_candidates: int = 8,
-    min_votes: int = 3,
-) -> np.ndarray:
-    """Histogram-of-displacement vote among neighbouring particles.
-
-    Each candidate displacement ``d = def_c − warped_a`` of particle ``a`` (deformed particles
-    within ``radius_um``) earns one vote from every one of ``a``'s ``n_neighbors`` nearest
-    reference neighbours that has a candidate displacement within ``bin_um`` of ``d``. The
-    candidate with the most votes wins if it has ≥ ``min_votes`` and is unique.
-    Returns (K, 2) ``[row_ref, row_def]``.
+    Returns
+    -------
+    pairs : ndarray of int, shape (K, 2)
+        ``[row_ref, row_def]``.
+    q : ndarray, shape (K,)
+        Normalised distance of each pair.
     """
     n = warped_ref.shape[0]
-    dist, idx = _candidates(warped_ref, def_xyz, n_candidates, radius_um)
-    valid = np.isfinite(dist)
-    safe = np.where(valid, idx, 0)
-    disp = def_xyz[safe] - warped_ref[:, None, :]
-    disp[~valid] = np.nan
-    k = min(n_neighbors, n - 1)
-    _, nb = cKDTree(warped_ref).query(warped_ref, k + 1)
-    nb = nb[:, 1:]
-    votes = np.zeros(dist.shape, dtype=np.int32)
-    chunk = max(1, 200_000 // max(1, k * dist.shape[1] ** 2))
-    for s in range(0, n, chunk):
-        e = min(n, s + chunk)
-        own = disp[s:e]  # (c, C, 3)
-        other = disp[nb[s:e]]  # (c, k, C, 3)
-        diff = other[:, :, None, :, :] - own[:, None, :, None, :]  # (c, k, C, C, 3)
-        close = np.nansum(diff**2, axis=-1) < bin_um**2
-        close &= np.all(np.isfinite(diff), axis=-1)
-        votes[s:e] = np.any(close, axis=3).sum(axis=1)
-    votes[~valid] = -1
-    order = np.argsort(-votes, axis=1, kind="stable")
-    best = np.take_along_axis(votes, order[:, :1], axis=1)[:, 0]
-    second = (
-        np.take_along_axis(votes, order[:, 1:2], axis=1)[:, 0]
-        if votes.shape[1] > 1
-        else np.full(n, -1)
-    )
-    ok = (best >= min_votes) & (best > second)
-    rows = np.flatnonzero(ok)
-    pairs = np.column_stack([rows, safe[rows, order[rows, 0]]])
-    return _one_to_one(pairs, -best[rows].astype(float))
+    tol = np.asarray(tolerance_xyz_um, dtype=float)
+    k = min(4, def_xyz.shape[0])
+    reach = float(np.max(tol)) / ratio
+    d, j = cKDTree(def_xyz).query(warped_ref, k, distance_upper_bound=reach)
+    d, j = d.reshape(n, k), j.reshape(n, k)
+    valid = np.isfinite(d)
+    safe = np.where(valid, j, 0)
+    q = np.sqrt(np.sum(((def_xyz[safe] - warped_ref[:, None, :]) / tol[:, None, :]) ** 2, axis=2))
+    q[~valid] = np.inf
+    order = np.argsort(q, axis=1)
+    q1 = np.take_along_axis(q, order[:, :1], axis=1)[:, 0]
+    q2 = np.take_along_axis(q, order[:, 1:2], axis=1)[:, 0] if k > 1 else np.full(n, np.inf)
+    best_j = np.take_along_axis(safe, order[:, :1], axis=1)[:, 0]
+    ok = (q1 <= 1.0) & (q1 < ratio * q2)
+    # deformed side: j's best claimant must be i and beat j's other claimants by the ratio
+    rows = np.repeat(np.arange(n), k)[valid.ravel()]
+    cols = safe.ravel()[valid.ravel()]
+    qq = q.ravel()[valid.ravel()]
+    srt = np.lexsort((qq, cols))
+    rows, cols, qq = rows[srt], cols[srt], qq[srt]
+    first = np.ones(cols.size, dtype=bool)
+    first[1:] = cols[1:] != cols[:-1]
+    nxt = np.full(cols.size, np.inf)
+    same_next = np.zeros(cols.size, dtype=bool)
+    same_next[:-1] = cols[1:] == cols[:-1]
+    nxt[:-1] = np.where(same_next[:-1], qq[1:], np.inf)
+    owner = np.full(def_xyz.shape[0], -1)
+    owner_ok = np.zeros(def_xyz.shape[0], dtype=bool)
+    owner[cols[first]] = rows[first]
+    owner_ok[cols[first]] = qq[first] < ratio * nxt[first]
+    ok &= (owner[best_j] == np.arange(n)) & owner_ok[best_j]
+    sel = np.flatnonzero(ok)
+    return np.column_stack([sel, best_j[sel]]).astype(np.int64), q1[sel]
 
 
 # ------------------------------------------------------------------------------- the loop
@@ -436,10 +475,62 @@ def _clean(ref, dfm, pairs, k, settings, eps_um, predicted):
     return pairs[keep]
 
 
+def _verify(ref, dfm, aff, settings, spacing, eps_um):
+    """Matches of the whole clouds that agree with a global hypothesis ``aff``."""
+    u = np.asarray(aff(ref), dtype=float)
+    tol = np.full(ref.shape, settings.nn_max_distance_um or 0.45 * spacing)
+    cand, _ = match_predicted(ref + u, dfm, tol, settings.nn_ratio)
+    return _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_um, ref + u)
+
+
+def _filter_seeds(ref, dfm, pairs, spacing):
+    """Drop seed matches that disagree with their seed neighbours.
+
+    Each seed's displacement is predicted, leave-one-out, by an affine moving-least-squares
+    fit of the seeds within 4 mean spacings; a seed with at least three such neighbours
+    whose displacement differs from the prediction by more than max(4 σ, 0.1 spacing) on an
+    axis (σ: robust spread of those differences over all seeds) is dropped, twice over. A
+    global hypothesis (an affine map, or no motion) collects accidental pairs where the
+    field departs from it; they sit among right seeds, or among each other at random, and
+    fail this test, while a lone seed (no evidence either way) is kept.
+    """
+    keep = np.ones(pairs.shape[0], dtype=bool)
+    for _ in range(2):
+        idx = np.flatnonzero(keep)
+        if idx.size < 5:
+            break
+        x = ref[pairs[idx, 0]]
+        d = dfm[pairs[idx, 1]] - x
+        lp = local_polynomial_predict(
+            x, d, x, 8, 4.0 * spacing, scale_um=1.5 * spacing, exclude=np.arange(idx.size)
+        )
+        r = np.abs(d - lp.values_um)
+        has = lp.n_neighbors >= 3
+        if not np.any(has):
+            break
+        sig = 1.4826 * np.median(r[has], axis=0)
+        tau = np.maximum(4.0 * sig, 0.1 * spacing)
+        bad = has & np.any(r > tau, axis=1)
+        if not np.any(bad):
+            break
+        keep[idx[bad]] = False
+    if keep.sum() < 4:
+        return pairs
+    return pairs[keep]
+
+
 def _bootstrap(ref, dfm, settings, spacing, eps_um):
-    """Global topology match + affine consensus. Returns (field, pairs, n_candidates, label)."""
+    """Global topology match + affine consensus, verified on the whole clouds.
+
+    Each hypothesis (descriptor matches in raw and in moment-normalised coordinates, then
+    nearest neighbours of the unwarped clouds) gives a RANSAC affine map; the map that links
+    the most particles of the whole clouds (:func:`_verify`) wins. Returns (affine field,
+    pairs, n_candidates, label) or None.
+    """
     n_core = min(settings.descriptor_size, ref.shape[0] - 1, dfm.shape[0] - 1)
     scale = cloud_scale_um(ref)
+    n_min = min(ref.shape[0], dfm.shape[0])
+    enough = 0.3 * n_min
     # A subset of reference particles suffices for a consensus and keeps the global
     # descriptor search fast for large clouds; the mutual check runs against that subset.
     rng = np.random.default_rng(settings.seed)
@@ -454,8 +545,24 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
     except InputError:
         logger.debug("moment normalisation skipped: degenerate cloud")
     thr = settings.ransac_threshold_um or spacing
-    min_inl = max(4, min(8, int(0.5 * min(ref.shape[0], dfm.shape[0]))))
+    min_inl = max(4, min(8, int(0.5 * n_min)))
     best = None
+
+    def consider(label, cand, fit):
+        nonlocal best
+        if fit is None:
+            return
+        pairs = _verify(ref, dfm, fit[0], settings, spacing, eps_um)
+        logger.debug(
+            "bootstrap %s: %d candidates, %d agree, %d verified",
+            label,
+            cand.shape[0],
+            int(fit[1].sum()),
+            pairs.shape[0],
+        )
+        if pairs.shape[0] >= 4 and (best is None or pairs.shape[0] > best[0]):
+            best = (pairs.shape[0], label, cand[fit[1]], cand.shape[0], fit[0])
+
     for label, a, b in views:
         cand = match_descriptors_global(
             topology_descriptors(a, n_core)[sub],
@@ -466,13 +573,10 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
         fit = ransac_affine(
             ref[cand[:, 0]], dfm[cand[:, 1]], thr, seed=settings.seed, min_inliers=min_inl
         )
-        n_inl = -1 if fit is None else int(fit[1].sum())
-        logger.debug("bootstrap %s: %d candidates, %d agree", label, cand.shape[0], max(n_inl, 0))
-        if fit is not None and (best is None or n_inl > best[0]):
-            best = (n_inl, label, cand[fit[1]], cand.shape[0], fit[0])
-        if best is not None and best[0] >= 0.3 * min(sub.size, dfm.shape[0]):
-            break  # overwhelming consensus already
-    if best is None or best[0] < 0.3 * min(sub.size, dfm.shape[0]):
+        consider(label, cand, fit)
+        if best is not None and best[0] >= enough:
+            break  # most particles agree already
+    if best is None or best[0] < enough:
         # Small-motion hypothesis: increments well below the particle spacing (the usual case
         # at high frame rates) pair nearest neighbours of the unwarped clouds. It rescues
         # sparse, noisy clouds whose topology descriptors disagree (a few tens of particles
@@ -480,28 +584,81 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
         cand = match_nearest(ref, dfm, 0.5 * spacing, settings.nn_ratio)
         if cand.shape[0] >= min_inl:
             fit = ransac_affine(
-                ref[cand[:, 0]], dfm[cand[:, 1]], thr, seed=settings.seed, min_inliers=min_inl
+                ref[cand[:, 0]],
+                dfm[cand[:, 1]],
+                min(thr, 0.25 * spacing),
+                seed=settings.seed,
+                min_inliers=min_inl,
             )
-            n_inl = -1 if fit is None else int(fit[1].sum())
-            logger.debug("bootstrap nearest: %d candidates, %d agree", cand.shape[0], max(n_inl, 0))
-            if fit is not None and (best is None or n_inl > best[0]):
-                best = (n_inl, "nearest", cand[fit[1]], cand.shape[0], fit[0])
+            consider("nearest", cand, fit)
     if best is None:
         return None
+    # The seeds are the hypothesis' own consensus (descriptor matches that agree with its
+    # map), not the verified matches: where the field is far from affine, some of those are
+    # accidental neighbours.
     _, label, pairs, n_cand, aff0 = best
     pairs = _clean(ref, dfm, pairs, settings.n_neighbors_max, settings, eps_um, ref + aff0(ref))
     if pairs.shape[0] < 4:
         return None
+    pairs = _filter_seeds(ref, dfm, pairs, spacing)
     aff = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
     return aff, pairs, n_cand, label
 
 
-def _fit(ref, dfm, pairs, bounds, settings, grid_um, weight):
+def fit_link_field(ref_xyz, def_xyz, matches, settings: LinkSettings | None = None):
+    """The regularised displacement field :func:`link_pair` returns, for given matches.
+
+    Fewer than 8 matches give an affine field; otherwise :func:`track.regularize.fit_field`
+    on a grid of ``grid_spacing_um`` (default 2 mean spacings) with ``smoothness``, refined
+    per component by :func:`track.regularize.fit_field_refined` unless ``refine_field`` is
+    off. Useful to compare a linker's field with the one the true matches give (its noise
+    floor).
+
+    Parameters
+    ----------
+    ref_xyz, def_xyz : array_like, shape (N, 3), (M, 3)
+        The clouds (µm).
+    matches : array_like of int, shape (K, 2)
+        ``[row_ref, row_def]``, K ≥ 4.
+    settings : LinkSettings, optional
+
+    Returns
+    -------
+    callable
+        ``u(xyz_um (P, 3)) -> (P, 3)`` µm.
+    """
+    settings = settings or LinkSettings()
+    ref = _validate_cloud("ref_xyz", ref_xyz)
+    dfm = _validate_cloud("def_xyz", def_xyz)
+    pairs = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    if pairs.shape[0] < 4:
+        raise InputError(f"matches must hold at least 4 pairs, got {pairs.shape[0]}")
+    if (
+        np.any(pairs < 0)
+        or np.any(pairs[:, 0] >= ref.shape[0])
+        or np.any(pairs[:, 1] >= dfm.shape[0])
+    ):
+        raise InputError("matches hold rows outside the clouds")
+    spacing = _mean_spacing(ref)
+    grid_um = settings.grid_spacing_um or 2.0 * spacing
+    pad = 1e-6 * max(np.ptp(ref), 1.0)
+    bounds = np.column_stack([ref.min(axis=0) - pad, ref.max(axis=0) + pad])
     x = ref[pairs[:, 0]]
     u = dfm[pairs[:, 1]] - x
     if pairs.shape[0] < 8:
         return fit_affine(x, u)
-    return fit_field(x, u, bounds, grid_um, settings.regularization, weight)
+    if settings.refine_field:
+        return fit_field_refined(
+            x,
+            u,
+            bounds,
+            grid_um,
+            settings.regularization,
+            settings.smoothness,
+            length_um=spacing,
+            seed=settings.seed,
+        )
+    return fit_field(x, u, bounds, grid_um, settings.regularization, settings.smoothness)
 
 
 def _failed(reason: str, spacing: float, history, t0: float) -> LinkResult:
@@ -519,6 +676,289 @@ def _failed(reason: str, spacing: float, history, t0: float) -> LinkResult:
         mean_spacing_um=spacing,
         seconds=time.perf_counter() - t0,
     )
+
+
+def _loo_noise(resid: np.ndarray, spacing: float) -> np.ndarray:
+    """Robust per-axis standard deviation (x, y, z) of match residuals, floored."""
+    if resid.shape[0] < 4:
+        return np.full(3, 0.05 * spacing)
+    mad = np.median(np.abs(resid - np.median(resid, axis=0)), axis=0)
+    return np.maximum(1.4826 * mad, 1e-3 * spacing)
+
+
+def _predict(ref, dfm, pairs, u_base, settings, spacing, rows=None):
+    """Displacement prediction at reference particles from the current matches.
+
+    ``u_base`` (the global field at every reference particle, (N, 3)) plus a
+    moving-least-squares polynomial fit (:func:`track.regularize.local_polynomial_predict`)
+    of the matched residuals about it, leave-one-out for matched particles. ``rows`` selects
+    the reference rows to predict (default all). Returns (prediction (R, 3), misfit (R, 3),
+    neighbour count (R,)).
+    """
+    rows = np.arange(ref.shape[0]) if rows is None else rows
+    x = ref[pairs[:, 0]]
+    r = dfm[pairs[:, 1]] - x - u_base[pairs[:, 0]]
+    slot = np.full(ref.shape[0], -1, dtype=np.int64)
+    slot[pairs[:, 0]] = np.arange(pairs.shape[0])
+    lp = local_polynomial_predict(
+        x,
+        r,
+        ref[rows],
+        n_neighbors=settings.local_neighbors,
+        radius_um=(settings.local_radius_um or 3.0 * spacing),
+        scale_um=(settings.local_scale_um or spacing),
+        exclude=slot[rows],
+        degree=settings.local_degree,
+    )
+    return u_base[rows] + lp.values_um, lp.misfit_um, lp.n_neighbors
+
+
+def _tolerance_limits(settings, spacing):
+    hi = settings.nn_max_distance_um or 0.45 * spacing
+    return min(0.1 * spacing, hi), hi
+
+
+def _tolerance(sigma, noise, settings, spacing):
+    """Per-particle tolerance semi-axes (x, y, z): κ × (noise ⊕ local error σ).
+
+    Each semi-axis lies in [lo, 1.7 hi] and the ellipsoid's volume is at most that of the
+    ball of radius ``hi`` (``nn_max_distance_um``, default 0.45 mean spacings): the chance
+    that an unrelated particle falls inside is what limits it, and a thin ellipsoid (the
+    lateral error is often ten times smaller than the axial) may reach further along its
+    long axis.
+    """
+    lo, hi = _tolerance_limits(settings, spacing)
+    sig = np.sqrt(noise**2 + np.where(np.isfinite(sigma), sigma, hi) ** 2)
+    t = np.clip(settings.tolerance_sigmas * sig, lo, 1.7 * hi)
+    vol = np.prod(t, axis=1)
+    shrink = np.minimum(1.0, (hi**3 / vol) ** (1.0 / 3.0))
+    return np.maximum(t * shrink[:, None], lo)
+
+
+def _neighbour_rms(x, resid, query, k, radius, exclude):
+    """RMS per axis of the ``k`` nearest ``resid`` rows around each query (Q, 3); inf if none."""
+    kk = min(k + 1, x.shape[0])
+    d, idx = cKDTree(x).query(query, kk, distance_upper_bound=radius)
+    d, idx = d.reshape(len(query), kk), idx.reshape(len(query), kk)
+    valid = np.isfinite(d) & (idx != exclude[:, None])
+    valid &= np.cumsum(valid, axis=1) <= k
+    r2 = np.where(valid[:, :, None], resid[np.where(valid, idx, 0)] ** 2, 0.0)
+    cnt = valid.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.sqrt(r2.sum(axis=1) / cnt[:, None])
+    out[cnt == 0] = np.inf
+    return out
+
+
+def _pair_keys(pairs, m):
+    return np.sort(pairs[:, 0] * m + pairs[:, 1])
+
+
+def _grow(
+    ref,
+    dfm,
+    pairs,
+    u_base,
+    refit_base,
+    settings,
+    spacing,
+    eps_fixed,
+    history,
+    start,
+    stop=None,
+    label="local",
+    grow=True,
+):
+    """Local matching grown from ``pairs`` until the match set is stable.
+
+    Each iteration (a) grows: passes that predict the unmatched reference particles with
+    at least three matched neighbours from those neighbours and add the unambiguous
+    matches to still free deformed particles (within ``growth_q`` of their tolerance);
+    (b) validates: predicts every particle leave-one-out, matches the whole clouds again and
+    removes outliers with the normalised median test (per-axis noise levels). It stops when
+    an iteration without growth changes nothing (or the set flips between two states).
+    """
+    ratio = settings.nn_ratio
+    m = dfm.shape[0]
+    noise = np.full(3, 0.05 * spacing)
+    last_pred = None
+    lo, hi = _tolerance_limits(settings, spacing)
+    calib = None  # (positions, leave-one-out residuals) of the last validated matches
+    k_cal = settings.local_neighbors
+    r_cal = settings.local_radius_um or 3.0 * spacing
+    seen: list[np.ndarray] = [_pair_keys(pairs, m)]
+    stop = settings.max_iterations if stop is None else stop
+    settle = not grow  # an iteration without growth passes
+    tabu = np.zeros(ref.shape[0], dtype=bool)  # rejected by the last median test
+    for it in range(start, stop + 1):
+        ts = time.perf_counter()
+        grown = 0
+        for _ in range(0 if settle else settings.growth_passes):
+            free_ref = ~tabu
+            free_ref[pairs[:, 0]] = False
+            rows = np.flatnonzero(free_ref)
+            if rows.size == 0:
+                break
+            pred, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing, rows)
+            near = nnb >= 3
+            rows, pred, misfit = rows[near], pred[near], misfit[near]
+            if rows.size == 0:
+                break
+            sigma = misfit
+            if calib is not None:
+                none = np.full(rows.size, -1)
+                sigma = np.maximum(sigma, _neighbour_rms(*calib, ref[rows], k_cal, r_cal, none))
+            tol = _tolerance(sigma, noise, settings, spacing)
+            cand, q = match_predicted(ref[rows] + pred, dfm, tol, ratio)
+            taken = np.zeros(m, dtype=bool)
+            taken[pairs[:, 1]] = True
+            cand = cand[~taken[cand[:, 1]] & (q <= settings.growth_q)]
+            if cand.shape[0] == 0:
+                break
+            pairs = np.vstack([pairs, np.column_stack([rows[cand[:, 0]], cand[:, 1]])])
+            grown += cand.shape[0]
+        if refit_base:
+            aff = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
+            u_base = aff(ref)
+        pred, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing)
+        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - pred[pairs[:, 0]]
+        noise = _loo_noise(resid, spacing)
+        # The local error scale: the polynomial's misfit, or the leave-one-out errors of the
+        # matched neighbours where larger (they show what the misfit misses: curvature,
+        # one-sided neighbourhoods at faces and fronts).
+        calib = (ref[pairs[:, 0]], resid)
+        slot = np.full(ref.shape[0], -1, dtype=np.int64)
+        slot[pairs[:, 0]] = np.arange(pairs.shape[0])
+        sigma = np.maximum(misfit, _neighbour_rms(*calib, ref, k_cal, r_cal, slot))
+        tol = _tolerance(sigma, noise, settings, spacing)
+        # Particles without matched neighbours rely on the global field alone: only once
+        # the growth has stopped, and where that field describes the matches well (a
+        # homogeneous field, sparse clouds).
+        lone = nnb < 3
+        if np.any(lone) and grown == 0:
+            x = ref[pairs[:, 0]]
+            spread = _loo_noise(dfm[pairs[:, 1]] - x - u_base[pairs[:, 0]], spacing)
+            t_base = settings.tolerance_sigmas * spread
+            if np.all(t_base <= hi):
+                pred[lone] = u_base[lone]
+                tol[lone] = np.maximum(t_base, lo)
+            else:
+                tol[lone] = 0.0
+        cand, q = match_predicted(ref + pred, dfm, np.maximum(tol, 1e-9 * spacing), ratio)
+        # While the front still moves, a particle matched for the first time must meet the
+        # growth criterion: the outer part of a tolerance ellipsoid is for re-validating
+        # matches and, once the growth has stopped, for the particles left among matched
+        # neighbours, not for guessing at the front.
+        was = np.zeros(ref.shape[0], dtype=bool)
+        was[pairs[:, 0]] = True
+        first_ok = (q <= settings.growth_q) | (grown == 0)
+        keep = (tol[cand[:, 0], 0] > 0) & (was[cand[:, 0]] | first_ok)
+        cand, q = cand[keep], q[keep]
+        eps = eps_fixed if eps_fixed is not None else np.maximum(noise, 0.02 * spacing)
+        # Where the local polynomial misses part of the field (steep fronts, interfaces), a
+        # right match deviates from its prediction by up to the local misfit: the median
+        # test allows for it.
+        eps = np.maximum(eps, np.where(np.isfinite(sigma), sigma, 0.0))[cand[:, 0]]
+        k = 2 * settings.n_neighbors_min
+        new = _clean(ref, dfm, cand, k, settings, eps, ref + pred)
+        # A match deep inside its ellipsoid (q ≤ growth_q / 2: an unrelated particle that
+        # close is improbable and the ratio test excludes a second one) stays: the median
+        # test couples neighbours and would flip a few right ones in and out.
+        sure = cand[q <= 0.5 * settings.growth_q]
+        if sure.shape[0]:
+            new = np.unique(np.vstack([new, sure]), axis=0)
+        # growth does not offer the median test's rejects again right away (it would
+        # flip between adding and removing them)
+        tabu[:] = False
+        tabu[cand[:, 0]] = True
+        tabu[new[:, 0]] = False
+        update = float("nan")
+        if last_pred is not None:
+            update = float(np.sqrt(np.mean(np.sum((pred - last_pred) ** 2, axis=1))))
+        last_pred = pred
+        history.append(
+            IterationRecord(
+                it,
+                label,
+                k,
+                int(cand.shape[0] + grown),
+                int(new.shape[0]),
+                int(cand.shape[0] - new.shape[0]),
+                update,
+                float(np.sqrt(np.sum(noise**2))),
+                time.perf_counter() - ts,
+            )
+        )
+        logger.debug("iteration %d: %s (grown %d)", it, history[-1], grown)
+        if new.shape[0] < 4:
+            return new  # nothing consistent is left: the caller reports it
+        keys = _pair_keys(new, m)
+        pairs = new
+        repeated = any(keys.shape == s.shape and np.array_equal(keys, s) for s in seen[-2:])
+        seen.append(keys)
+        if repeated:  # stable, or flipping between two sets
+            if grown == 0:
+                break
+            settle = True  # once more without growth: first matches may then use q ≤ 1
+        else:
+            settle = not grow
+    return pairs
+
+
+def increment_predictor(
+    previous_field: Callable[[np.ndarray], np.ndarray],
+    *,
+    scale: float = 1.0,
+    lagrangian: bool = True,
+    n_iterations: int = 4,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Predictor of the next increment of a series from the previous one.
+
+    For frames ``i−2 → i−1 → i`` linked incrementally, ``previous_field`` is the
+    displacement field of ``i−2 → i−1`` (e.g. ``LinkResult.displacement_field``), a function
+    of positions in frame ``i−2``. The returned callable predicts the displacement
+    ``i−1 → i`` at positions ``y`` of frame ``i−1`` as ``scale × previous_field(z)`` with
+    ``z + previous_field(z) = y`` (each particle repeats its previous step: constant
+    velocity of material points, ``lagrangian=True``; solved by fixed-point iteration) or
+    ``scale × previous_field(y)`` (a steady flow, ``lagrangian=False``). ``scale`` is the
+    ratio of the frame intervals (1 at a constant frame rate).
+
+    Pass it as ``link_pair(..., initial_guess=increment_predictor(prev.displacement_field))``;
+    :func:`link_pair` checks the guess against the clouds and falls back to its global
+    bootstrap when the motion changed too much.
+
+    Parameters
+    ----------
+    previous_field : callable
+        ``u(xyz_um (P, 3)) -> (P, 3)`` µm.
+    scale : float
+        Finite factor on the predicted increment.
+    lagrangian : bool
+        Follow material points (default) or hold the field in space.
+    n_iterations : int
+        Fixed-point iterations of the Lagrangian inversion (≥ 1).
+
+    Returns
+    -------
+    callable
+        ``guess(xyz_um (P, 3)) -> (P, 3)`` µm.
+    """
+    if not callable(previous_field):
+        raise InputError("previous_field must be a callable u(xyz_um) -> (P, 3) µm")
+    if not np.isfinite(scale):
+        raise InputError(f"scale must be finite, got {scale}")
+    if int(n_iterations) < 1:
+        raise InputError(f"n_iterations must be ≥ 1, got {n_iterations}")
+
+    def guess(xyz_um):
+        y = np.asarray(xyz_um, dtype=float)
+        u = np.asarray(previous_field(y), dtype=float)
+        if lagrangian:
+            for _ in range(int(n_iterations)):
+                u = np.asarray(previous_field(y - u), dtype=float)
+        return scale * u
+
+    return guess
 
 
 def link_pair(
@@ -540,8 +980,10 @@ def link_pair(
     settings : LinkSettings, optional
         Parameters; defaults when None.
     initial_guess : callable, optional
-        ``u(xyz_um (P, 3)) -> (P, 3)`` µm displacement estimate at reference points (e.g.
-        the previous increment's field). Replaces the global topology bootstrap.
+        ``u(xyz_um (P, 3)) -> (P, 3)`` µm displacement predictor at reference points (e.g.
+        the previous increment's field, :func:`previous_increment_predictor`). Its matches
+        replace the global topology bootstrap when they are consistent; otherwise the
+        bootstrap runs as without it.
 
     Returns
     -------
@@ -562,118 +1004,106 @@ def link_pair(
     ref = _validate_cloud("ref_xyz", ref_xyz)
     dfm = _validate_cloud("def_xyz", def_xyz)
     spacing = _mean_spacing(ref)
-    eps_um = settings.outlier_eps_um or 0.02 * spacing
-    grid_um = settings.grid_spacing_um or 2.0 * spacing
-    pad = 1e-6 * max(np.ptp(ref), 1.0)
-    bounds = np.column_stack([ref.min(axis=0) - pad, ref.max(axis=0) + pad])
+    eps_fixed = None
+    if settings.outlier_eps_xyz_um is not None:
+        eps_fixed = np.asarray(settings.outlier_eps_xyz_um, dtype=float)
+    elif settings.outlier_eps_um is not None:
+        eps_fixed = np.full(3, settings.outlier_eps_um)
+    eps_boot = eps_fixed if eps_fixed is not None else 0.02 * spacing
     n_min = min(ref.shape[0], dfm.shape[0])
     history: list[IterationRecord] = []
 
-    pairs = np.zeros((0, 2), dtype=np.int64)
-    if initial_guess is None:
+    pairs = None
+    if initial_guess is not None:
+        test = np.asarray(initial_guess(ref[:1]), dtype=float)
+        if test.shape != (1, 3) or not np.all(np.isfinite(test)):
+            raise InputError(
+                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
+            )
         ts = time.perf_counter()
-        boot = _bootstrap(ref, dfm, settings, spacing, eps_um)
+        u0 = np.asarray(initial_guess(ref), dtype=float)
+        if u0.shape != ref.shape or not np.all(np.isfinite(u0)):
+            raise InputError(
+                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
+            )
+        tol = np.full(ref.shape, settings.nn_max_distance_um or 0.45 * spacing)
+        cand, _ = match_predicted(ref + u0, dfm, tol, settings.nn_ratio)
+        guess_pairs = _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_boot, ref + u0)
+        history.append(
+            IterationRecord(
+                1,
+                "nearest",
+                settings.n_neighbors_max,
+                int(cand.shape[0]),
+                int(guess_pairs.shape[0]),
+                int(cand.shape[0] - guess_pairs.shape[0]),
+                float("nan"),
+                float("nan"),
+                time.perf_counter() - ts,
+            )
+        )
+        if guess_pairs.shape[0] >= max(4, settings.guess_min_fraction * n_min):
+            pairs, u_base, refit = guess_pairs, u0, False
+        else:
+            logger.info(
+                "initial_guess matched %d of %d particles; running the bootstrap instead",
+                guess_pairs.shape[0],
+                n_min,
+            )
+    if pairs is None:
+        ts = time.perf_counter()
+        boot = _bootstrap(ref, dfm, settings, spacing, eps_boot)
         if boot is None:
             return _failed(
                 "no consistent set of topology matches (bootstrap failed)", spacing, history, t0
             )
-        fld, pairs, n_cand, label = boot
-        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - fld(ref[pairs[:, 0]])
-        warp_err = _robust_rms(resid)
+        aff, pairs, n_cand, label = boot
+        u_base, refit = aff(ref), True
+        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - u_base[pairs[:, 0]]
         history.append(
             IterationRecord(
-                1,
+                len(history) + 1,
                 label,
                 settings.n_neighbors_max,
                 n_cand,
                 int(pairs.shape[0]),
                 n_cand - int(pairs.shape[0]),
                 float("nan"),
-                warp_err,
+                _robust_rms(resid),
                 time.perf_counter() - ts,
             )
         )
-        start = 2
-    else:
-        fld = initial_guess
-        test = np.asarray(fld(ref[:1]), dtype=float)
-        if test.shape != (1, 3) or not np.all(np.isfinite(test)):
-            raise InputError(
-                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
-            )
-        warp_err = float("inf")
-        start = 1
-
-    prev_u = np.asarray(fld(ref), dtype=float)
-    stalled = 0
-    for it in range(start, settings.max_iterations + 1):
-        ts = time.perf_counter()
-        k = settings.n_neighbors(it)
-        warped = ref + prev_u
-        radius = settings.search_radius_um or float(np.clip(4.0 * warp_err, spacing, 3.0 * spacing))
-        if warp_err < settings.nn_switch * spacing:
-            matcher = "nearest"
-            max_d = settings.nn_max_distance_um or float(
-                np.clip(5.0 * warp_err, 0.1 * spacing, 0.5 * spacing)
-            )
-            cand = match_nearest(warped, dfm, max_d, settings.nn_ratio)
-        elif it % 2 == 0 or it == start:
-            matcher = "topology-local"
-            cand = match_topology_local(
-                warped, dfm, max(k, 8), radius, settings.descriptor_size, settings.descriptor_ratio
-            )
-        else:
-            matcher = "histogram"
-            cand = match_displacement_histogram(
-                warped, dfm, k, radius, settings.hist_bin_um or 0.3 * spacing
-            )
-        new_pairs = _clean(ref, dfm, cand, k, settings, eps_um, warped)
-        if new_pairs.shape[0] < 4:
-            if pairs.shape[0] >= 4:
-                logger.debug(
-                    "iteration %d (%s) found too few matches; keeping previous", it, matcher
-                )
-                break
-            return _failed(
-                f"iteration {it} ({matcher}) found {new_pairs.shape[0]} matches",
-                spacing,
-                history,
-                t0,
-            )
-        weight = max(
-            settings.smoothness,
-            settings.smoothness * settings.stiffness_factor * 0.1 ** (it - start),
+    pairs = _grow(
+        ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history, len(history) + 1
+    )
+    if pairs.shape[0] < 4:
+        return _failed(f"only {pairs.shape[0]} consistent matches", spacing, history, t0)
+    fld = fit_link_field(ref, dfm, pairs, settings)
+    if settings.polish_iterations and pairs.shape[0] >= 8:
+        # Polish: the local predictions relative to the regularised field of all matches
+        # rather than to the starting field (an affine map or the previous increment),
+        # which leaves the local fits only what that field misses.
+        before = _pair_keys(pairs, dfm.shape[0])
+        start = len(history) + 1
+        polished = _grow(
+            ref,
+            dfm,
+            pairs,
+            np.asarray(fld(ref), dtype=float),
+            False,
+            settings,
+            spacing,
+            eps_fixed,
+            history,
+            start,
+            stop=start + settings.polish_iterations - 1,
+            label="polish",
+            grow=False,
         )
-        if settings.smoothness == 0:
-            weight = 0.0
-        fld = _fit(ref, dfm, new_pairs, bounds, settings, grid_um, weight)
-        u = np.asarray(fld(ref))
-        update = float(np.sqrt(np.mean(np.sum((u - prev_u) ** 2, axis=1))))
-        resid = dfm[new_pairs[:, 1]] - ref[new_pairs[:, 0]] - fld(ref[new_pairs[:, 0]])
-        warp_err = _robust_rms(resid)
-        same_count = abs(new_pairs.shape[0] - pairs.shape[0]) <= max(0, int(1e-3 * n_min))
-        pairs, prev_u = new_pairs, u
-        history.append(
-            IterationRecord(
-                it,
-                matcher,
-                k,
-                int(cand.shape[0]),
-                int(pairs.shape[0]),
-                int(cand.shape[0] - pairs.shape[0]),
-                update,
-                warp_err,
-                time.perf_counter() - ts,
-            )
-        )
-        logger.debug("iteration %d: %s", it, history[-1])
-        converged = (
-            matcher == "nearest" and update < settings.stall_tolerance * spacing and same_count
-        )
-        stalled = stalled + 1 if converged else 0
-        if stalled >= 1 and weight <= settings.smoothness:
-            break
-
+        changed = not np.array_equal(before, _pair_keys(polished, dfm.shape[0]))
+        if polished.shape[0] >= 4 and changed:
+            pairs = polished
+            fld = fit_link_field(ref, dfm, pairs, settings)
     pairs = pairs[np.argsort(pairs[:, 0])]
     return LinkResult(
         matches=pairs.astype(np.int64),

@@ -45,8 +45,10 @@ def normalized_median_test(
         Neighbours per test (≥ 3; reduced to P − 1 for small sets).
     threshold : float
         Normalised residual above which a match is rejected (> 0; 2 in W&S, 3 in the paper).
-    eps_um : float
-        Acceptable fluctuation level in µm (≥ 0), of the order of the displacement noise.
+    eps_um : float or array_like, shape (3,) or (P, 3)
+        Acceptable fluctuation level in µm (≥ 0), of the order of the displacement noise:
+        one value, one per component (x, y, z) when the noise is anisotropic (light-field
+        localisation: axial ≈ 10 × lateral), or one per particle and component.
 
     Returns
     -------
@@ -68,8 +70,14 @@ def normalized_median_test(
         raise InputError(f"n_neighbors must be ≥ 3, got {n_neighbors}")
     if not threshold > 0:
         raise InputError(f"threshold must be > 0, got {threshold}")
-    if not eps_um >= 0:
-        raise InputError(f"eps_um must be ≥ 0, got {eps_um}")
+    eps = np.asarray(eps_um, dtype=float)
+    if eps.shape not in ((), (3,), x.shape) or not np.all(eps >= 0):
+        raise InputError(
+            f"eps_um must be one value, 3 (x, y, z) or one row per point, ≥ 0, got shape "
+            f"{eps.shape}"
+        )
+    if not np.all(np.isfinite(eps)):
+        raise InputError("eps_um holds NaN or infinite values")
     p = x.shape[0]
     if p < 4:
         return np.ones(p, dtype=bool)
@@ -78,7 +86,7 @@ def normalized_median_test(
     nb = u[idx[:, 1:]]  # (P, k, 3)
     med = np.median(nb, axis=1)
     spread = np.median(np.abs(nb - med[:, None, :]), axis=1)
-    resid = np.abs(u - med) / (spread + eps_um)
+    resid = np.abs(u - med) / (spread + eps)
     return np.all(resid <= threshold, axis=1)
 
 

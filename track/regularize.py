@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import cg, splu
+from scipy.spatial import cKDTree
 
 from track.errors import InputError
 
@@ -402,3 +403,310 @@ def fit_field(
         extrapolation=extrapolation,
         info=info,
     )
+
+
+@dataclass(frozen=True)
+class LocalPrediction:
+    """Local polynomial regression of scattered values at query points.
+
+    Attributes
+    ----------
+    values_um : ndarray, shape (Q, 3)
+        Predicted value (e.g. displacement) at each query point, µm.
+    misfit_um : ndarray, shape (Q, 3)
+        Weighted RMS per component of the neighbours' values about the local fit, corrected
+        for the degrees of freedom, µm (how well the local polynomial describes the
+        neighbourhood); inf where too few neighbours were found to tell.
+    n_neighbors : ndarray of int, shape (Q,)
+        Neighbours used (within the radius, the excluded point left out).
+    degree : ndarray of int, shape (Q,)
+        Degree of the polynomial fitted at each query point (0 where no neighbour).
+    """
+
+    values_um: np.ndarray
+    misfit_um: np.ndarray
+    n_neighbors: np.ndarray
+    degree: np.ndarray
+
+
+def _monomials(dx: np.ndarray, degree: int) -> np.ndarray:
+    """Columns 1, x, y, z (and x², y², z², xy, xz, yz) of offsets ``dx`` (..., 3)."""
+    cols = [np.ones(dx.shape[:-1]), dx[..., 0], dx[..., 1], dx[..., 2]]
+    if degree == 2:
+        cols += [dx[..., 0] ** 2, dx[..., 1] ** 2, dx[..., 2] ** 2]
+        cols += [dx[..., 0] * dx[..., 1], dx[..., 0] * dx[..., 2], dx[..., 1] * dx[..., 2]]
+    return np.stack(cols, axis=-1)
+
+
+def _weighted_poly_fit(w, dx, vals, degree, ridge):
+    """Batched weighted least squares; returns (value at 0 (Q, 3), misfit (Q, 3))."""
+    design = _monomials(dx, degree)  # (Q, k, p)
+    p = design.shape[-1]
+    wdt = (design * w[:, :, None]).transpose(0, 2, 1)  # (Q, p, k)
+    normal = wdt @ design  # (Q, p, p)
+    rhs = wdt @ vals  # (Q, p, 3)
+    sw = normal[:, 0, 0].copy()
+    none = sw <= 0
+    idx = np.arange(1, p)
+    normal[:, idx, idx] += (ridge * sw)[:, None]
+    normal[:, 0, 0] += 1e-12 * sw
+    normal[none] = np.eye(p)
+    rhs[none] = 0.0
+    coef = np.linalg.solve(normal, rhs)  # (Q, p, 3)
+    res = vals - design @ coef
+    res2 = np.einsum("qk,qkc->qc", w, res * res)
+    # Effective neighbour count (Kish) and a degrees-of-freedom correction: p or fewer
+    # neighbours fit the polynomial exactly, so their misfit says nothing (inf).
+    k_eff = sw**2 / np.maximum(np.einsum("qk,qk->q", w, w), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(k_eff > p + 0.5, k_eff / (k_eff - p), np.inf)
+        misfit = np.sqrt(res2 / np.where(none, 1.0, sw)[:, None] * dof[:, None])
+    misfit[none] = np.inf
+    return coef[:, 0, :], misfit
+
+
+def local_polynomial_predict(
+    points_um,
+    values_um,
+    query_um,
+    n_neighbors: int = 12,
+    radius_um: float = np.inf,
+    *,
+    scale_um: float | None = None,
+    exclude=None,
+    ridge: float = 0.01,
+    degree: int = 1,
+    min_quadratic: int = 16,
+) -> LocalPrediction:
+    """Moving-least-squares polynomial fit of scattered values around each query point.
+
+    For query point ``q`` the ``n_neighbors`` nearest ``points_um`` within ``radius_um``
+    (minus ``exclude[q]``, e.g. ``q`` itself for a leave-one-out prediction) are weighted by
+    ``exp(−d² / (2 h²))`` with ``h = scale_um`` and fitted by an affine (``degree=1``) or
+    quadratic (``degree=2``) polynomial in ``x − q``; the prediction is its constant term. A
+    ridge ``ridge · Σw`` on the other coefficients (offsets in units of ``h``) keeps the fit
+    defined for few or coplanar neighbours (it then tends to their weighted mean). With
+    ``degree=2``, query points with fewer than ``min_quadratic`` neighbours get the affine
+    fit.
+
+    Parameters
+    ----------
+    points_um : array_like, shape (P, 3)
+        Positions of the known values (µm).
+    values_um : array_like, shape (P, 3)
+        Values at those positions.
+    query_um : array_like, shape (Q, 3)
+        Where to predict.
+    n_neighbors : int
+        Neighbours per fit (≥ 1).
+    radius_um : float
+        Largest neighbour distance (µm, > 0).
+    scale_um : float, optional
+        Weight length ``h``; default the median distance to the ``n_neighbors``-th neighbour.
+    exclude : array_like of int, shape (Q,), optional
+        Row of ``points_um`` not to use for each query point (−1: none).
+    ridge : float
+        Dimensionless ridge on the non-constant coefficients (≥ 0).
+    degree : {1, 2}
+        Polynomial degree.
+    min_quadratic : int
+        Fewest neighbours of a quadratic fit (≥ 11).
+
+    Returns
+    -------
+    LocalPrediction
+        Query points without any neighbour get value 0 and misfit inf.
+
+    Raises
+    ------
+    InputError
+        Bad shapes or parameters.
+    """
+    x = _as_points("points_um", points_um)
+    v = _as_points("values_um", values_um)
+    q = _as_points("query_um", query_um, allow_empty=True)
+    if v.shape != x.shape:
+        raise InputError(f"points_um {x.shape} and values_um {v.shape} differ in shape")
+    if int(n_neighbors) < 1:
+        raise InputError(f"n_neighbors must be ≥ 1, got {n_neighbors}")
+    if not radius_um > 0:
+        raise InputError(f"radius_um must be > 0, got {radius_um}")
+    if not ridge >= 0:
+        raise InputError(f"ridge must be ≥ 0, got {ridge}")
+    if degree not in (1, 2):
+        raise InputError(f"degree must be 1 or 2, got {degree}")
+    if int(min_quadratic) < 11:
+        raise InputError(f"min_quadratic must be ≥ 11, got {min_quadratic}")
+    nq = q.shape[0]
+    k = min(int(n_neighbors) + (exclude is not None), x.shape[0])
+    d, idx = cKDTree(x).query(q, k, distance_upper_bound=radius_um)
+    d, idx = d.reshape(nq, k), idx.reshape(nq, k)
+    valid = np.isfinite(d)
+    if exclude is not None:
+        ex = np.asarray(exclude, dtype=np.int64).reshape(nq)
+        valid &= idx != ex[:, None]
+    valid &= np.cumsum(valid, axis=1) <= int(n_neighbors)  # the n_neighbors nearest
+    safe = np.where(valid, idx, 0)
+    if scale_um is None:
+        far = np.max(np.where(valid, d, -np.inf), axis=1)
+        far = far[np.isfinite(far) & (far > 0)]
+        h = float(np.median(far)) if far.size else 1.0
+    else:
+        h = float(scale_um)
+        if not h > 0:
+            raise InputError(f"scale_um must be > 0, got {scale_um}")
+    w = np.exp(-0.5 * (np.where(valid, d, 0.0) / h) ** 2)
+    w[~valid] = 0.0  # (Q, k)
+    dx = (x[safe] - q[:, None, :]) / h  # dimensionless offsets
+    vals = v[safe]  # (Q, k, 3)
+    count = valid.sum(axis=1)
+    value = np.zeros((nq, 3))
+    misfit = np.full((nq, 3), np.inf)
+    deg = np.where(count > 0, 1, 0)
+    if degree == 2:
+        deg[count >= int(min_quadratic)] = 2
+    for dg in (1, 2):
+        sel = np.flatnonzero(deg == dg)
+        if sel.size:
+            value[sel], misfit[sel] = _weighted_poly_fit(w[sel], dx[sel], vals[sel], dg, ridge)
+    return LocalPrediction(values_um=value, misfit_um=misfit, n_neighbors=count, degree=deg)
+
+
+#: Candidate local corrections of :func:`fit_field_refined`: (scale in units of the given
+#: length, polynomial degree, neighbours).
+REFINE_CANDIDATES = ((1.0, 2, 20), (1.5, 2, 20), (1.0, 1, 12), (2.0, 1, 12))
+
+
+@dataclass(frozen=True)
+class RefinedDisplacement:
+    """A global field plus, per component, a local polynomial correction of its residuals.
+
+    ``u_c(x) = coarse_c(x) + MLS_c(x)`` where ``MLS_c`` is the moving-least-squares fit
+    (:func:`local_polynomial_predict`) of the residuals ``residual_um[:, c]`` at
+    ``points_um`` with the scale, degree and neighbour count chosen for component ``c``
+    (no correction where ``scale_um[c]`` is nan).
+
+    Attributes
+    ----------
+    coarse : callable
+        ``(P, 3) µm -> (P, 3) µm`` global field (e.g. :class:`GridDisplacement`).
+    points_um : ndarray, shape (K, 3)
+        Where the residuals are known.
+    residual_um : ndarray, shape (K, 3)
+        ``displacement − coarse`` at those points.
+    scale_um : ndarray, shape (3,)
+        Weight length of each component's correction (nan: none).
+    degree, n_neighbors : ndarray of int, shape (3,)
+        Degree and neighbour count of each component's correction.
+    info : dict
+        How the corrections were chosen (cross-validated errors).
+    """
+
+    coarse: object
+    points_um: np.ndarray
+    residual_um: np.ndarray
+    scale_um: np.ndarray
+    degree: np.ndarray
+    n_neighbors: np.ndarray
+    info: dict = field(default_factory=dict, compare=False)
+
+    def __call__(self, xyz_um) -> np.ndarray:
+        """Displacement (P, 3) in µm at points ``xyz_um`` (P, 3) in µm."""
+        x = _as_points("xyz_um", xyz_um, allow_empty=True)
+        out = np.array(self.coarse(x), dtype=float)
+        if x.shape[0] == 0:
+            return out
+        done = np.zeros(3, dtype=bool)
+        for c in range(3):
+            if done[c] or not np.isfinite(self.scale_um[c]):
+                continue
+            same = (
+                (self.scale_um == self.scale_um[c])
+                & (self.degree == self.degree[c])
+                & (self.n_neighbors == self.n_neighbors[c])
+            )
+            lp = local_polynomial_predict(
+                self.points_um,
+                self.residual_um,
+                x,
+                int(self.n_neighbors[c]),
+                3.0 * float(self.scale_um[c]),
+                scale_um=float(self.scale_um[c]),
+                degree=int(self.degree[c]),
+            )
+            out[:, same] += lp.values_um[:, same]
+            done |= same
+        return out
+
+
+def fit_field_refined(
+    points_um,
+    displacements_um,
+    bounds_um,
+    spacing_um,
+    method: str = "gridded",
+    weight: float = 1.0,
+    *,
+    length_um: float,
+    candidates=REFINE_CANDIDATES,
+    max_cv_points: int = 2000,
+    seed: int = 0,
+) -> RefinedDisplacement:
+    """A smooth gridded field refined locally where the data show more detail.
+
+    :func:`fit_field` first gives the global, stiff field; then, for each component, the
+    local polynomial corrections of its residuals in ``candidates`` are compared by
+    leave-one-out prediction error (on at most ``max_cv_points`` particles) with no
+    correction, and the best is kept. A homogeneous field keeps the global fit (its
+    residuals are noise, which no correction predicts); a field with features finer than the
+    grid (fronts, vortices, inclusions) gets a correction in the components that carry them,
+    with the resolution that predicts best, while a noisy component (the axial one of
+    light-field data) stays smooth.
+
+    Parameters
+    ----------
+    points_um, displacements_um, bounds_um, spacing_um, method, weight
+        As :func:`fit_field`.
+    length_um : float
+        Unit of the candidates' scales (µm, > 0), e.g. the mean particle spacing.
+    candidates : sequence of (scale, degree, n_neighbors)
+        Local corrections to try; scale in units of ``length_um``.
+    max_cv_points : int
+        Particles on which the leave-one-out errors are computed (a random subset).
+    seed : int
+        Seed of that subset.
+
+    Returns
+    -------
+    RefinedDisplacement
+        ``info`` holds ``cv_rms_um`` (component → {candidate: rms}) and the grid's ``info``.
+    """
+    x = _as_points("points_um", points_um)
+    u = _as_points("displacements_um", displacements_um)
+    if not (np.isfinite(length_um) and length_um > 0):
+        raise InputError(f"length_um must be finite and > 0, got {length_um}")
+    coarse = fit_field(x, u, bounds_um, spacing_um, method, weight)
+    r = u - coarse(x)
+    p = x.shape[0]
+    sub = np.arange(p)
+    if p > max_cv_points:
+        sub = np.sort(np.random.default_rng(seed).choice(p, int(max_cv_points), replace=False))
+    best_err = np.mean(r[sub] ** 2, axis=0)
+    cv: dict = {c: {"none": float(np.sqrt(best_err[c]))} for c in range(3)}
+    scale = np.full(3, np.nan)
+    degree = np.zeros(3, dtype=np.int64)
+    nnb = np.zeros(3, dtype=np.int64)
+    if p >= 20:
+        for sc, dg, k in candidates:
+            h = float(sc) * float(length_um)
+            lp = local_polynomial_predict(
+                x, r, x[sub], int(k), 3.0 * h, scale_um=h, exclude=sub, degree=int(dg)
+            )
+            err = np.mean((r[sub] - lp.values_um) ** 2, axis=0)
+            for c in range(3):
+                cv[c][f"{sc}/{dg}/{k}"] = float(np.sqrt(err[c]))
+                if err[c] < best_err[c]:
+                    best_err[c], scale[c], degree[c], nnb[c] = err[c], h, dg, k
+    info = {"coarse": coarse.info, "cv_rms_um": cv}
+    logger.debug("refined field: scales %s µm, degrees %s", scale, degree)
+    return RefinedDisplacement(coarse, x, r, scale, degree, nnb, info)

@@ -8,7 +8,6 @@ both frames. Ground truth comes from the particle ids.
 
 from __future__ import annotations
 
-import itertools
 import time
 
 import numpy as np
@@ -226,6 +225,16 @@ def test_nan_coordinates_named():
         ({"grid_spacing_um": -1.0}, "grid_spacing_um"),
         ({"descriptor_ratio": 1.5}, "descriptor_ratio"),
         ({"max_iterations": 0}, "max_iterations"),
+        ({"outlier_eps_xyz_um": (0.1, 0.1)}, "outlier_eps_xyz_um"),
+        ({"outlier_eps_xyz_um": (0.1, 0.1, -1.0)}, "outlier_eps_xyz_um"),
+        ({"outlier_eps_xyz_um": "big"}, "outlier_eps_xyz_um"),
+        ({"local_neighbors": 2}, "local_neighbors"),
+        ({"local_degree": 3}, "local_degree"),
+        ({"local_scale_um": 0.0}, "local_scale_um"),
+        ({"tolerance_sigmas": float("nan")}, "tolerance_sigmas"),
+        ({"growth_q": 1.5}, "growth_q"),
+        ({"guess_min_fraction": -0.1}, "guess_min_fraction"),
+        ({"polish_iterations": -1}, "polish_iterations"),
     ],
 )
 def test_settings_validated(kwargs, needle):
@@ -233,10 +242,9 @@ def test_settings_validated(kwargs, needle):
         LinkSettings(**kwargs)
 
 
-def test_neighbour_count_shrinks():
-    s = LinkSettings(n_neighbors_max=16, n_neighbors_min=5)
-    ks = [s.n_neighbors(i) for i in range(1, 8)]
-    assert ks[0] == 16 and ks[-1] == 5 and all(a >= b for a, b in itertools.pairwise(ks))
+def test_per_axis_noise_levels_are_kept_as_a_tuple():
+    s = LinkSettings(outlier_eps_xyz_um=np.array([0.3, 0.3, 3.0]))
+    assert s.outlier_eps_xyz_um == (0.3, 0.3, 3.0)
 
 
 def test_sparse_noisy_zero_motion_pairs_link_by_the_small_motion_bootstrap():
