@@ -661,36 +661,19 @@ def make_pair(
     field_name: str | KnownField,
     n: int = 1000,
     amplitude_spacings: float = 1.0,
-    *,
-    seed: int = 0,
-    noise_xyz_um=NOISE_XYZ_UM,
-    drop_fraction: float = 0.05,
-    cell_um: float = CELL_UM,
-    min_distance_fraction: float = MIN_DISTANCE_FRACTION,
-    crop: bool = True,
+    **options,
 ) -> SyntheticPair:
     """A synthetic reference / deformed pair: :func:`make_series` with two frames.
 
-    Parameters are those of :func:`make_series`; ``amplitude_spacings`` is the largest
-    displacement in mean spacings.
+    Parameters are those of :func:`make_series` (``options``: its keyword-only ones);
+    ``amplitude_spacings`` is the largest displacement in mean spacings.
 
     Returns
     -------
     SyntheticPair
         ``true_displacement_um = field(seeds_um)``.
     """
-    return make_series(
-        field_name,
-        n,
-        amplitude_spacings,
-        2,
-        seed=seed,
-        noise_xyz_um=noise_xyz_um,
-        drop_fraction=drop_fraction,
-        cell_um=cell_um,
-        min_distance_fraction=min_distance_fraction,
-        crop=crop,
-    ).pair(0, 1)
+    return make_series(field_name, n, amplitude_spacings, 2, **options).pair(0, 1)
 
 
 # ------------------------------------------------------------------------------- scoring
