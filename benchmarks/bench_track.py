@@ -28,18 +28,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from track.matching import link_pair
+from track.synthetic import poisson_disc_cloud
 
 
 def random_cloud(n: int, seed: int, d_min_um: float = 6.0, density_um3: float = 1e-3):
-    """``n`` uniform random points (µm) with pairwise distance ≥ ``d_min_um``."""
-    rng = np.random.default_rng(seed)
+    """``n`` uniform random points (µm) with pairwise distance ≥ ``d_min_um``, in a cube of
+    the given number density (:func:`track.synthetic.poisson_disc_cloud`)."""
     side = (n / density_um3) ** (1 / 3)
-    cand = rng.uniform(0.0, side, size=(2 * n, 3))
-    bad = np.zeros(cand.shape[0], dtype=bool)
-    for i, j in sorted(cKDTree(cand).query_pairs(d_min_um)):
-        if not bad[i]:
-            bad[j] = True
-    return cand[~bad][:n]
+    return poisson_disc_cloud(n, [(0.0, side)] * 3, d_min_um, seed=seed)
 
 
 def make_case(n: int, seed: int):
