@@ -375,6 +375,16 @@ def run_child(params: dict, env_extra: dict | None = None) -> dict:
     return row
 
 
+def render_image(path, particles: int, z_um, threads, what: str) -> bool:
+    """Render ``particles`` random particles (1e5 rays each) in a child; False on failure."""
+    case = {"case": "render", "particles": particles, "z": z_um, "rays": 100_000, "seed": 1}
+    r = run_child({**case, "out": str(path), "threads": threads})
+    if "error" in r:
+        print(f"rendering {what} failed: {r['error']}")
+        return False
+    return True
+
+
 def median(v):
     v = sorted(v)
     n = len(v)
@@ -389,19 +399,7 @@ def compare(args, tmp: Path, results: dict) -> None:
     import numpy as np
 
     img = tmp / "compare.npy"
-    r = run_child(
-        {
-            "case": "render",
-            "particles": 20,
-            "z": list(COMPARE_Z),
-            "rays": 100_000,
-            "seed": 1,
-            "out": str(img),
-            "threads": args.threads,
-        }
-    )
-    if "error" in r:
-        print(f"rendering the comparison image failed: {r['error']}")
+    if not render_image(img, 20, list(COMPARE_Z), args.threads, "the comparison image"):
         return
     print(
         f"\n== ours vs pyolaf {PYOLAF_VERSION}: one Richardson-Lucy iteration ==\n"
@@ -469,19 +467,7 @@ def paper(args, tmp: Path, results: dict, s_values: list[int]) -> None:
     from recon.geometry import depth_range
 
     img = tmp / "paper.npy"
-    r = run_child(
-        {
-            "case": "render",
-            "particles": 60,
-            "z": [100.0, 400.0],
-            "rays": 100_000,
-            "seed": 1,
-            "out": str(img),
-            "threads": args.threads,
-        }
-    )
-    if "error" in r:
-        print(f"rendering the paper frame failed: {r['error']}")
+    if not render_image(img, 60, [100.0, 400.0], args.threads, "the paper frame"):
         return
     depths = depth_range(*PAPER_Z).tolist()
     print(

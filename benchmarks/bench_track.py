@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from track.matching import link_pair
-from track.synthetic import poisson_disc_cloud
+from track.synthetic import poisson_disc_cloud, score_motion
 
 
 def random_cloud(n: int, seed: int, d_min_um: float = 6.0, density_um3: float = 1e-3):
@@ -56,18 +56,12 @@ def make_case(n: int, seed: int):
 
 
 def run_ours(case):
-    x, s, motion, a, b, ia, ib = case
+    x, _s, motion, a, b, ia, ib = case
     t0 = time.perf_counter()
     res = link_pair(a, b)
     dt = time.perf_counter() - t0
-    m = res.matches
-    good = ia[m[:, 0]] == ib[m[:, 1]]
-    common = np.intersect1d(ia, ib).size
-    xt = x[ia[m[:, 0]]]
-    truth = motion(xt) - xt
-    raw = np.sqrt(np.mean(np.sum((res.displacement_um - truth) ** 2, axis=1))) / s
-    fld = np.sqrt(np.mean(np.sum((res.displacement_field(xt) - truth) ** 2, axis=1))) / s
-    return dt, good.sum() / common, int((~good).sum()), raw, fld, res.iterations
+    ratio, wrong, raw, fld = score_motion(res, x, motion, ia, ib)
+    return dt, ratio, wrong, raw, fld, res.iterations
 
 
 def run_trackpy(case, range_spacings: float):

@@ -215,6 +215,18 @@ RUN_SETTINGS = (
 )
 
 
+def path_option(parser, flag: str, metavar: str, text: str) -> None:
+    """An optional file option (no default value)."""
+    parser.add_argument(flag, type=Path, metavar=metavar, help=text)
+
+
+def choice_option(parser, flag: str, choices: tuple[str, ...], text: str) -> None:
+    """An option among ``choices``; the first is the default."""
+    parser.add_argument(
+        flag, choices=choices, default=choices[0], help=f"{text} (default: {choices[0]})"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``recon`` argument parser (one sub-parser per command)."""
     from hrvbase.cli import Parser
@@ -229,11 +241,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     common = _common_options(suppress=True)
 
-    cal = sub.add_parser(
+    def command(name: str, text: str, description: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[common], help=text, description=description)
+
+    cal = command(
         "calibrate",
-        parents=[common],
-        help="fit the lenslet grid of a white image",
-        description="Fit the lenslet grid (pitch, rotation, offset) of a white image (a "
+        "fit the lenslet grid of a white image",
+        "Fit the lenslet grid (pitch, rotation, offset) of a white image (a "
         "uniformly fluorescent slide) and write it with the scene's optics to a JSON file.",
     )
     cal.add_argument("white", type=Path, metavar="WHITE.tif", help="white image, one 2-D TIFF")
@@ -264,11 +278,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.set_defaults(func=_cmd_calibrate)
 
-    pix = sub.add_parser(
+    pix = command(
         "pixel-size",
-        parents=[common],
-        help="measure the object-space pixel size from a stage micrometer image",
-        description="Measure the object-space size of a sensor pixel (µm per pixel) and the "
+        "measure the object-space pixel size from a stage micrometer image",
+        "Measure the object-space size of a sensor pixel (µm per pixel) and the "
         "microscope's true magnification from a light-field image of a stage micrometer in "
         "the native object plane (paper §4), with its standard uncertainty, and write them "
         "to a JSON file; --write-scene also writes the scene with the measured magnification "
@@ -283,31 +296,21 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="D",
         help="spacing of the micrometer's divisions in µm (e.g. 10)",
     )
-    pix.add_argument(
+    path_option(
+        pix,
         "--scene",
-        type=Path,
-        metavar="SCENE.xml",
-        help="scene file of the microscope (nominal optics); default: the scene named in the "
+        "SCENE.xml",
+        "scene file of the microscope (nominal optics); default: the scene named in the "
         "image's metadata (lfsim images)",
     )
-    pix.add_argument(
+    path_option(
+        pix,
         "--calib",
-        type=Path,
-        metavar="CALIB.json",
-        help="lenslet grid from `recon calibrate` (default: the scene's nominal grid)",
+        "CALIB.json",
+        "lenslet grid from `recon calibrate` (default: the scene's nominal grid)",
     )
-    pix.add_argument(
-        "--axis",
-        choices=("auto", "x", "y"),
-        default="auto",
-        help="image axis along which the divisions run (default: auto)",
-    )
-    pix.add_argument(
-        "--polarity",
-        choices=("bright", "dark"),
-        default="bright",
-        help="lines brighter (fluorescent, default) or darker than the background",
-    )
+    choice_option(pix, "--axis", ("auto", "x", "y"), "image axis along which the divisions run")
+    choice_option(pix, "--polarity", ("bright", "dark"), "lines brighter (fluorescent) or darker")
     pix.add_argument(
         "--tolerance",
         type=float,
@@ -318,11 +321,11 @@ def build_parser() -> argparse.ArgumentParser:
     pix.add_argument(
         "-o", "--output", type=Path, required=True, metavar="PIXEL.json", help="output file"
     )
-    pix.add_argument(
+    path_option(
+        pix,
         "--write-scene",
-        type=Path,
-        metavar="SCENE_MEASURED.xml",
-        help="also write the scene with the measured magnification (tube-lens focal length); "
+        "SCENE_MEASURED.xml",
+        "also write the scene with the measured magnification (tube-lens focal length); "
         "use it as recon run --scene (default: none)",
     )
     pix.add_argument(
@@ -332,11 +335,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pix.set_defaults(func=_cmd_pixel_size)
 
-    run = sub.add_parser(
+    run = command(
         "run",
-        parents=[common],
-        help="reconstruct volumes from light-field frames",
-        description="Reconstruct a time series of light-field frames into float32 volumes "
+        "reconstruct volumes from light-field frames",
+        "Reconstruct a time series of light-field frames into float32 volumes "
         "(z, y, x) with Richardson-Lucy deconvolution. Resumes an interrupted run; refuses an "
         "output folder made from other inputs or settings unless --overwrite.",
     )
@@ -397,12 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_setting_options(
         run, ReconSettings, RUN_SETTINGS, derived="from the optics (see recon.settings)"
     )
-    run.add_argument(
-        "--dark",
-        type=Path,
-        metavar="DARK.tif",
-        help="dark frame subtracted pixel by pixel (default: none)",
-    )
+    path_option(run, "--dark", "DARK.tif", "dark frame subtracted pixel by pixel (default: none)")
     run.add_argument(
         "--background",
         default="auto",
@@ -418,11 +415,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="X0:X1,Y0:Y1",
         help="reconstruct only the lenslets inside this pixel region (default: whole image)",
     )
-    run.add_argument(
+    choice_option(
+        run,
         "--device",
-        choices=("auto", "llvm", "cuda"),
-        default="auto",
-        help="Dr.Jit backend (default: auto, CUDA when available, else LLVM on the CPU)",
+        ("auto", "llvm", "cuda"),
+        "Dr.Jit backend (auto: CUDA when available, else LLVM on the CPU)",
     )
     run.add_argument(
         "-o",

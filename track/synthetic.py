@@ -719,6 +719,41 @@ class LinkScore:
     field_rmse_xyz_spacings: tuple[float, float, float]
 
 
+def score_motion(result, x_um, motion, ids_ref, ids_def) -> tuple[float, int, float, float]:
+    """Score a :class:`track.matching.LinkResult` of clouds made from ``x_um`` by ``motion``.
+
+    Parameters
+    ----------
+    result : LinkResult
+    x_um : ndarray, shape (N, 3)
+        The particles before the motion (µm).
+    motion : callable
+        ``motion(points (P, 3)) -> moved points (P, 3)``.
+    ids_ref, ids_def : ndarray of int
+        Row ``i`` of the reference (deformed) cloud is particle ``ids_ref[i]`` (``ids_def[i]``).
+
+    Returns
+    -------
+    tracking_ratio : float
+        Right matches over the particles present in both clouds.
+    wrong : int
+        Wrong matches.
+    rmse_matches, rmse_field : float
+        RMS error of the matched displacements and of the fitted field at the matched
+        particles, in mean spacings.
+    """
+    d, _ = cKDTree(x_um).query(x_um, 2)
+    s = float(d[:, 1].mean())
+    m = result.matches
+    good = ids_ref[m[:, 0]] == ids_def[m[:, 1]]
+    common = np.intersect1d(ids_ref, ids_def).size
+    xt = x_um[ids_ref[m[:, 0]]]
+    truth = motion(xt) - xt
+    raw = float(np.sqrt(np.mean(np.sum((result.displacement_um - truth) ** 2, axis=1)))) / s
+    fld = float(np.sqrt(np.mean(np.sum((result.displacement_field(xt) - truth) ** 2, axis=1))))
+    return int(good.sum()) / common, int((~good).sum()), raw, fld / s
+
+
 def score_link(pair: SyntheticPair, matches, displacement_field=None) -> LinkScore:
     """Score links ``matches`` (K, 2) ``[row_ref, row_def]`` against the truth of ``pair``.
 

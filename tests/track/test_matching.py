@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 
 from track.errors import InputError
 from track.matching import LinkSettings, link_pair
+from track.synthetic import score_motion
 
 NOISE = 0.01  # localisation noise, fraction of the mean spacing, per coordinate
 DROP = 0.05  # fraction of particles missing from each frame
@@ -69,15 +70,7 @@ def motions(x):
 
 def score(result, x, motion, ia, ib):
     """Tracking ratio of common particles, wrong matches, and RMSEs / mean spacing."""
-    s = mean_spacing(x)
-    m = result.matches
-    good = ia[m[:, 0]] == ib[m[:, 1]]
-    common = np.intersect1d(ia, ib).size
-    xt = x[ia[m[:, 0]]]
-    truth = motion(xt) - xt
-    raw = np.sqrt(np.mean(np.sum((result.displacement_um - truth) ** 2, axis=1))) / s
-    fld = np.sqrt(np.mean(np.sum((result.displacement_field(xt) - truth) ** 2, axis=1))) / s
-    return int(good.sum()) / common, int((~good).sum()), raw, fld
+    return score_motion(result, x, motion, ia, ib)
 
 
 CLOUD_1K = random_cloud(1000, seed=1)
