@@ -97,7 +97,7 @@ class VariantData:
     def load(cls, study, paths: VariantPaths) -> VariantData:
         from lfsim.io import read_json
         from lfsim.particles import Particles
-        from track.io import read_points_csv
+        from track.tables import read_points_csv
 
         n = study.experiment.frames
         tids, txyz, dets, noise = [], [], [], []
@@ -166,7 +166,7 @@ def _ratio_failure(where: str, ratio: float, reasons: list) -> list[str]:
 def _track_failures(paths: VariantPaths) -> dict[int, str]:
     """Pairs ``track`` could not link or grid, by deformed frame, from its ``summary.json``."""
     from hrvbase.errors import HrvError
-    from track.io import read_json
+    from hrvbase.io import read_json
 
     path = paths.track / "summary.json"
     try:
@@ -363,7 +363,8 @@ def analyse_series(data: VariantData) -> Analysis:
     from the *true* displacements of the same tracked particles — zero for homogeneous
     motions, the error no tracker can beat with this particle density otherwise.
     """
-    from track.io import read_field_npz, read_tracks_csv
+    from track.field_files import read_field_npz
+    from track.tables import read_tracks_csv
 
     st = data.study
     motion = st.experiment.motion

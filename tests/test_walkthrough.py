@@ -95,7 +95,7 @@ def test_camera_files_to_tracks(camera_export, tmp_path, capsys):
 
     from recon.cli import main as recon
     from track.cli import main as track
-    from track.io import read_tracks_csv
+    from track.tables import read_tracks_csv
 
     exp, dataset, true = camera_export
     before = _hashes(exp)

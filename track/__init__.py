@@ -30,8 +30,10 @@ Series (:mod:`track.series`)
     :class:`SeriesSettings`, :func:`track_series` (returns a :class:`SeriesResult`;
     incremental / cumulative modes,
     trajectories, Eulerian cumulation), :func:`link_tracks`, :func:`cumulate_eulerian`.
-Files (:mod:`track.io`)
-    point/match/track CSV tables, ``.npz`` and ``.vti`` fields, volume series.
+Files (:mod:`track.tables`, :mod:`track.field_files`, :mod:`track.volumes`)
+    point/match/track CSV tables; ``.npz`` and ParaView ``.vti`` fields; volume series
+    (TIFF volumes placed in object space from their metadata or ``recon.json``).
+    :mod:`track.io` re-exports all three for backward compatibility.
 Errors (:mod:`track.errors`)
     :class:`TrackError` and its :class:`InputError`, :class:`TrackingError`,
     :class:`FailedFramesError`.

@@ -12,7 +12,7 @@ Commands::
     track link A.csv B.csv [C.csv ...] -o RESULTS [--mode ...] [--grid-spacing-um X] ...
 
 ``VOLDIR`` holds numbered float32 volumes ``NNNNNN.tif`` (voxel size and origin in the TIFF
-metadata or in ``recon.json``, see :mod:`track.io` and docs/conventions.md §6); ``link``
+metadata or in ``recon.json``, see :mod:`track.volumes` and docs/conventions.md §6); ``link``
 takes point clouds (CSV with columns ``x_um, y_um, z_um``) from any localisation source,
 frame 0 first.
 
@@ -73,10 +73,11 @@ from hrvbase.cli import (
 )
 
 from . import __version__
-from . import io as tio
 from .errors import FailedFramesError
 from .fields import GridSettings
 from .series import MAX_GRID_NODES, MODES, SeriesSettings, check_grid
+from .tables import read_points_csv
+from .volumes import VolumeInfo, scan_volumes
 
 log = logging.getLogger("track.cli")
 
@@ -285,7 +286,7 @@ def _check_grid_option(args, extent_xyz_um, where: str) -> None:
     )
 
 
-def _check_edge_margin(settings, volume: tio.VolumeInfo) -> None:
+def _check_edge_margin(settings, volume: VolumeInfo) -> None:
     """Refuse an ``--edge-margin-um`` that leaves no voxel a blob could occupy (every blob
     would be dropped, and every frame fail)."""
     from hrvbase.errors import InputError
@@ -340,7 +341,7 @@ def cmd_detect(args) -> int:
     from .pipeline import track_volumes
 
     settings = detect_settings(args)
-    _check_edge_margin(settings, tio.scan_volumes(args.voldir)[0])
+    _check_edge_margin(settings, scan_volumes(args.voldir)[0])
     return _report(
         args,
         lambda: track_volumes(
@@ -354,7 +355,7 @@ def cmd_run(args) -> int:
     from .pipeline import track_volumes, volume_extent_um
 
     detect, series = detect_settings(args), series_settings(args)  # validate before any work
-    vols = tio.scan_volumes(args.voldir)
+    vols = scan_volumes(args.voldir)
     _check_edge_margin(detect, vols[0])
     _check_grid_option(args, volume_extent_um(vols[0]), "the volume")
     return _report(
@@ -376,7 +377,7 @@ def cmd_link(args) -> int:
 
     series = series_settings(args)
     if len(args.clouds) >= 2:
-        first = tio.read_points_csv(args.clouds[0])
+        first = read_points_csv(args.clouds[0])
         if first.shape[0] >= 2:
             _check_grid_option(args, np.ptp(first, axis=0), "frame 0's particles")
     return _report(

@@ -53,10 +53,12 @@ import numpy as np
 from hrvbase.errors import HrvError
 from hrvbase.io import file_record, read_json, sha256_file, verify_record, write_json
 
-from . import io as tio
 from .errors import FailedFramesError, InputError, TrackingError
+from .field_files import write_field_npz, write_field_vti
 from .fields import GridAxes, GridField
 from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, track_series
+from .tables import read_points_csv, write_matches_csv, write_points_csv, write_tracks_csv
+from .volumes import VolumeInfo, numbered, read_volume, scan_volumes
 
 log = logging.getLogger(__name__)
 
@@ -305,7 +307,7 @@ def _detect(detect):
     return detect
 
 
-def volume_extent_um(volume: tio.VolumeInfo) -> np.ndarray:
+def volume_extent_um(volume: VolumeInfo) -> np.ndarray:
     """Size ``(x, y, z)`` (µm) spanned by the voxel centres of a volume."""
     shape = np.asarray(volume.shape, dtype=float)  # (nz, ny, nx)
     vs = np.asarray(volume.voxel_size_um, dtype=float)  # (dz, dy, dx)
@@ -347,10 +349,10 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     reports: list[dict] = [{} for _ in vols]
     for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
         old = prev_frames.get(v.index)
-        part = tio.numbered(out / "particles", v.index, ".csv")
+        part = numbered(out / "particles", v.index, ".csv")
         if old and old.get("input_sha256") == f["input_sha256"]:
             if verify_record(part, old.get("particles_file")):
-                clouds[i] = tio.read_points_csv(part)
+                clouds[i] = read_points_csv(part)
                 frames[i] = {**old, **f, "reused": True}
             elif part.is_file():
                 log.warning(
@@ -367,18 +369,18 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     psf_note = (prev or {}).get("psf", "")
     t_det = time.perf_counter()
     if todo:
-        vol0 = tio.read_volume(vols[0])
+        vol0 = read_volume(vols[0])
         psf, psf_note = _first_psf(vol0, vols[0], settings)
         with _bar(len(todo), progress, "detect", "volume") as bar:
             for i in todo:
                 v = vols[i]
                 t0 = time.perf_counter()
-                vol = vol0 if i == 0 else tio.read_volume(v)
+                vol = vol0 if i == 0 else read_volume(v)
                 det = detect_particles(
                     vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um
                 )
-                part = tio.numbered(out / "particles", v.index, ".csv")
-                tio.write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
+                part = numbered(out / "particles", v.index, ".csv")
+                write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
                 clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
                 reports[i] = det.report
                 frames[i].update(
@@ -448,7 +450,7 @@ def _link_and_write(
     for k, pair in enumerate(res.pairs):
         ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
         mfile = out / f"matches_{def_id:06d}.csv"
-        tio.write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
+        write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
         lam = None if res.smoothing[k] is None else tuple(res.smoothing[k])
         entry = {
             "ref_frame": ref_id,
@@ -469,16 +471,14 @@ def _link_and_write(
         fld = res.total_fields[k]
         if fld is not None:
             base = out / "fields" / f"{def_id:06d}"
-            tio.write_field_npz(base.with_suffix(".npz"), fld, overwrite=True)
-            tio.write_field_vti(
-                base.with_suffix(".vti"), fld, encoding=vti_encoding, overwrite=True
-            )
+            write_field_npz(base.with_suffix(".npz"), fld, overwrite=True)
+            write_field_vti(base.with_suffix(".vti"), fld, encoding=vti_encoding, overwrite=True)
             entry["field"] = f"fields/{def_id:06d}"
             entry["mask_fraction"] = float(fld.mask.mean())
         inc = res.increment_fields[k]
         if inc is not None:
             p = out / "fields" / f"increment_{def_id:06d}.npz"
-            tio.write_field_npz(p, inc, overwrite=True)
+            write_field_npz(p, inc, overwrite=True)
             entry["increment_field"] = str(p.relative_to(out))
         increments.append(entry)
         outcomes.append(
@@ -498,7 +498,7 @@ def _link_and_write(
         )
     ids = np.asarray(frame_ids, dtype=np.int64)
     tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
-    tio.write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
+    write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
     summary["increments"] = increments
     summary["counts"] = {
         "frames": len(clouds),
@@ -617,7 +617,7 @@ def _finish(
 
 # -- public entry points ---------------------------------------------------------------------
 def track_volumes(
-    volumes: str | os.PathLike | Sequence[tio.VolumeInfo],
+    volumes: str | os.PathLike | Sequence[VolumeInfo],
     out_dir: str | os.PathLike,
     *,
     detect=None,
@@ -633,7 +633,7 @@ def track_volumes(
     Parameters
     ----------
     volumes : path or sequence of VolumeInfo
-        Folder of numbered float volumes ``NNNNNN.tif`` (see :func:`track.io.scan_volumes`),
+        Folder of numbered float volumes ``NNNNNN.tif`` (see :func:`track.volumes.scan_volumes`),
         or its scanned volumes.
     out_dir : path
         Results folder (module docstring); created.
@@ -672,11 +672,11 @@ def track_volumes(
     _check_vti(vti_encoding)
     if isinstance(volumes, str | os.PathLike):
         voldir = Path(volumes)
-        vols = tio.scan_volumes(voldir)  # validate the series before touching out_dir
+        vols = scan_volumes(voldir)  # validate the series before touching out_dir
         where: dict = {"voldir": str(voldir.resolve())}
     else:
         vols = list(volumes)
-        if not vols or not all(isinstance(v, tio.VolumeInfo) for v in vols):
+        if not vols or not all(isinstance(v, VolumeInfo) for v in vols):
             raise InputError("volumes must be a folder or a non-empty list of VolumeInfo")
         where = {"volumes": [str(Path(v.path).resolve()) for v in vols]}
     if series is not None and series.compute_fields:
@@ -711,7 +711,7 @@ def track_clouds(
     Parameters
     ----------
     clouds : sequence of (path or ndarray, shape (N_i, 3))
-        CSV tables with columns ``x_um, y_um, z_um`` (:func:`track.io.read_points_csv`) or
+        CSV tables with columns ``x_um, y_um, z_um`` (:func:`track.tables.read_points_csv`) or
         arrays of positions (µm, x, y, z); at least 2.
     out_dir : path
         Results folder (module docstring); created.
@@ -742,7 +742,7 @@ def track_clouds(
     points, sources, checks, names = [], [], [], []
     for i, c in enumerate(clouds):
         if isinstance(c, str | os.PathLike):
-            points.append(tio.read_points_csv(c))
+            points.append(read_points_csv(c))
             checks.append(sha256_file(c))
             sources.append(str(Path(c).resolve()))
             names.append(str(c))
@@ -767,8 +767,8 @@ def track_clouds(
     out.mkdir(parents=True, exist_ok=True)
     entries, frames = [], []
     for i, (name, c) in enumerate(zip(names, points, strict=True)):
-        part = tio.numbered(out / "particles", i, ".csv")
-        tio.write_points_csv(part, c, overwrite=True)
+        part = numbered(out / "particles", i, ".csv")
+        write_points_csv(part, c, overwrite=True)
         entries.append(
             {
                 "index": i,

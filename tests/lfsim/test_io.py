@@ -111,7 +111,7 @@ def test_volume_scale_and_origin_for_imagej_readers(tmp_path):
         "origin_xyz_um": list(origin),
     }
     # the track reader finds the same scale and origin
-    from track.io import scan_volumes
+    from track.volumes import scan_volumes
 
     (tmp_path / "series").mkdir()
     write_tiff(
@@ -157,7 +157,7 @@ def _write_previous_layout(path, arr, meta, pixel_size_um):
 
 
 def test_files_of_the_previous_layout_still_read(tmp_path):
-    from track.io import scan_volumes
+    from track.volumes import scan_volumes
 
     img = np.arange(20, dtype=np.uint16).reshape(4, 5)
     _write_previous_layout(tmp_path / "img.tif", img, {"frame": 1, "noise": None}, 1.6)
@@ -180,7 +180,7 @@ def test_files_of_the_previous_layout_still_read(tmp_path):
 
 def test_track_reads_a_volume_resaved_by_fiji(tmp_path):
     """Fiji keeps the ImageJ calibration but drops our private tags."""
-    from track.io import scan_volumes
+    from track.volumes import scan_volumes
 
     vol = np.zeros((3, 4, 5), np.float32)
     tifffile.imwrite(

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from track import io as tio
+from track import field_files, tables
 from track.cli import main
 
 from .conftest import random_centres, render_blobs
@@ -74,20 +74,20 @@ def test_link_writes_all_outputs(clouds, linked):
     for k in (1, 2):
         f = out / f"matches_{k:06d}.csv"
         assert f.read_text().splitlines()[0] == "row_ref,row_def,ux_um,uy_um,uz_um"
-        m, _ = tio.read_matches_csv(f)
+        m, _ = tables.read_matches_csv(f)
         assert len(m) >= 0.95 * N
         # row_ref in frame k-1 and row_def in frame k must be the same particle
         assert np.array_equal(ids[k - 1][m[:, 0]], ids[k][m[:, 1]])
         assert (out / "fields" / f"{k:06d}.npz").is_file()
         assert (out / "fields" / f"{k:06d}.vti").is_file()
     assert (out / "tracks.csv").read_text().startswith("frame,track_id,x_um,y_um,z_um\n")
-    t = tio.read_tracks_csv(out / "tracks.csv")
+    t = tables.read_tracks_csv(out / "tracks.csv")
     # the track id of a particle is its row in frame 0 (known through the permutations)
     for k in (1, 2):
         sel = t["frame"] == k
         xyz = np.c_[t["x_um"], t["y_um"], t["z_um"]][sel]
         rows = np.array(
-            [np.flatnonzero(np.all(tio.read_points_csv(paths[k]) == p, 1))[0] for p in xyz]
+            [np.flatnonzero(np.all(tables.read_points_csv(paths[k]) == p, 1))[0] for p in xyz]
         )
         matched = t["track_id"][sel] < N
         assert matched.mean() > 0.95
@@ -99,7 +99,7 @@ def test_link_writes_all_outputs(clouds, linked):
     assert all(len(i["smoothing_xyz"]) == 3 for i in s["increments"])  # GCV's λ, recorded
     assert s["parameters"]["series"]["grid"]["smoothing"] == "gcv"
     assert {"link_s", "fields_s", "total_s"} <= set(s["timings"])
-    g = tio.read_field_npz(out / "fields" / "000002.npz")
+    g = field_files.read_field_npz(out / "fields" / "000002.npz")
     gamma = 2 * g.e[..., 0, 2][g.mask]
     assert abs(np.median(gamma) - 0.04) < 0.004  # two 0.02 increments of simple shear
 
@@ -251,12 +251,12 @@ def test_run_end_to_end_and_resume(tmp_path, capsys):
     assert s["status"] == "complete" and len(s["frames"]) == 3 and s["failures"] == []
     assert all(len(f["input_sha256"]) == 64 for f in s["frames"])
     for k in range(3):
-        assert tio.read_points_csv(out / "particles" / f"{k:06d}.csv").shape[0] >= 10
+        assert tables.read_points_csv(out / "particles" / f"{k:06d}.csv").shape[0] >= 10
     for inc in s["increments"]:
         assert inc["status"] == "ok" and inc["tracking_ratio"] > 0.9
-        _, d = tio.read_matches_csv(out / f"matches_{inc['def_frame']:06d}.csv")
+        _, d = tables.read_matches_csv(out / f"matches_{inc['def_frame']:06d}.csv")
         assert np.allclose(np.median(d, axis=0), [1.5, 0, 0], atol=0.1)
-    g = tio.read_field_npz(out / "fields" / "000002.npz")
+    g = field_files.read_field_npz(out / "fields" / "000002.npz")
     assert np.allclose(np.median(g.u[g.mask], axis=0), [3.0, 0, 0], atol=0.15)
     # resume: detection is skipped for unchanged volumes, outputs are rewritten
     mtime = (out / "particles" / "000001.csv").stat().st_mtime_ns

@@ -1,4 +1,4 @@
-"""Files of track: CSV tables, gridded fields (npz, vti), volumes (track.io)."""
+"""Files of track: CSV tables, gridded fields (npz, vti), volume series, the track.io façade."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import tifffile
 
 from hrvbase.errors import InputError, OutputError
 from hrvbase.io import sha256_file, write_json
-from track import io
+from track import field_files, tables, volumes
 from track.fields import GridSettings, gridded_field
 from track.series import link_tracks
 
@@ -26,17 +26,17 @@ def _field():
 
 def test_points_csv_round_trip_and_extra_columns(tmp_path):
     xyz = np.random.default_rng(1).normal(size=(7, 3)) * 100
-    p = io.write_points_csv(tmp_path / "particles" / "000000.csv", xyz, np.arange(7.0))
+    p = tables.write_points_csv(tmp_path / "particles" / "000000.csv", xyz, np.arange(7.0))
     assert p.read_text().splitlines()[0] == "x_um,y_um,z_um,intensity"
-    assert np.array_equal(io.read_points_csv(p), xyz)  # repr() round-trips floats exactly
+    assert np.array_equal(tables.read_points_csv(p), xyz)  # repr() round-trips floats exactly
     other = tmp_path / "other.csv"
     other.write_text("id,z_um,y_um,x_um,note\n3,1.5,2.5,3.5,a\n4,4,5,6,b\n")
-    assert np.array_equal(io.read_points_csv(other), [[3.5, 2.5, 1.5], [6, 5, 4]])
+    assert np.array_equal(tables.read_points_csv(other), [[3.5, 2.5, 1.5], [6, 5, 4]])
     header_only = tmp_path / "h.csv"
     header_only.write_text("x_um,y_um,z_um\n")
-    assert io.read_points_csv(header_only).shape == (0, 3)
+    assert tables.read_points_csv(header_only).shape == (0, 3)
     with pytest.raises(OutputError, match="already exists"):
-        io.write_points_csv(p, xyz)
+        tables.write_points_csv(p, xyz)
     assert not list(tmp_path.glob("particles/.*.tmp"))
 
 
@@ -54,35 +54,35 @@ def test_bad_point_csv_names_file_and_line(tmp_path, text, match):
     p = tmp_path / "bad.csv"
     p.write_text(text)
     with pytest.raises(InputError, match=match) as info:
-        io.read_points_csv(p)
+        tables.read_points_csv(p)
     assert str(p) in str(info.value)
 
 
 def test_missing_csv(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
-        io.read_points_csv(tmp_path / "none.csv")
+        tables.read_points_csv(tmp_path / "none.csv")
 
 
 def test_matches_and_tracks_round_trip(tmp_path):
     m = np.array([[0, 2], [1, 0], [3, 1]])
     d = np.array([[0.1, 0.2, 0.3], [1, 2, 3], [-1, 0, 1.5]])
-    p = io.write_matches_csv(tmp_path / "matches_000001.csv", m, d)
+    p = tables.write_matches_csv(tmp_path / "matches_000001.csv", m, d)
     assert p.read_text().splitlines()[0] == "row_ref,row_def,ux_um,uy_um,uz_um"
-    m2, d2 = io.read_matches_csv(p)
+    m2, d2 = tables.read_matches_csv(p)
     assert np.array_equal(m2, m) and m2.dtype.kind == "i" and np.array_equal(d2, d)
     xyz = [np.zeros((4, 3)), np.ones((3, 3))]
     tr = link_tracks([4, 3], [m], positions_um=xyz)
-    p = io.write_tracks_csv(tmp_path / "tracks.csv", tr)
+    p = tables.write_tracks_csv(tmp_path / "tracks.csv", tr)
     assert p.read_text().splitlines()[0] == "frame,track_id,x_um,y_um,z_um"
-    t = io.read_tracks_csv(p)
+    t = tables.read_tracks_csv(p)
     assert list(t["frame"]) == [0, 0, 0, 0, 1, 1, 1]
     assert sorted(t["track_id"][t["frame"] == 1]) == [0, 1, 3]
 
 
 def test_field_npz_round_trip(tmp_path):
     g = _field()
-    p = io.write_field_npz(tmp_path / "fields" / "000001.npz", g)
-    g2 = io.read_field_npz(p)
+    p = field_files.write_field_npz(tmp_path / "fields" / "000001.npz", g)
+    g2 = field_files.read_field_npz(p)
     for k in ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask"):
         assert np.array_equal(getattr(g2, k), getattr(g, k))
 
@@ -149,7 +149,7 @@ def _check_vti_against_truth(points, arrays, g):
 @pytest.mark.parametrize("encoding", ["binary", "ascii"])
 def test_vti_holds_the_field_at_each_point(tmp_path, encoding):
     g = _field()
-    p = io.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
+    p = field_files.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
     _check_vti_against_truth(*_read_vti_xml(p), g)
 
 
@@ -161,7 +161,7 @@ def test_vti_reads_in_vtk(tmp_path, encoding):
     from vtkmodules.vtkIOXML import vtkXMLImageDataReader
 
     g = _field()
-    p = io.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
+    p = field_files.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
     reader = vtkXMLImageDataReader()
     reader.SetFileName(str(p))
     reader.Update()
@@ -187,21 +187,21 @@ def _volume(path, vs=(5.0, 1.6, 1.6), meta=None):
 def test_scan_volume_series_with_metadata(tmp_path):
     for k in range(3):
         _volume(tmp_path / f"{k:06d}.tif", meta={"origin_um": [10.0, 20.0], "depths_um": [-5]})
-    vols = io.scan_volumes(tmp_path)
+    vols = volumes.scan_volumes(tmp_path)
     assert [v.index for v in vols] == [0, 1, 2]
     assert vols[0].shape == (4, 6, 5) and vols[0].voxel_size_um == (5.0, 1.6, 1.6)
     assert vols[0].origin_xyz_um == pytest.approx((10.8, 20.8, -5.0))
-    assert io.read_volume(vols[1]).dtype == np.float32
+    assert volumes.read_volume(vols[1]).dtype == np.float32
 
 
 def test_recon_json_supplies_voxel_size(tmp_path):
     for k in range(2):
         _volume(tmp_path / f"{k:06d}.tif", vs=None)
     with pytest.raises(InputError, match="no voxel size"):
-        io.scan_volumes(tmp_path)
+        volumes.scan_volumes(tmp_path)
     recon = {"voxel_size_um": [4, 2, 2], "grid": {"origin_um": [0, 0], "depths_um": [100, 104]}}
     (tmp_path / "recon.json").write_text(json.dumps(recon))
-    vols = io.scan_volumes(tmp_path)
+    vols = volumes.scan_volumes(tmp_path)
     assert vols[1].voxel_size_um == (4.0, 2.0, 2.0)
     assert vols[1].origin_xyz_um == pytest.approx((1.0, 1.0, 100.0))
 
@@ -210,7 +210,7 @@ def test_mismatched_voxel_sizes(tmp_path):
     _volume(tmp_path / "000000.tif")
     _volume(tmp_path / "000001.tif", vs=(5.0, 1.7, 1.6))
     with pytest.raises(InputError, match="mismatched voxel sizes") as info:
-        io.scan_volumes(tmp_path)
+        volumes.scan_volumes(tmp_path)
     assert "000001.tif" in str(info.value)
 
 
@@ -218,16 +218,28 @@ def test_missing_volume_in_series(tmp_path):
     for k in (0, 1, 3):
         _volume(tmp_path / f"{k:06d}.tif")
     with pytest.raises(InputError, match=r"000002\.tif is missing"):
-        io.scan_volumes(tmp_path)
+        volumes.scan_volumes(tmp_path)
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(InputError, match="no numbered volumes"):
-        io.scan_volumes(empty)
+        volumes.scan_volumes(empty)
     with pytest.raises(InputError, match="not a folder"):
-        io.scan_volumes(tmp_path / "000000.tif")
+        volumes.scan_volumes(tmp_path / "000000.tif")
 
 
 def test_json_writes_nan_as_null(tmp_path):
     p = write_json(tmp_path / "s.json", {"a": float("nan"), "b": np.float32(1.5), "c": [1]})
     assert json.loads(p.read_text()) == {"a": None, "b": 1.5, "c": [1]}
     assert len(sha256_file(p)) == 64
+
+
+def test_io_facade_re_exports_the_three_modules():
+    from track import io
+
+    owners = (tables, field_files, volumes)
+    for name in io.__all__:
+        homes = [m for m in owners if name in m.__all__]
+        assert len(homes) == 1, f"track.io.{name} is defined in {len(homes)} modules"
+        assert getattr(io, name) is getattr(homes[0], name)
+    assert {*tables.__all__, *field_files.__all__} <= set(io.__all__)
+    assert {"VolumeInfo", "numbered", "read_volume", "scan_volumes"} <= set(io.__all__)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import track
-from track import io as tio
+from track import field_files, tables
 from track.errors import FailedFramesError, InputError
 from track.fields import GridSettings
 from track.pipeline import TrackResult, track_clouds, track_volumes
@@ -46,7 +46,7 @@ def test_track_clouds_returns_what_it_writes(tmp_path):
     fld = res.pairs[1].field
     gamma = 2 * fld.e[..., 0, 2][fld.mask]
     assert abs(np.median(gamma) - 0.04) < 0.004  # two 0.02 increments
-    disk = tio.read_field_npz(tmp_path / "r" / "fields" / "000002.npz")
+    disk = field_files.read_field_npz(tmp_path / "r" / "fields" / "000002.npz")
     assert np.array_equal(disk.u, fld.u) and np.array_equal(disk.mask, fld.mask)
     assert res.grid is not None and res.grid.shape == disk.u.shape[:3]
     # trajectories: frame 0 row r is track r in every frame
@@ -104,7 +104,7 @@ def test_track_volumes_detects_resumes_and_links(tmp_path):
     assert res.command == "detect" and res.pairs == () and res.tracks is None
     assert [f.index for f in res.frames] == [0, 1, 2] and all(f.n >= 10 for f in res.frames)
     assert not any(f.reused for f in res.frames) and res.frames[0].report
-    stored = tio.read_points_csv(out / "particles" / "000001.csv")
+    stored = tables.read_points_csv(out / "particles" / "000001.csv")
     assert np.allclose(stored, res.frames[1].positions_um, atol=1e-6)
     series = SeriesSettings(grid=GridSettings(spacing_um=4.0))
     res2 = track_volumes(vols, out, detect=det, series=series)  # same detection: resumed

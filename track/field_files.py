@@ -1,0 +1,127 @@
+"""Files of gridded fields (:class:`~track.fields.GridField`): ``.npz`` and ParaView ``.vti``.
+
+Every writer is **atomic** and refuses to replace an existing file unless ``overwrite=True``
+(:mod:`hrvbase.io`). Lengths in µm (docs/conventions.md §6.4):
+
+- ``fields/NNNNNN.npz``: arrays ``x_um, y_um, z_um, u, F, E, e, mask`` of a
+  :class:`~track.fields.GridField`;
+- ``fields/NNNNNN.vti``: VTK XML ImageData (our own writer, no vtk dependency), origin and
+  spacing in µm, point data ``displacement`` (3 components), ``F``, ``E``, ``e`` (9
+  components, row-major: ParaView shows them as tensors), scalars ``E_xx … e_yz``,
+  ``gamma_xz`` (= 2 e_xz) and ``mask``; inline ``ascii`` or ``binary`` (base64 of a UInt64
+  byte count followed by the little-endian values, one base64 stream).
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+from pathlib import Path
+
+import numpy as np
+
+from hrvbase.io import atomic_path, atomic_write_text
+
+from .errors import InputError
+from .fields import GridField
+
+_FIELD_ARRAYS = ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask")
+
+
+def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool = False) -> Path:
+    """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``)."""
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **{k: getattr(fld, k) for k in _FIELD_ARRAYS})
+    return Path(path)
+
+
+def read_field_npz(path: str | os.PathLike) -> GridField:
+    """Read a field written by :func:`write_field_npz`."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in _FIELD_ARRAYS}
+    except FileNotFoundError:
+        raise InputError(f"{path} does not exist") from None
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(f"cannot read field file {path}: {exc}") from exc
+    return GridField(**arrays)
+
+
+_SCALARS = ("xx", "yy", "zz", "xy", "xz", "yz")
+_IJ = {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+
+
+def vti_arrays(fld: GridField) -> dict[str, np.ndarray]:
+    """Point-data arrays of the VTI file, each ``(nz*ny*nx, ncomp)`` in VTK point order."""
+    n = int(np.prod(fld.shape))
+    arrays = {"displacement": fld.u.reshape(n, 3)}
+    for name in ("F", "E", "e"):
+        arrays[name] = getattr(fld, name).reshape(n, 9)
+    for name in ("E", "e"):
+        t = getattr(fld, name).reshape(n, 3, 3)
+        for c in _SCALARS:
+            i, j = _IJ[c]
+            arrays[f"{name}_{c}"] = t[:, i, j].reshape(n, 1)
+    arrays["gamma_xz"] = 2.0 * fld.e.reshape(n, 3, 3)[:, 0, 2].reshape(n, 1)
+    arrays["mask"] = fld.mask.reshape(n, 1).astype(np.uint8)
+    return arrays
+
+
+def write_field_vti(
+    path: str | os.PathLike,
+    fld: GridField,
+    *,
+    encoding: str = "binary",
+    overwrite: bool = False,
+) -> Path:
+    """Write a :class:`GridField` as VTK XML ImageData (``.vti``), readable by ParaView.
+
+    Parameters
+    ----------
+    path : path
+    fld : GridField
+    encoding : {"binary", "ascii"}
+        Inline base64 (UInt64 byte count + little-endian data, one base64 stream) or text.
+    overwrite : bool
+
+    Notes
+    -----
+    VTK point order (x fastest, then y, then z) is the C order of our ``(nz, ny, nx)``
+    arrays. Floating-point arrays are written as Float32. Tensors are 9 components,
+    row-major (``F_xx, F_xy, F_xz, F_yx, …``).
+    """
+    if encoding not in ("binary", "ascii"):
+        raise InputError(f"encoding must be 'binary' or 'ascii', got {encoding!r}")
+    nz, ny, nx = fld.shape
+    dx, dy, dz = fld.spacing_xyz_um
+    x0, y0, z0 = fld.origin_xyz_um
+    ext = f"0 {nx - 1} 0 {ny - 1} 0 {nz - 1}"
+    parts = [
+        '<?xml version="1.0"?>',
+        '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" header_type="UInt64">',
+        f'  <ImageData WholeExtent="{ext}" Origin="{x0!r} {y0!r} {z0!r}" '
+        f'Spacing="{dx!r} {dy!r} {dz!r}">',
+        f'    <Piece Extent="{ext}">',
+        '      <PointData Vectors="displacement" Tensors="F" Scalars="E_xx">',
+    ]
+    for name, arr in vti_arrays(fld).items():
+        if arr.dtype == np.uint8:
+            data, vtype = arr.astype("<u1"), "UInt8"
+        else:
+            data, vtype = arr.astype("<f4"), "Float32"
+        if encoding == "binary":
+            raw = data.tobytes()
+            body = base64.b64encode(np.uint64(len(raw)).astype("<u8").tobytes() + raw).decode()
+        else:
+            fmt = "%d" if vtype == "UInt8" else "%.7g"
+            body = " ".join(fmt % v for v in data.ravel())
+        parts.append(
+            f'        <DataArray type="{vtype}" Name="{name}" '
+            f'NumberOfComponents="{arr.shape[1]}" format="{encoding}">{body}</DataArray>'
+        )
+    parts += ["      </PointData>", "    </Piece>", "  </ImageData>", "</VTKFile>", ""]
+    return atomic_write_text(path, "\n".join(parts), overwrite=overwrite)
+
+
+__all__ = ["read_field_npz", "vti_arrays", "write_field_npz", "write_field_vti"]
