@@ -33,6 +33,7 @@ from scipy.sparse.linalg import cg, splu
 from scipy.spatial import cKDTree
 
 from track.errors import InputError
+from track.fields import GridAxes
 
 logger = logging.getLogger(__name__)
 
@@ -134,81 +135,130 @@ def fit_affine(points_um, displacements_um, weights=None) -> AffineDisplacement:
 class GridDisplacement:
     """Displacement sampled on a regular grid, evaluated by trilinear interpolation.
 
+    The same grid and array order as :class:`track.fields.GridField`: node ``(k, j, i)``
+    lies at ``origin_xyz_um + (i, j, k) * spacing_xyz_um``. :attr:`axes` gives the grid as
+    :class:`track.fields.GridAxes`, :meth:`from_axes` builds a field from one.
+
     Attributes
     ----------
-    origin_um : ndarray, shape (3,)
-        Position of grid node (0, 0, 0) in µm (x, y, z).
-    spacing_um : ndarray, shape (3,)
-        Node spacing along x, y, z in µm (> 0).
-    values_um : ndarray, shape (nx, ny, nz, 3)
-        Displacement (ux, uy, uz) in µm at the nodes (indexed x, y, z).
+    origin_xyz_um : ndarray, shape (3,)
+        Position of the first node ``(x0, y0, z0)`` in µm.
+    spacing_xyz_um : ndarray, shape (3,)
+        Node spacing ``(dx, dy, dz)`` in µm (> 0).
+    values_um : ndarray, shape (nz, ny, nx, 3)
+        Displacement (ux, uy, uz) in µm at the nodes, in array order (z, y, x).
     extrapolation : {"linear", "nearest"}
         Outside the grid, continue the boundary cell linearly or hold the boundary value.
+    info : dict
+        How the field was fitted (see :func:`fit_field`).
     """
 
-    origin_um: np.ndarray
-    spacing_um: np.ndarray
+    origin_xyz_um: np.ndarray
+    spacing_xyz_um: np.ndarray
     values_um: np.ndarray
     extrapolation: str = "linear"
     info: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
-        o = np.asarray(self.origin_um, dtype=float)
-        h = np.asarray(self.spacing_um, dtype=float)
+        o = np.asarray(self.origin_xyz_um, dtype=float)
+        h = np.asarray(self.spacing_xyz_um, dtype=float)
         v = np.asarray(self.values_um, dtype=float)
         if o.shape != (3,) or h.shape != (3,):
-            raise InputError("origin_um and spacing_um must have shape (3,)")
+            raise InputError("origin_xyz_um and spacing_xyz_um must have shape (3,)")
+        if not np.all(np.isfinite(o)):
+            raise InputError(f"origin_xyz_um must be finite, got {o}")
         if not np.all(h > 0) or not np.all(np.isfinite(h)):
-            raise InputError(f"spacing_um must be finite and > 0, got {h}")
+            raise InputError(f"spacing_xyz_um must be finite and > 0, got {h}")
         if v.ndim != 4 or v.shape[3] != 3 or min(v.shape[:3]) < 2:
-            raise InputError(f"values_um must have shape (nx, ny, nz, 3) with n ≥ 2, got {v.shape}")
+            raise InputError(f"values_um must have shape (nz, ny, nx, 3) with n ≥ 2, got {v.shape}")
         if not np.all(np.isfinite(v)):
             raise InputError("values_um holds NaN or infinite displacements")
         if self.extrapolation not in EXTRAPOLATIONS:
             raise InputError(
                 f"extrapolation must be one of {EXTRAPOLATIONS}, got {self.extrapolation!r}"
             )
-        object.__setattr__(self, "origin_um", o)
-        object.__setattr__(self, "spacing_um", h)
+        object.__setattr__(self, "origin_xyz_um", o)
+        object.__setattr__(self, "spacing_xyz_um", h)
         object.__setattr__(self, "values_um", v)
+
+    @classmethod
+    def from_axes(
+        cls, axes: GridAxes, values_um, extrapolation: str = "linear"
+    ) -> GridDisplacement:
+        """Field on the nodes of ``axes`` (evenly spaced), ``values_um`` (nz, ny, nx, 3) µm.
+
+        Raises
+        ------
+        InputError
+            An axis of ``axes`` is not evenly spaced (relative tolerance 1e-9), or
+            ``values_um`` does not match its shape.
+        """
+        for name in ("x_um", "y_um", "z_um"):
+            step = np.diff(getattr(axes, name))
+            if not np.allclose(step, step.mean(), rtol=1e-9, atol=0.0):
+                raise InputError(f"GridDisplacement needs evenly spaced nodes; axes.{name} is not")
+        v = np.asarray(values_um, dtype=float)
+        if v.shape != (*axes.shape, 3):
+            raise InputError(
+                f"values_um must have shape {(*axes.shape, 3)} (nz, ny, nx, 3) of the axes, "
+                f"got {v.shape}"
+            )
+        return cls(axes.origin_xyz_um, axes.spacing_xyz_um, v, extrapolation)
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        """Number of nodes (nx, ny, nz)."""
+        """Number of nodes ``(nz, ny, nx)``."""
         return tuple(int(n) for n in self.values_um.shape[:3])
 
+    def _axis_um(self, a: int) -> np.ndarray:
+        """Node coordinates along x (``a = 0``), y (1) or z (2), µm."""
+        return self.origin_xyz_um[a] + self.spacing_xyz_um[a] * np.arange(self.shape[2 - a])
+
+    @property
+    def axes(self) -> GridAxes:
+        """The grid as :class:`track.fields.GridAxes`."""
+        return GridAxes(self._axis_um(0), self._axis_um(1), self._axis_um(2))
+
     def node_xyz_um(self) -> np.ndarray:
-        """Node positions, shape (nx, ny, nz, 3), in µm."""
-        axes = [
-            self.origin_um[a] + self.spacing_um[a] * np.arange(n) for a, n in enumerate(self.shape)
-        ]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+        """Node positions, shape (nz, ny, nx, 3), columns x, y, z in µm."""
+        z, y, x = np.meshgrid(self._axis_um(2), self._axis_um(1), self._axis_um(0), indexing="ij")
+        return np.stack([x, y, z], axis=-1)
 
     def __call__(self, xyz_um) -> np.ndarray:
         """Displacement (P, 3) in µm at points ``xyz_um`` (P, 3) in µm."""
         x = _as_points("xyz_um", xyz_um, allow_empty=True)
         mat = interpolation_matrix(
-            x, self.origin_um, self.spacing_um, self.shape, self.extrapolation
+            x, self.origin_xyz_um, self.spacing_xyz_um, self.shape, self.extrapolation
         )
         return np.asarray(mat @ self.values_um.reshape(-1, 3))
 
 
 def interpolation_matrix(
     xyz_um: np.ndarray,
-    origin_um: np.ndarray,
-    spacing_um: np.ndarray,
+    origin_xyz_um: np.ndarray,
+    spacing_xyz_um: np.ndarray,
     shape: tuple[int, int, int],
     extrapolation: str = "linear",
 ) -> sp.csr_matrix:
-    """Sparse trilinear interpolation matrix ``B`` (P × nx·ny·nz), C-order node index.
+    """Sparse trilinear interpolation matrix ``B`` (P × nz·ny·nx) of a regular grid.
 
-    Points outside the grid use the nearest boundary cell; with ``extrapolation="linear"``
-    its trilinear polynomial is continued, with ``"nearest"`` the local coordinates are
-    clipped (boundary values are held).
+    Parameters
+    ----------
+    xyz_um : ndarray, shape (P, 3)
+        Points (x, y, z) in µm.
+    origin_xyz_um, spacing_xyz_um : ndarray, shape (3,)
+        First node and node spacing, (x, y, z) in µm.
+    shape : tuple of int
+        Node counts ``(nz, ny, nx)``; columns of ``B`` are nodes in C order over (z, y, x),
+        so ``B @ values.reshape(-1, 3)`` interpolates ``values`` of shape (nz, ny, nx, 3).
+    extrapolation : {"linear", "nearest"}
+        Points outside the grid use the nearest boundary cell; ``"linear"`` continues its
+        trilinear polynomial, ``"nearest"`` clips the local coordinates (boundary values are
+        held).
     """
     p = xyz_um.shape[0]
-    n = np.asarray(shape)
-    f = (xyz_um - origin_um) / spacing_um
+    n = np.asarray(shape)[::-1]  # (nx, ny, nz), the order of the columns of xyz_um
+    f = (xyz_um - origin_xyz_um) / spacing_xyz_um
     i0 = np.clip(np.floor(f).astype(np.int64), 0, n - 2)
     t = f - i0
     if extrapolation == "nearest":
@@ -220,7 +270,7 @@ def interpolation_matrix(
             wy = t[:, 1] if dy else 1.0 - t[:, 1]
             for dz in (0, 1):
                 wz = t[:, 2] if dz else 1.0 - t[:, 2]
-                idx = ((i0[:, 0] + dx) * n[1] + (i0[:, 1] + dy)) * n[2] + (i0[:, 2] + dz)
+                idx = ((i0[:, 2] + dz) * n[1] + (i0[:, 1] + dy)) * n[0] + (i0[:, 0] + dx)
                 rows.append(np.arange(p))
                 cols.append(idx)
                 vals.append(wx * wy * wz)
@@ -231,7 +281,10 @@ def interpolation_matrix(
 
 
 def second_difference_operator(shape: tuple[int, int, int]) -> sp.csr_matrix:
-    """Stacked second differences along x, y, z of a C-ordered grid (R × G, dimensionless)."""
+    """Stacked second differences along each axis of a C-ordered grid (R × G, dimensionless).
+
+    ``shape`` is the grid's array shape, ``(nz, ny, nx)`` for :class:`GridDisplacement`.
+    """
     eyes = [sp.identity(int(n), format="csr") for n in shape]
     blocks = []
     for axis, n in enumerate(shape):
@@ -248,10 +301,17 @@ def second_difference_operator(shape: tuple[int, int, int]) -> sp.csr_matrix:
 
 
 def make_grid(bounds_um, spacing_um) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
-    """Grid origin, spacing and shape covering ``bounds_um`` ((3, 2): min, max per axis).
+    """Regular grid covering ``bounds_um`` ((3, 2): min, max µm per axis x, y, z).
 
     The node spacing is the largest value ≤ ``spacing_um`` that divides each extent into a
     whole number of cells (at least one cell per axis).
+
+    Returns
+    -------
+    origin_xyz_um, spacing_xyz_um : ndarray, shape (3,)
+        First node and node spacing, (x, y, z) in µm.
+    shape : tuple of int
+        Node counts ``(nz, ny, nx)`` (array order, as :attr:`GridDisplacement.shape`).
     """
     b = np.asarray(bounds_um, dtype=float)
     if b.shape != (3, 2) or not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
@@ -263,7 +323,7 @@ def make_grid(bounds_um, spacing_um) -> tuple[np.ndarray, np.ndarray, tuple[int,
     cells = np.maximum(1, np.ceil(extent / h - 1e-9)).astype(int)
     step = np.where(extent > 0, extent / cells, h)
     origin = np.where(extent > 0, b[:, 0], b[:, 0] - 0.5 * h)
-    return origin, step, tuple(int(c) + 1 for c in cells)
+    return origin, step, tuple(int(c) + 1 for c in cells[::-1])
 
 
 def _factorize_spd(mat: sp.spmatrix):
@@ -318,9 +378,9 @@ def fit_field(
     displacements_um : array_like, shape (P, 3)
         Their displacements in µm.
     bounds_um : array_like, shape (3, 2)
-        Region [min, max] per axis (µm) the grid must cover.
+        Region [min, max] (µm) the grid must cover; rows x, y, z.
     spacing_um : float or array_like, shape (3,)
-        Largest allowed node spacing in µm.
+        Largest allowed node spacing in µm (per axis: x, y, z, as the rows of ``bounds_um``).
     method : {"gridded", "admm"}
         Direct sparse solve of the normal equations, or ADMM splitting (same minimiser).
     weight : float
@@ -397,8 +457,8 @@ def fit_field(
         info["converged"] = converged
         vals = zv
     return GridDisplacement(
-        origin_um=origin,
-        spacing_um=step,
+        origin_xyz_um=origin,
+        spacing_xyz_um=step,
         values_um=vals.reshape(*shape, 3),
         extrapolation=extrapolation,
         info=info,

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from track.errors import InputError
+from track.fields import GridAxes
 from track.regularize import GridDisplacement, fit_affine, fit_field, make_grid
 
 BOUNDS = [[0.0, 100.0], [0.0, 80.0], [-20.0, 60.0]]
@@ -62,18 +63,33 @@ def test_affine_field_is_not_biased_by_smoothness(method):
 
 
 def test_grid_extrapolation_modes():
-    origin, step, shape = make_grid([[0, 10], [0, 10], [0, 10]], 5.0)
-    nodes = np.stack(
-        np.meshgrid(*[origin[a] + step[a] * np.arange(shape[a]) for a in range(3)], indexing="ij"),
-        -1,
+    origin, step, shape = make_grid([[0, 10], [0, 20], [0, 15]], 5.0)
+    assert shape == (4, 5, 3)  # (nz, ny, nx), the array order of track.fields.GridField
+    z, y, x = np.meshgrid(
+        *[origin[a] + step[a] * np.arange(shape[2 - a]) for a in (2, 1, 0)], indexing="ij"
     )
-    vals = np.repeat(nodes[..., :1], 3, axis=-1) * 0.1  # u = 0.1 x in every component
+    vals = np.stack([0.1 * x, 0.2 * y, 0.3 * z], axis=-1)  # u = (0.1 x, 0.2 y, 0.3 z)
     lin = GridDisplacement(origin, step, vals, "linear")
     near = GridDisplacement(origin, step, vals, "nearest")
-    p = np.array([[15.0, 5.0, 5.0], [-5.0, 5.0, 5.0], [3.0, 4.0, 5.0]])
-    np.testing.assert_allclose(lin(p)[:, 0], [1.5, -0.5, 0.3])
-    np.testing.assert_allclose(near(p)[:, 0], [1.0, 0.0, 0.3])
-    assert lin.node_xyz_um().shape == (*shape, 3)
+    p = np.array([[15.0, 5.0, 5.0], [-5.0, 25.0, 5.0], [3.0, 4.0, 17.0]])
+    np.testing.assert_allclose(lin(p), p * [0.1, 0.2, 0.3], atol=1e-12)
+    np.testing.assert_allclose(near(p), [[1.0, 1.0, 1.5], [0.0, 4.0, 1.5], [0.3, 0.8, 4.5]])
+    nodes = lin.node_xyz_um()
+    assert nodes.shape == (*shape, 3)
+    np.testing.assert_allclose(nodes, np.stack([x, y, z], axis=-1))
+    np.testing.assert_allclose(lin(nodes.reshape(-1, 3)), vals.reshape(-1, 3), atol=1e-12)
+    # one grid description: GridDisplacement <-> track.fields.GridAxes
+    axes = lin.axes
+    assert isinstance(axes, GridAxes) and axes.shape == shape
+    np.testing.assert_allclose(axes.points(), nodes.reshape(-1, 3))
+    back = GridDisplacement.from_axes(axes, vals)
+    np.testing.assert_allclose(back(p), lin(p), atol=1e-12)
+    with pytest.raises(InputError, match="values_um must have shape"):
+        GridDisplacement.from_axes(axes, vals.transpose(2, 1, 0, 3))  # (nx, ny, nz): refused
+    with pytest.raises(InputError, match="evenly spaced"):
+        GridDisplacement.from_axes(GridAxes([0.0, 1.0, 3.0], [0.0, 1.0], [0.0, 1.0]), vals)
+    with pytest.raises(InputError, match=r"\(nz, ny, nx, 3\)"):
+        GridDisplacement(origin, step, vals[..., :2])
 
 
 def test_fit_affine_exact():
