@@ -35,7 +35,7 @@ import numpy as np
 from .deconvolve import deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
-from .psf_estimate import DEFAULT_BOX_UM, check_psf, estimate_psf
+from .psf_estimate import check_psf, estimate_psf
 from .segment import MIN_AUTO_VOX, segment
 
 log = logging.getLogger(__name__)
@@ -61,8 +61,10 @@ class DetectSettings:
     ----------
     deconvolution_iterations : int
         Richardson–Lucy iterations of the secondary deconvolution (paper: 5; 0 = off).
-    psf_box_um : tuple of 3 float
-        Box ``(z, y, x)`` (µm) of the automatic PSF estimate (see :mod:`track.psf_estimate`).
+    psf_box_um : tuple of 3 float or None
+        Box ``(z, y, x)`` (µm) of the automatic PSF estimate; ``None`` (default): from the
+        particles' widths in the volume (:func:`track.psf_estimate.auto_box_um`); the paper's
+        studies set 200 × 60 × 60 µm.
     psf_particles : int
         Particles averaged into the automatic PSF.
     threshold : float or "auto"
@@ -95,7 +97,7 @@ class DetectSettings:
     """
 
     deconvolution_iterations: int = 5
-    psf_box_um: tuple[float, float, float] = DEFAULT_BOX_UM
+    psf_box_um: tuple[float, float, float] | None = None
     psf_particles: int = 10
     threshold: float | str = 0.25
     auto_k_sigma: float = 5.0
@@ -113,7 +115,8 @@ class DetectSettings:
         it = self.deconvolution_iterations
         if isinstance(it, bool) or not isinstance(it, int | np.integer) or it < 0:
             raise InputError(f"deconvolution_iterations must be an integer >= 0, got {it!r}")
-        object.__setattr__(self, "psf_box_um", check_triple(self.psf_box_um, "psf_box_um"))
+        if self.psf_box_um is not None:
+            object.__setattr__(self, "psf_box_um", check_triple(self.psf_box_um, "psf_box_um"))
         n = self.psf_particles
         if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
             raise InputError(f"psf_particles must be a positive integer, got {n!r}")

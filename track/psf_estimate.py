@@ -22,7 +22,11 @@ volume of a sequence; Table 1 uses boxes of 51 × 51 × ≈ 90 voxels at 1.64 µ
    connected region above twice the shell's robust noise level that holds the centre (so
    residual noise does not widen it), clipped at 0 and normalised to unit sum: the PSF.
 
-Default box: 200 µm along z and 60 µm laterally. A 15 µm particle in a light-field
+Box: by default (:func:`auto_box_um`) three times the median full width at half maximum of
+the brightest particles along each axis, measured on the volume itself, so that it follows the
+microscope and the reconstruction settings (no built-in microscope). For the paper's optics
+that is about 200 µm along z and 60 µm laterally, the box the paper's studies set explicitly
+(:data:`PAPER_BOX_UM`). A 15 µm particle in a light-field
 reconstruction is ≈ 15–20 µm wide laterally but elongated to ≈ 100–150 µm along z (the paper's
 ≈ 90 × 5 µm = 450 µm box also covers the far tails of its 0.2-NA reconstructions); 60 µm
 laterally leaves ≈ 2 particle diameters for the tails and the background estimate, and
@@ -48,7 +52,11 @@ from .localize import check_triple, check_volume, check_voxel_size_um
 
 log = logging.getLogger(__name__)
 
-DEFAULT_BOX_UM = (200.0, 60.0, 60.0)
+#: The box the paper's studies use (``[track.detect] psf_box_um``), µm (z, y, x).
+PAPER_BOX_UM = (200.0, 60.0, 60.0)
+#: The automatic box is this many times the particles' median FWHM along each axis (±1.5
+#: FWHM holds > 99 % of a Gaussian profile).
+BOX_FWHM = 3.0
 _SMOOTH_VOX = 0.7  # Gaussian smoothing (voxels) before the search for maxima
 
 
@@ -137,6 +145,54 @@ def _separate(smooth: np.ndarray, p: np.ndarray, q: np.ndarray, h: float) -> boo
     return bool(smooth[tuple(q)] - profile.min() >= h)
 
 
+def auto_box_um(
+    volume: np.ndarray, voxel_size_um: Sequence[float], n_peaks: int = 20
+) -> tuple[float, float, float]:
+    """PSF box ``(z, y, x)`` in µm from the particles of ``volume``: :data:`BOX_FWHM` × the
+    median full width at half maximum of its ``n_peaks`` brightest maxima along each axis
+    (maxima at least 5 robust noise levels and a quarter of the brightest above the median).
+
+    Each width is measured from the peak outwards to where the intensity falls below half its
+    height above the background (the volume's median). The box is at least 5 voxels and at
+    most half the volume along each axis (so that isolated particles fit whole inside it); a
+    volume without a clear maximum gets half its extent.
+    """
+    vol = check_volume(volume)
+    spacing = np.asarray(check_voxel_size_um(voxel_size_um), dtype=float)
+    shape = np.asarray(vol.shape)
+    bg = float(np.median(vol))
+    sm = ndimage.gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX)
+    peaks = np.argwhere((sm == ndimage.maximum_filter(sm, size=3)) & (sm > bg))
+    widths = []
+    if peaks.size:
+        heights = sm[tuple(peaks.T)] - bg
+        noise = 1.4826 * float(np.median(np.abs(sm - np.median(sm))))
+        real = heights >= max(5.0 * noise, 0.25 * float(heights.max()))  # particles, not noise
+        peaks, heights = peaks[real], heights[real]
+        order = np.argsort(heights)[::-1][:n_peaks]
+        for p, h in zip(peaks[order], heights[order], strict=True):
+            level = bg + 0.5 * h
+            w = []
+            for axis in range(3):
+                line = np.moveaxis(sm, axis, 0)[(slice(None), *np.delete(p, axis))]
+                i = p[axis]
+                lo, hi = i, i
+                while lo > 0 and line[lo - 1] > level:
+                    lo -= 1
+                while hi < line.size - 1 and line[hi + 1] > level:
+                    hi += 1
+                w.append(hi - lo + 1)
+            widths.append(w)
+    if widths:
+        fwhm_vox = np.median(np.asarray(widths, dtype=float), axis=0)
+        box_vox = BOX_FWHM * fwhm_vox
+    else:
+        box_vox = shape / 2.0
+    # at most half the volume, so that isolated particles fit whole inside it
+    box_vox = np.clip(box_vox, 5.0, np.maximum(shape / 2.0, 5.0))
+    return tuple(float(v) for v in box_vox * spacing)
+
+
 def _shell(shape: tuple[int, ...]) -> np.ndarray:
     """Boolean mask of the outer one-voxel shell (the six faces) of a box."""
     shell = np.ones(shape, dtype=bool)
@@ -149,7 +205,7 @@ def estimate_psf(
     voxel_size_um: Sequence[float],
     *,
     n_particles: int = 10,
-    box_um: Sequence[float] = DEFAULT_BOX_UM,
+    box_um: Sequence[float] | None = None,
     min_snr: float = 10.0,
 ) -> np.ndarray:
     """Average image of isolated bright particles, aligned to sub-voxel precision.
@@ -163,9 +219,9 @@ def estimate_psf(
     n_particles : int
         Number of particles averaged (the brightest isolated ones); fewer are used, with a
         warning, when fewer qualify.
-    box_um : sequence of 3 float
-        PSF box ``(z, y, x)`` in µm, rounded to an odd number of voxels per axis; default
-        200 × 60 × 60 µm (see the module docstring).
+    box_um : sequence of 3 float or None
+        PSF box ``(z, y, x)`` in µm, rounded to an odd number of voxels per axis; ``None``:
+        :func:`auto_box_um` of this volume (see the module docstring).
     min_snr : float
         Minimum particle peak height above background in units of the robust noise level.
 
@@ -185,6 +241,9 @@ def estimate_psf(
     spacing = check_voxel_size_um(voxel_size_um)
     with raised_as(InputError):
         n_particles = int_in_range(n_particles, "n_particles", 1)
+    if box_um is None:
+        box_um = auto_box_um(vol, spacing)
+        log.info("estimate_psf: box %s µm from the particles' widths", [f"{b:.0f}" for b in box_um])
     box = box_shape_vox(box_um, spacing)
     if any(bx + 2 > n for bx, n in zip(box, vol.shape, strict=True)):
         raise InputError(
