@@ -247,6 +247,8 @@ def test_demo_prints_the_summary_table(tmp_path, capsys):
 def test_collect_gathers_reports_with_their_plots(reports, tmp_path):
     runs = [reports("fig6b_rotation_test"), reports("fig4a_localization_snr_test")]
     page = tmp_path / "docs" / "validation.md"
+    argv = ["collect", *[str(r["out"]) for r in runs], "-o", str(page), "-q"]
+    assert main(argv) == 0  # a first collection writes the page and its plots
     stale = [
         page.parent / "validation" / d / "old.png" for d in ("gone_study", "fig6b_rotation_test")
     ]
@@ -255,7 +257,8 @@ def test_collect_gathers_reports_with_their_plots(reports, tmp_path):
         p.write_bytes(b"png")
     notes = page.parent / "validation" / "notes.txt"
     notes.write_text("kept", encoding="utf-8")
-    assert main(["collect", *[str(r["out"]) for r in runs], "-o", str(page), "-q"]) == 0
+    assert main(argv) == 2  # the page exists: replaced only with --overwrite
+    assert main([*argv, "--overwrite"]) == 0
     assert not any(p.exists() for p in stale) and not stale[0].parent.exists()
     assert notes.read_text(encoding="utf-8") == "kept"
     text = page.read_text(encoding="utf-8")
