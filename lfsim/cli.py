@@ -268,10 +268,23 @@ def cmd_micrometer(args) -> int:
     _check_numbers(args, "--rays-per-line")
     scene = _read_scene(args.scene)
     try:  # the reticle fits the field (before tracing)
-        micrometer_sources(scene.optics, args.division_um, args.line_width_um, args.axis)
+        micrometer_sources(
+            scene.optics,
+            args.division_um,
+            args.line_width_um,
+            args.axis,
+            z_um=args.z_um,
+            rotation_deg=args.rotation_deg,
+        )
     except ConfigError as exc:
         raise _option_names(
-            exc, {"division_um": "--division-um", "line_width_um": "--line-width-um"}
+            exc,
+            {
+                "division_um": "--division-um",
+                "line_width_um": "--line-width-um",
+                "rotation_deg": "--rotation-deg",
+                "z_um": "--z-um",
+            },
         ) from None
     clean = render_micrometer(
         scene,
@@ -281,6 +294,8 @@ def cmd_micrometer(args) -> int:
         rays_per_line=args.rays_per_line,
         seed=args.seed,
         tracer=args.tracer,
+        rotation_deg=args.rotation_deg,
+        z_um=args.z_um,
     )
     _write_noisy_slide(
         args,
@@ -291,6 +306,8 @@ def cmd_micrometer(args) -> int:
         line_width_um=args.line_width_um,
         axis=args.axis,
         rays_per_line=args.rays_per_line,
+        rotation_deg=args.rotation_deg,
+        z_um=args.z_um,
     )
     log.info("wrote %s (divisions every %g µm along %s)", out, args.division_um, args.axis)
     return 0
@@ -455,6 +472,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="scale direction; x: lines perpendicular to x (default x)",
     )
     value(m, "--rays-per-line", int, MICROMETER_RAYS_PER_LINE, "rays traced per line")
+    value(
+        m,
+        "--rotation-deg",
+        float,
+        0.0,
+        "rotation of the reticle about the optical axis in degrees, from +x towards +y, |·| < 45",
+    )
+    value(m, "--z-um", float, 0.0, "depth of the reticle in µm (0: native object plane)")
     image_options(m, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="micrometer image")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)
 

@@ -215,6 +215,13 @@ def micrometer_sources(
         raise ConfigError(f"axis must be 'x' or 'y', got {axis!r}")
     if not np.isfinite(rotation_deg) or abs(rotation_deg) >= 45.0:
         raise ConfigError(f"rotation_deg must lie in (-45, 45), got {rotation_deg!r}")
+    if not np.isfinite(z_um):
+        raise ConfigError(f"z_um must be a finite depth in µm, got {z_um!r}")
+    if z_um <= -optics.f_objective_um or abs(z_um) > max_depth_um(optics):
+        raise ConfigError(
+            f"z_um {z_um:g} µm puts the reticle outside the imaged depth range "
+            f"|z| <= {max_depth_um(optics):.0f} µm (µm from the native focal plane)"
+        )
     x0, x1, y0, y1 = optics.field_of_view_um
     other = (y1 - y0) if axis == "x" else (x1 - x0)
     t = np.radians(rotation_deg)

@@ -44,10 +44,10 @@ def render(particles, out, *options, scene=SMALL) -> int:
     )
 
 
-def micrometer(out, axis: str) -> int:
+def micrometer(out, axis: str, *options) -> int:
     """The exit status of ``lfsim -q micrometer`` with 20 µm divisions along ``axis``."""
     args = ["-o", str(out), "--division-um", "20", "--rays-per-line", "2000", "--axis", axis]
-    return main(["-q", "micrometer", SMALL, *args])
+    return main(["-q", "micrometer", SMALL, *args, *options])
 
 
 @pytest.fixture
@@ -120,6 +120,12 @@ def test_white_and_micrometer(backend, tmp_path):
     mx = tmp_path / "mx.tif"
     assert micrometer(mx, "x") == 0
     assert not np.array_equal(read_tiff(mx)[0], img)
+    # A rotated reticle out of focus: its rotation and depth are recorded with the image.
+    mr = tmp_path / "mr.tif"
+    assert micrometer(mr, "x", "--rotation-deg", "10", "--z-um", "15") == 0
+    rot, meta = read_tiff(mr)
+    assert meta["rotation_deg"] == 10 and meta["z_um"] == 15
+    assert not np.array_equal(rot, read_tiff(mx)[0])
 
 
 def test_dataset(backend, tmp_path, capsys):
