@@ -196,6 +196,10 @@ class LinkSettings:
             )
         if self.max_iterations < 1:
             raise InputError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
+            raise InputError(f"seed must be an integer ≥ 0, got {self.seed!r}")
+        if self.seed < 0:
+            raise InputError(f"seed must be an integer ≥ 0, got {self.seed}")
         if self.local_neighbors < 3:
             raise InputError(f"local_neighbors must be ≥ 3, got {self.local_neighbors}")
         if self.local_degree not in (1, 2):

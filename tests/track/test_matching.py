@@ -228,6 +228,9 @@ def test_nan_coordinates_named():
         ({"growth_q": 1.5}, "growth_q"),
         ({"guess_min_fraction": -0.1}, "guess_min_fraction"),
         ({"polish_iterations": -1}, "polish_iterations"),
+        ({"seed": -1}, "seed"),
+        ({"seed": 1.5}, "seed"),
+        ({"seed": True}, "seed"),
     ],
 )
 def test_settings_validated(kwargs, needle):
