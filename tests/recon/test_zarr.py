@@ -194,3 +194,26 @@ def test_refusals_and_bad_options(series, tmp_path, capsys):
         assert rc == 2 and text in err and "Traceback" not in err, err
         assert err.strip().count("\n") <= 1  # argparse: usage line + error line
     assert not (tmp_path / "x.zarr").exists()
+
+
+def test_frames_written_concurrently_by_other_processes(tmp_path):
+    """Writers pickle; frames written at once by worker processes land in their own chunks."""
+    import multiprocessing
+    import pickle
+    from concurrent.futures import ProcessPoolExecutor
+
+    from recon.volume_store import VolumeGeometry, make_writer
+
+    rng = np.random.default_rng(5)
+    vols = rng.normal(size=(6, 5, 4, 3)).astype(np.float32)
+    writer = make_writer("zarr", tmp_path / "p.zarr", zarr_chunk_z=2)
+    writer.prepare(6, VolumeGeometry((5, 4, 3), (2.0, 1.0, 1.0), (0.0, 0.0, 0.0)))
+    assert pickle.loads(pickle.dumps(writer)) == writer
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(2, mp_context=ctx) as pool:
+        records = list(pool.map(writer.write, range(6), vols, [{}] * 6))
+    assert writer.indices() == list(range(6))
+    assert all(writer.verify(k, r) for k, r in enumerate(records))
+    np.testing.assert_array_equal(np.stack([writer.read(k) for k in range(6)]), vols)
+    # A frame's record does not fit another frame.
+    assert not writer.verify(1, records[0]) and not writer.verify(1, {**records[1], "t": 0})
