@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import re
@@ -393,11 +394,16 @@ def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
     from ome_zarr.reader import Multiscales, Reader
 
     store = Path(store)
+    quiet = logging.getLogger("ome_zarr")  # it warns of e.g. an NGFF 0.4 store ("version mismatch")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
     try:
         loc = parse_url(str(store), mode="r")
         nodes = list(Reader(loc)()) if loc is not None else []
     except Exception as exc:  # ome-zarr and zarr raise assorted types on bad stores
         raise InputError(f"{store}: cannot read as an OME-Zarr image: {exc}") from None
+    finally:
+        quiet.setLevel(level)
     node = next((n for n in nodes if n.load(Multiscales) is not None), None)
     if node is None:
         raise InputError(

@@ -110,3 +110,27 @@ def test_track_cli_names_a_store_that_is_not_an_image(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("track: error: ") and str(store) in err
     assert err.strip().count("\n") == 0 and not (tmp_path / "out").exists()
+
+
+def test_ngff_04_image_reads_quietly(tmp_path, capfd):
+    """An OME-NGFF 0.4 image (Zarr format 2, older writers) is read like a 0.5 one."""
+    import zarr
+    from ome_zarr.format import FormatV04
+    from ome_zarr.writer import write_image
+
+    data = np.random.default_rng(0).normal(size=(2, 3, 8, 8)).astype(np.float32)
+    group = zarr.open_group(str(tmp_path / "old.zarr"), mode="w", zarr_format=2)
+    write_image(
+        data,
+        group,
+        axes="tzyx",
+        fmt=FormatV04(),
+        scale={"t": 1.0, "z": 2.0, "y": 0.5, "x": 0.5},
+        axes_units={a: "micrometer" for a in "zyx"},
+        scale_factors=[],
+    )
+    capfd.readouterr()
+    vols = scan_volumes(tmp_path / "old.zarr")
+    assert len(vols) == 2 and vols[1].voxel_size_um == pytest.approx((2.0, 0.5, 0.5))
+    np.testing.assert_array_equal(read_volume(vols[1]), data[1])
+    assert capfd.readouterr().err == ""
