@@ -295,6 +295,7 @@ class ZarrSeriesWriter:
             raise InputError(
                 f"{self.label(k)}: volume is {vol.shape}, the array holds {tuple(arr.shape[1:])}"
             )
+        self.remove(k)  # a damaged frame's chunks, and temporary files an interrupt left
         arr[k] = vol
         return {"t": int(k), "sha256": array_sha256(vol), "dtype": "<f4", "order": "C"}
 
