@@ -217,6 +217,14 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def array_sha256(array: Any, dtype: str = "<f4") -> str:
+    """Hex SHA-256 of an array's values as ``dtype`` (little-endian float32 by default), in
+    C order: the checksum of a volume that does not depend on how it is stored (a TIFF file,
+    chunks of a Zarr array)."""
+    a = np.ascontiguousarray(np.asarray(array), dtype=np.dtype(dtype))
+    return hashlib.sha256(memoryview(a).cast("B")).hexdigest()
+
+
 def file_record(path: str | os.PathLike) -> dict:
     """``{"size": bytes, "sha256": hex}`` of a file just written, for :func:`verify_record`."""
     path = Path(path)
@@ -355,6 +363,7 @@ def check_output_folder(path: str | os.PathLike) -> Path:
 
 
 __all__ = [
+    "array_sha256",
     "atomic_path",
     "atomic_write_bytes",
     "atomic_write_text",

@@ -21,7 +21,9 @@ Reconstruction
     — depths, voxels and object-space coordinates of the volume.
 Series
     :class:`ReconSettings`, :func:`reconstruct_series`, :class:`SeriesResult` — a time series
-    of frames into volumes, resumable, with provenance (what ``recon run`` does).
+    of frames into volumes, resumable, with provenance (what ``recon run`` does);
+    :mod:`recon.volume_store` — where the volumes go: numbered TIFF files or one OME-Zarr
+    image (``recon run --format zarr``), one writer per format, frames written independently.
 Errors
     :mod:`recon.errors` — :class:`ReconError`, :class:`CalibrationError`, :class:`InputError`.
 Command line

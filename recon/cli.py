@@ -37,7 +37,9 @@ All frames must share size, pixel type and bit depth (checked from the TIFF head
 ``--frames START:STOP[:STEP]`` keeps part of the ordered series. ``recon.json`` records, for
 each volume ``NNNNNN.tif``, its source (file, page of a stack), the frame's original number
 (from the file name, or the page) and its time (``number / --fps``, else from the TIFF
-metadata, else null).
+metadata, else null). ``--format zarr`` writes one OME-Zarr image instead (axes t, z, y, x;
+one chunk per frame, or per ``--zarr-chunk-z`` planes; voxel size and origin in its metadata;
+``recon.json`` inside it), for napari (``napari --plugin napari-ome-zarr out.zarr``).
 
 Global options (before or after the command): ``--threads N``, ``-v`` (info; ``-vv`` debug),
 ``-q`` (errors only). Errors a user can cause (bad files, no lenslet grid, an existing output)
@@ -68,6 +70,7 @@ from .calibration_file import (
 from .errors import InputError, ReconError
 from .projector import PROJECTORS
 from .settings import BACKGROUND_MODELS, ReconSettings
+from .volume_store import FORMATS, NGFF_VERSION, make_writer
 
 log = logging.getLogger("recon.cli")
 
@@ -427,7 +430,22 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         required=True,
         metavar="VOLDIR",
-        help="output folder for NNNNNN.tif volumes and recon.json (required)",
+        help="output folder for NNNNNN.tif volumes and recon.json, or with --format zarr the "
+        "OME-Zarr image (e.g. out.zarr, recon.json inside) (required)",
+    )
+    choice_option(
+        run,
+        "--format",
+        FORMATS,
+        "volumes as numbered float32 TIFF files, or one OME-Zarr image (OME-NGFF "
+        f"{NGFF_VERSION}) of axes (t, z, y, x) chunked per frame",
+    )
+    run.add_argument(
+        "--zarr-chunk-z",
+        type=int_in(1),
+        default=None,
+        metavar="N",
+        help="--format zarr: planes per chunk (default: the whole frame in one chunk)",
     )
     run.add_argument(
         "--overwrite",
@@ -581,6 +599,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             )
     dark = read_frame(args.dark, what="dark frame") if args.dark else None
     pre = Preprocess(dark=dark, background=background, hot_pixels=args.hot_pixels)
+    make_writer(args.format, args.output, zarr_chunk_z=args.zarr_chunk_z)  # checks the options
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
     check_output_folder(args.output)
     frames, optics, grid, scene = _resolve_inputs(args)
@@ -602,6 +621,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         preprocess=pre,
         overwrite=args.overwrite,
         progress=not getattr(args, "quiet", False),
+        volume_format=args.format,
+        zarr_chunk_z=args.zarr_chunk_z,
         provenance={
             "scene": str(Path(scene).resolve()),
             "command": "recon run",

@@ -3,7 +3,9 @@
 ``reconstruct_series`` is what ``recon run`` does: for every frame, read → prepare
 (:mod:`recon.preprocess`) → rectify onto the calibrated lenslet grid (:mod:`recon.rectify`)
 → Richardson–Lucy with the depth-adaptive filter (:mod:`recon.deconvolve`) → write
-``VOLDIR/NNNNNN.tif`` (float32 ``(z, y, x)``, voxel size in µm in the metadata). The folder's
+``VOLDIR/NNNNNN.tif`` (float32 ``(z, y, x)``, voxel size in µm in the metadata) or, with
+``volume_format="zarr"``, frame ``t`` of one OME-Zarr image ``VOLDIR``
+(:mod:`recon.volume_store`, which also records what resume verifies). The folder's
 ``recon.json`` records the optics, calibration, depths, settings, timings and, for every
 frame, its source (file, page of a stack), original number, time and checksum (of the file,
 or of a stack page's pixels). It is rewritten atomically after every frame: an interrupted run
@@ -25,21 +27,18 @@ from pathlib import Path
 import numpy as np
 
 from .deconvolve import richardson_lucy
-from .errors import InputError, ReconError
+from .errors import InputError
 from .filters import DepthFilter
 from .geometry import ReconGrid
 from .preprocess import Preprocess, prepare_image, read_frame
 from .projector import make_projector
 from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
 from .settings import ReconSettings, default_z_step_um
+from .volume_store import OutputExistsError, VolumeGeometry, make_writer
 
 log = logging.getLogger(__name__)
 
 RECON_JSON = "recon.json"
-
-
-class OutputExistsError(ReconError):
-    """The output folder holds something this run must not overwrite."""
 
 
 #: Largest radius (lenslets) of a point's light pattern the PSF bank stores (its memory grows
@@ -180,6 +179,8 @@ def reconstruct_series(
     overwrite: bool = False,
     progress: bool = True,
     provenance: dict | None = None,
+    volume_format: str = "tiff",
+    zarr_chunk_z: int | None = None,
 ) -> SeriesResult:
     """Reconstruct light-field frames into ``out_dir`` (see the module docstring).
 
@@ -200,6 +201,11 @@ def reconstruct_series(
         Replace the outputs of a run with other inputs or settings (only this tool's files).
     provenance : dict, optional
         Extra entries for ``recon.json`` (e.g. the command line).
+    volume_format : {"tiff", "zarr"}
+        Numbered TIFF volumes in the folder ``out_dir``, or one OME-Zarr image ``out_dir``
+        of axes ``(t, z, y, x)`` (:mod:`recon.volume_store`).
+    zarr_chunk_z : int, optional
+        Zarr only: planes per chunk (default: one chunk per frame).
 
     A run that fails before its first volume leaves no ``recon.json`` (nor the folder, if it
     made it), so that the corrected command needs no ``overwrite``; a record without volumes
@@ -213,8 +219,7 @@ def reconstruct_series(
         ``out_dir`` holds something else, or volumes made from other inputs or settings
         (without ``overwrite``). Nothing is written then.
     """
-    from hrvbase.io import file_record, verify_record, write_json
-    from lfsim.io import write_tiff
+    from hrvbase.io import write_json
 
     from .frames import FrameReader, FrameRef, check_frames, frame_checksums
     from .rectify import rectify
@@ -228,6 +233,7 @@ def reconstruct_series(
         raise InputError("no frames to reconstruct")
     check_frames(refs)
     out = Path(out_dir)
+    writer = make_writer(volume_format, out, zarr_chunk_z=zarr_chunk_z)
     n = round(optics.px_per_lenslet)
     if abs(grid.pitch_px - optics.px_per_lenslet) > 0.05 * optics.px_per_lenslet:
         log.warning(
@@ -262,14 +268,16 @@ def reconstruct_series(
     )
     checksums = frame_checksums(refs)
     meta_path = out / RECON_JSON
-    previous = _check_output(out, fp, refs, checksums, overwrite)
+    previous = _check_output(writer, fp, refs, checksums, overwrite)
     created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
     done, skipped, secs = [], [], {}
     try:
         prev_frames = {e.get("index"): e for e in (previous or {}).get("frames", [])}
         o_x, o_y = _object_origin(grid, geom, optics)
         rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
+        origin_xyz = (rgrid.x_um()[0], rgrid.y_um()[0], rgrid.depths_um[0])
+        geometry = VolumeGeometry(tuple(rgrid.shape), tuple(rgrid.voxel_size_um), origin_xyz)
+        writer.prepare(len(refs), geometry, [r.time_s for r in refs], overwrite)
         meta = {
             "tool": "recon",
             "version": _version(),
@@ -284,6 +292,8 @@ def reconstruct_series(
             "volume_shape": list(rgrid.shape),
             "psf_bank": key,
             "scene_mla_kind": scene_mla_kind,
+            "format": writer.format,
+            **writer.record_extra(),
             "frames": [],
             **(provenance or {}),
         }
@@ -292,17 +302,16 @@ def reconstruct_series(
         for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
             entry = _frame_entry(k, ref, sha)
             e = prev_frames.get(k)
-            kept = volume_path(out, k)
-            if e and e.get("input_sha256") == sha and verify_record(kept, e.get("output")):
+            if e and e.get("input_sha256") == sha and writer.verify(k, e.get("output")):
                 entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
                 skipped.append(k)
             else:
-                if e and e.get("input_sha256") == sha and kept.is_file():
+                if e and e.get("input_sha256") == sha and writer.exists(k):
                     log.warning(
                         "%s: volume %s changed on disk since it was written (truncated or "
                         "corrupt); reconstructing it again",
                         out,
-                        kept.name,
+                        writer.label(k),
                     )
                 todo.append(k)
             frame_entries.append(entry)
@@ -353,19 +362,16 @@ def reconstruct_series(
                         background=max(pinfo["background"], 0.0) if modelled else 0.0,
                     )
                     source = {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS}
-                    write_tiff(
-                        volume_path(out, k),
+                    record = writer.write(
+                        k,
                         res.volume.astype(np.float32),
-                        metadata={
+                        {
                             "frame": k,
                             **source,
                             "depths_um": list(map(float, depths)),
                             "origin_um": [o_x, o_y],
                             "iterations": res.iterations,
                         },
-                        pixel_size_um=rgrid.voxel_size_um,
-                        origin_xyz_um=(rgrid.x_um()[0], rgrid.y_um()[0], rgrid.depths_um[0]),
-                        overwrite=True,
                     )
                     secs[k] = time.perf_counter() - t1
                     frame_entries[k].update(
@@ -374,13 +380,13 @@ def reconstruct_series(
                             "iterations": res.iterations,
                             "preprocess": pinfo,
                             "rel_change": res.rel_change,
-                            "output": file_record(volume_path(out, k)),
+                            "output": record,
                         }
                     )
                     write_json(meta_path, meta, overwrite=True)
                     done.append(k)
     except BaseException:
-        _clean_up_failed_start(out, created, done)
+        _clean_up_failed_start(writer, created, done)
         raise
     meta["status"] = "complete"
     write_json(meta_path, meta, overwrite=True)
@@ -405,32 +411,32 @@ def _frame_entry(k: int, ref, sha: str) -> dict:
     }
 
 
-def _clean_up_failed_start(out: Path, created: bool, done: list) -> None:
-    """After a failure: a run that wrote no volume leaves no trace (its ``recon.json`` and, if
-    it made it, the empty folder go), so that the corrected command runs as if for the first
-    time. A folder with volumes keeps its record, to be resumed."""
-    if done or _volume_indices(out):
+def _clean_up_failed_start(writer, created: bool, done: list) -> None:
+    """After a failure: a run that wrote no volume leaves no trace (its ``recon.json``, an
+    empty Zarr array and, if it made it, the empty folder go), so that the corrected command
+    runs as if for the first time. A folder with volumes keeps its record, to be resumed."""
+    out = writer.out
+    if done or writer.indices():
         return
+    writer.discard()
     (out / RECON_JSON).unlink(missing_ok=True)
     if created:
         with contextlib.suppress(OSError):
             out.rmdir()
 
 
-def _volume_indices(out: Path) -> list[int]:
-    return sorted(int(p.name[:6]) for p in out.glob("[0-9][0-9][0-9][0-9][0-9][0-9].tif"))
-
-
-def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict | None:
+def _check_output(writer, fp: str, refs, checksums, overwrite: bool) -> dict | None:
     """Check the output folder before anything is written; the previous record to resume.
 
     A folder that is not empty must hold a ``recon.json``. Its volumes must come from the
     same settings (fingerprint) and from the same inputs as this run's frames of the same
     index (checksums; a run may extend a shorter one); otherwise it is refused, or with
-    ``overwrite`` the volumes that do not belong to this run are deleted.
+    ``overwrite`` the volumes that do not belong to this run are deleted. A record of another
+    format (TIFF volumes, a Zarr image) is refused, even with ``overwrite``.
     """
     from lfsim.io import read_json
 
+    out = writer.out
     if out.exists() and not out.is_dir():
         raise OutputExistsError(
             f"output {str(out)!r} is a file, not a folder (nothing was written)"
@@ -444,7 +450,13 @@ def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict 
             "choose a new folder (nothing was written)"
         )
     previous = read_json(meta_path)
-    volumes = _volume_indices(out)
+    made = previous.get("format", "tiff") if isinstance(previous, dict) else None
+    if made != writer.format:
+        raise OutputExistsError(
+            f"output {str(out)!r} holds a {RECON_JSON} of {made or 'unknown'} volumes, this run "
+            f"writes {writer.format}; choose a new output (nothing was written)"
+        )
+    volumes = writer.indices()
     if previous.get("fingerprint") != fp:
         if not volumes:
             log.info("%s: replacing the record of a run that wrote no volume", out)
@@ -453,8 +465,7 @@ def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict 
                 f"output folder {str(out)!r} holds volumes made from other inputs or "
                 "settings; use a new folder or --overwrite (nothing was written)"
             )
-        for k in volumes:
-            volume_path(out, k).unlink()
+        writer.clear()
         meta_path.unlink()
         return None
     prev_frames = {e.get("index"): e for e in previous.get("frames", [])}
@@ -472,11 +483,11 @@ def _check_output(out: Path, fp: str, refs, checksums, overwrite: bool) -> dict 
         now = f"now {refs[k].label!r}" if k < len(refs) else f"this run has {len(refs)} frame(s)"
         raise OutputExistsError(
             f"output folder {str(out)!r} holds volumes made from other inputs or settings "
-            f"(volume {k:06d}.tif was made from {was_label!r}, {now}); use a new folder or "
+            f"(volume {writer.label(k)} was made from {was_label!r}, {now}); use a new folder or "
             "--overwrite (nothing was written)"
         )
     for k in stale:
-        volume_path(out, k).unlink()
+        writer.remove(k)
     return previous
 
 

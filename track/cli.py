@@ -12,7 +12,9 @@ Commands::
     track link A.csv B.csv [C.csv ...] -o RESULTS [--mode ...] [--grid-spacing-um X] ...
 
 ``VOLDIR`` holds numbered float32 volumes ``NNNNNN.tif`` (voxel size and origin in the TIFF
-metadata or in ``recon.json``, see :mod:`track.volumes` and docs/conventions.md §6); ``link``
+metadata or in ``recon.json``, see :mod:`track.volumes` and docs/conventions.md §6), or is
+an OME-Zarr image (``recon run --format zarr``: its frames, voxel size and origin from its
+OME-NGFF metadata); ``link``
 takes point clouds (CSV with columns ``x_um, y_um, z_um``) from any localisation source,
 frame 0 first.
 
@@ -224,13 +226,23 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser(
         "run", parents=[common], help="detect → link → fields for a folder of volumes"
     )
-    r.add_argument("voldir", type=Path, metavar="VOLDIR", help="folder of NNNNNN.tif volumes")
+    r.add_argument(
+        "voldir",
+        type=Path,
+        metavar="VOLDIR",
+        help="folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)",
+    )
     _common(r)
     _detect_options(r)
     _link_options(r)
     r.set_defaults(func=cmd_run)
     d = sub.add_parser("detect", parents=[common], help="detect particles in a folder of volumes")
-    d.add_argument("voldir", type=Path, metavar="VOLDIR", help="folder of NNNNNN.tif volumes")
+    d.add_argument(
+        "voldir",
+        type=Path,
+        metavar="VOLDIR",
+        help="folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)",
+    )
     _common(d)
     _detect_options(d)
     d.set_defaults(func=cmd_detect)

@@ -58,7 +58,7 @@ from .field_files import write_field_npz, write_field_vti
 from .fields import GridAxes, GridField
 from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, track_series
 from .tables import read_points_csv, write_matches_csv, write_points_csv, write_tracks_csv
-from .volumes import VolumeInfo, numbered, read_volume, scan_volumes
+from .volumes import VolumeInfo, numbered, read_volume, scan_volumes, volume_checksum
 
 log = logging.getLogger(__name__)
 
@@ -333,7 +333,7 @@ def _first_psf(vol, info, settings):
     except (TrackingError, InputError) as exc:
         log.warning("no PSF from the first volume (%s); each volume estimates its own", exc)
         return None, f"not available from the first volume: {exc}"
-    return psf, f"estimated from {info.path.name}, shape {list(psf.shape)}"
+    return psf, f"estimated from {info.name}, shape {list(psf.shape)}"
 
 
 def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, progress: bool):
@@ -342,7 +342,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
     frames = []
     for v in vols:
-        frames.append({"index": v.index, "input": str(v.path), "input_sha256": sha256_file(v.path)})
+        frames.append({"index": v.index, "input": v.source(), "input_sha256": volume_checksum(v)})
     summary["frames"] = frames
     summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
     clouds: list[np.ndarray | None] = [None] * len(vols)
@@ -359,7 +359,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                     "%s changed on disk since it was written (truncated or edited); "
                     "detecting volume %s again",
                     part,
-                    v.path.name,
+                    v.name,
                 )
     todo = [i for i in range(len(vols)) if clouds[i] is None]
     if todo:
@@ -395,7 +395,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                     }
                 )
                 if clouds[i].shape[0] == 0:
-                    log.info("volume %s: no particle found", v.path.name)
+                    log.info("volume %s: no particle found", v.name)
                 summary["psf"] = psf_note
                 write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
                 bar.update()
@@ -405,7 +405,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     return [
         FrameDetections(
             v.index,
-            str(v.path),
+            v.source(),
             c,
             out / "particles" / f"{v.index:06d}.csv",
             bool(f.get("reused", False)),
@@ -633,8 +633,8 @@ def track_volumes(
     Parameters
     ----------
     volumes : path or sequence of VolumeInfo
-        Folder of numbered float volumes ``NNNNNN.tif`` (see :func:`track.volumes.scan_volumes`),
-        or its scanned volumes.
+        Folder of numbered float volumes ``NNNNNN.tif`` or an OME-Zarr image (see
+        :func:`track.volumes.scan_volumes`), or its scanned volumes.
     out_dir : path
         Results folder (module docstring); created.
     detect : DetectSettings, optional
@@ -678,7 +678,7 @@ def track_volumes(
         vols = list(volumes)
         if not vols or not all(isinstance(v, VolumeInfo) for v in vols):
             raise InputError("volumes must be a folder or a non-empty list of VolumeInfo")
-        where = {"volumes": [str(Path(v.path).resolve()) for v in vols]}
+        where = {"volumes": [v.source(resolve=True) for v in vols]}
     if series is not None and series.compute_fields:
         check_grid(volume_extent_um(vols[0]), series.grid, where="the volume")
     params = {"detect": _settings_dict(settings)}

@@ -1,8 +1,12 @@
-"""Volume series of :mod:`track`: numbered TIFF volumes placed in object space.
+"""Volume series of :mod:`track`: numbered TIFF volumes or an OME-Zarr image, in object space.
 
-A series is a folder of ``NNNNNN.tif`` float32 ``(z, y, x)`` volumes (:func:`scan_volumes`
-lists them without reading voxels, :func:`read_volume` reads one). The voxel size
-``[dz, dy, dx]`` and the origin come, in this order of preference, from the JSON metadata of
+A series is a folder of ``NNNNNN.tif`` float32 ``(z, y, x)`` volumes, or one OME-Zarr image
+(``recon run --format zarr``, or any OME-NGFF image of axes ``(t, z, y, x)`` or ``(z, y, x)``,
+with an optional channel axis of length 1) whose frames are the volumes (:func:`scan_volumes`
+lists them without reading voxels, :func:`read_volume` reads one). In a Zarr image the voxel
+size and origin are the ``scale`` and ``translation`` of its first (full-resolution) dataset,
+in the units of its space axes (converted to µm). In a TIFF series they  (the voxel size
+``[dz, dy, dx]`` and the origin) come, in this order of preference, from the JSON metadata of
 ``lfsim.io.write_tiff`` (private tag 65001, or the ``ImageDescription`` of files of the
 previous layout: ``"voxel_size_um"``, ``"origin_xyz_um"`` or ``origin_um`` ``[x0, y0]`` with
 ``depths_um``), from the ImageJ calibration of a file saved by Fiji (``unit`` µm,
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import re
@@ -51,6 +56,11 @@ class VolumeInfo:
         ``(dz, dy, dx)`` (µm).
     origin_xyz_um : tuple of float
         Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm).
+    dataset : str or None
+        OME-Zarr: the path of the array inside the store ``path`` (``index`` is then the
+        position along its t axis); None for a TIFF file.
+    lead : tuple of int
+        OME-Zarr: the indices of the axes before ``(z, y, x)`` that select this volume.
     """
 
     path: Path
@@ -58,6 +68,18 @@ class VolumeInfo:
     shape: tuple
     voxel_size_um: tuple
     origin_xyz_um: tuple
+    dataset: str | None = None
+    lead: tuple = ()
+
+    @property
+    def name(self) -> str:
+        """``NNNNNN.tif``, or ``STORE.zarr[t=K]`` for a frame of an OME-Zarr image."""
+        return self.path.name if self.dataset is None else f"{self.path.name}[t={self.index}]"
+
+    def source(self, *, resolve: bool = False) -> str:
+        """The file (or store and frame) as text; ``resolve``: an absolute path."""
+        p = str(Path(self.path).resolve() if resolve else self.path)
+        return p if self.dataset is None else f"{p}[t={self.index}]"
 
 
 #: Private TIFF tags of ``lfsim.io.write_tiff`` (track does not import lfsim): the array
@@ -214,12 +236,14 @@ def _tiff_header(path: Path) -> _Header:
 
 
 def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
-    """The numbered volumes ``NNNNNN.tif`` of a folder, with voxel size and origin.
+    """The numbered volumes ``NNNNNN.tif`` of a folder, or the frames of an OME-Zarr image,
+    with voxel size and origin.
 
     Parameters
     ----------
     folder : path
-        Folder holding ``000000.tif, 000001.tif, …`` (and optionally ``recon.json``).
+        Folder holding ``000000.tif, 000001.tif, …`` (and optionally ``recon.json``), or an
+        OME-Zarr image (see :func:`scan_zarr`).
 
     Returns
     -------
@@ -237,6 +261,8 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"volume folder {folder} does not exist or is not a folder")
+    if is_zarr(folder):
+        return scan_zarr(folder)
     files = {}
     for p in folder.iterdir():
         m = NUMBERED.match(p.name)
@@ -301,6 +327,167 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     return out
 
 
+# -- OME-Zarr --------------------------------------------------------------------------------
+#: Zarr metadata files: a folder holding one of them is read as a Zarr store.
+_ZARR_MARKERS = ("zarr.json", ".zgroup", ".zattrs")
+
+#: Length units of OME-NGFF space axes, in µm.
+_LENGTH_UM = {
+    "angstrom": 1e-4,
+    "nanometer": 1e-3,
+    "micrometer": 1.0,
+    "millimeter": 1e3,
+    "centimeter": 1e4,
+    "meter": 1e6,
+}
+
+
+def is_zarr(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is to be read as a Zarr store: a folder named ``*.zarr`` or holding
+    Zarr metadata (``zarr.json``, ``.zgroup``)."""
+    p = Path(path)
+    return p.is_dir() and (
+        p.suffix.lower() == ".zarr" or any((p / m).is_file() for m in _ZARR_MARKERS)
+    )
+
+
+def _transforms(items, where: str, ndim: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(scale, translation)`` of a list of OME-NGFF coordinate transformations."""
+    scale, shift = np.ones(ndim), np.zeros(ndim)
+    for tr in items or ():
+        kind = tr.get("type") if isinstance(tr, Mapping) else None
+        if kind == "identity":
+            continue
+        value = tr.get(kind) if kind in ("scale", "translation") else None
+        try:
+            v = np.asarray(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            v = np.zeros(0)
+        if v.size != ndim or not np.all(np.isfinite(v)):
+            raise InputError(
+                f"{where}: unsupported coordinate transformation {tr!r} (expected a scale or "
+                f"translation of {ndim} numbers)"
+            )
+        if kind == "scale":
+            scale, shift = scale * v, shift * v
+        else:
+            shift = shift + v
+    return scale, shift
+
+
+def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
+    """The frames of an OME-Zarr image as volumes, without reading voxels.
+
+    Read with the ``ome-zarr`` reader (as napari-ome-zarr does): the first multiscales image
+    of ``store``, its first dataset. Its axes must be ``[t,] [c,] z, y, x`` (a channel axis
+    of length 1), the space axes in units of length. A store written by ``recon run
+    --format zarr`` holds ``recon.json``: a frame it has no volume for is missing.
+
+    Raises
+    ------
+    InputError
+        Not an OME-NGFF image, other axes, no length unit, bad transformations, an
+        unsupported voxel type, or frames ``recon`` has not written yet.
+    """
+    import zarr
+    from ome_zarr.io import parse_url
+    from ome_zarr.reader import Multiscales, Reader
+
+    store = Path(store)
+    quiet = logging.getLogger("ome_zarr")  # it warns of e.g. an NGFF 0.4 store ("version mismatch")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        loc = parse_url(str(store), mode="r")
+        nodes = list(Reader(loc)()) if loc is not None else []
+    except Exception as exc:  # ome-zarr and zarr raise assorted types on bad stores
+        raise InputError(f"{store}: cannot read as an OME-Zarr image: {exc}") from None
+    finally:
+        quiet.setLevel(level)
+    node = next((n for n in nodes if n.load(Multiscales) is not None), None)
+    if node is None:
+        raise InputError(
+            f"{store} is not an OME-NGFF image (no 'multiscales' metadata in a Zarr group)"
+        )
+    ms = loc.root_attrs["multiscales"][0]
+    axes = ms.get("axes") or []
+    names = [a.get("name") if isinstance(a, Mapping) else a for a in axes]
+    lead_names = names[:-3]
+    if names[-3:] != ["z", "y", "x"] or lead_names not in ([], ["t"], ["c"], ["t", "c"]):
+        raise InputError(
+            f"{store}: expected the axes (t, z, y, x) or (z, y, x) (an optional channel axis "
+            f"c of length 1 before z), got ({', '.join(map(str, names))})"
+        )
+    ds = ms["datasets"][0]
+    try:
+        arr = zarr.open_array(store=str(store), path=ds["path"], mode="r")
+    except Exception as exc:  # zarr raises assorted types on bad stores
+        raise InputError(f"{store}: cannot open dataset {ds.get('path')!r}: {exc}") from None
+    if arr.ndim != len(names):
+        raise InputError(f"{store}: {len(names)} axes but a {arr.ndim}-D array")
+    if np.dtype(arr.dtype).kind not in "uif":
+        raise InputError(f"{store}: unsupported voxel type {arr.dtype}")
+    where = f"{store} dataset {ds['path']!r}"
+    scale, shift = _transforms(ds.get("coordinateTransformations"), where, arr.ndim)
+    g_scale, g_shift = _transforms(ms.get("coordinateTransformations"), str(store), arr.ndim)
+    scale, shift = scale * g_scale, shift * g_scale + g_shift
+    factors = []
+    for a in axes[-3:]:
+        unit = a.get("unit") if isinstance(a, Mapping) else None
+        if unit not in _LENGTH_UM:
+            raise InputError(
+                f"{store}: axis {a.get('name') if isinstance(a, Mapping) else a!r} has unit "
+                f"{unit!r}; expected a length (micrometer, nanometer, millimeter, …)"
+            )
+        factors.append(_LENGTH_UM[unit])
+    vs = tuple(float(v) for v in scale[-3:] * factors)
+    if not all(math.isfinite(v) and v > 0 for v in vs):
+        raise InputError(f"{where}: voxel size {list(vs)} µm must be positive")
+    z0, y0, x0 = (float(v) for v in shift[-3:] * factors)
+    shape = tuple(int(v) for v in arr.shape)
+    if "c" in lead_names and shape[lead_names.index("c")] != 1:
+        raise InputError(f"{store}: {shape[lead_names.index('c')]} channels; expected one")
+    n = shape[0] if lead_names[:1] == ["t"] else 1
+    missing = []
+    recon_json = store / RECON_JSON
+    if recon_json.is_file():
+        recon = read_json(recon_json)
+        frames = recon.get("frames") if isinstance(recon, Mapping) else None
+        if isinstance(frames, list):
+            done = {f.get("index") for f in frames if isinstance(f, Mapping) and f.get("output")}
+            missing = [k for k in range(n) if k not in done]
+    if missing:
+        raise InputError(
+            f"{store}: frame(s) t = {', '.join(map(str, missing[:5]))} not written yet "
+            f"({RECON_JSON} has no volume for them; an interrupted recon run?)"
+        )
+    out = []
+    for k in range(n):
+        lead = tuple([k] if lead_names[:1] == ["t"] else []) + (0,) * ("c" in lead_names)
+        out.append(VolumeInfo(store, k, shape[-3:], vs, (x0, y0, z0), str(ds["path"]), lead))
+    return out
+
+
+def volume_checksum(info: VolumeInfo) -> str:
+    """SHA-256 identifying a volume: of its file, or of a Zarr frame's values
+    (:func:`hrvbase.io.array_sha256`)."""
+    from hrvbase.io import array_sha256, sha256_file
+
+    if info.dataset is None:
+        return sha256_file(info.path)
+    return array_sha256(_read_zarr(info))
+
+
+def _read_zarr(info: VolumeInfo) -> np.ndarray:
+    import zarr
+
+    try:
+        arr = zarr.open_array(store=str(info.path), path=info.dataset, mode="r")
+        return np.asarray(arr[(*info.lead, Ellipsis)])
+    except Exception as exc:  # zarr and its codecs raise assorted types on corrupt chunks
+        raise InputError(f"cannot read volume {info.name}: {exc}") from None
+
+
 def read_volume(info: VolumeInfo | str | os.PathLike) -> np.ndarray:
     """Voxels of a volume as float32 ``(z, y, x)``.
 
@@ -312,19 +499,23 @@ def read_volume(info: VolumeInfo | str | os.PathLike) -> np.ndarray:
     import tifffile
 
     path = Path(info.path if isinstance(info, VolumeInfo) else info)
-    try:
-        arr = tifffile.imread(path)
-    except Exception as exc:  # tifffile raises assorted types on corrupt files
-        raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
+    where = info.source() if isinstance(info, VolumeInfo) else str(path)
+    if isinstance(info, VolumeInfo) and info.dataset is not None:
+        arr = _read_zarr(info)
+    else:
+        try:
+            arr = tifffile.imread(path)
+        except Exception as exc:  # tifffile raises assorted types on corrupt files
+            raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
     if arr.ndim == 2:
         arr = arr[None]
     if isinstance(info, VolumeInfo):
         arr = arr.reshape(info.shape)
     if arr.ndim != 3:
-        raise InputError(f"{path}: expected a (z, y, x) volume, got shape {arr.shape}")
+        raise InputError(f"{where}: expected a (z, y, x) volume, got shape {arr.shape}")
     arr = arr.astype(np.float32, copy=False)
     if not np.all(np.isfinite(arr)):
-        raise InputError(f"{path}: volume holds NaN or infinite voxels")
+        raise InputError(f"{where}: volume holds NaN or infinite voxels")
     return arr
 
 
@@ -333,4 +524,14 @@ def numbered(folder: str | os.PathLike, index: int, suffix: str) -> Path:
     return Path(folder) / f"{int(index):06d}{suffix}"
 
 
-__all__ = ["NUMBERED", "RECON_JSON", "VolumeInfo", "numbered", "read_volume", "scan_volumes"]
+__all__ = [
+    "NUMBERED",
+    "RECON_JSON",
+    "VolumeInfo",
+    "is_zarr",
+    "numbered",
+    "read_volume",
+    "scan_volumes",
+    "scan_zarr",
+    "volume_checksum",
+]

@@ -1,0 +1,360 @@
+"""Where ``recon run`` puts its volumes: numbered TIFF files or one OME-Zarr image.
+
+:func:`reconstruct_series <recon.pipeline.reconstruct_series>` computes frame ``k`` and hands
+it to a writer; the writer alone knows the format. Both writers have the same small
+interface:
+
+``prepare(n_frames, geometry, times_s, overwrite)``
+    Once, in the main process, before any frame: creates the output (for Zarr the whole
+    array, its shape known from the frame count, and its OME-NGFF metadata).
+``write(k, volume, meta) -> record``
+    Writes frame ``k`` and returns the record that ``recon.json`` keeps for it. Frames are
+    independent: each write touches only its own file or chunks, so frames may be written
+    concurrently, by other threads or processes (a writer holds only paths and numbers, and
+    pickles).
+``verify(k, record)``
+    Whether frame ``k`` on disk is still what ``record`` describes (a resumed run keeps it).
+``indices()``, ``exists(k)``, ``remove(k)``, ``clear()``, ``discard()``, ``label(k)``
+    The frames present, removal of one or all of them, and the name of a frame in messages.
+
+**TIFF** (``--format tiff``, the default): ``OUT/NNNNNN.tif``, float32 ``(z, y, x)`` with
+the voxel size and origin in its metadata (``lfsim.io.write_tiff``); the record is the file's
+size and SHA-256 (:func:`hrvbase.io.file_record`).
+
+**Zarr** (``--format zarr``): ``OUT`` is one OME-Zarr image, written as OME-NGFF **0.5**
+(Zarr format 3), the version ``ome-zarr`` writes by default (:data:`NGFF_VERSION`): a group
+whose ``zarr.json`` holds the ``ome`` metadata (``multiscales`` with one dataset, no pyramid)
+and an array ``OUT/0`` of float32 ``(t, z, y, x)``, chunked ``(1, chunk_z, ny, nx)`` — one
+frame, or one slab of ``chunk_z`` planes of it, per chunk — whose missing chunks read as NaN.
+The dataset's coordinate transformations give the voxel size (``scale``, in micrometer) and
+the object-space position of the centre of voxel ``(0, 0, 0)`` (``translation``); the t axis
+is in seconds when the frames have evenly spaced times (``recon run --fps``), otherwise
+unitless (frame index). ``recon.json`` lies inside the store. Zarr writes each chunk to a
+temporary file and renames it (atomic per chunk); the record of a frame is the SHA-256 of
+its float32 values in C order (:func:`hrvbase.io.array_sha256`), which :meth:`verify`
+recomputes from the chunks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import shutil
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, ReconError
+
+log = logging.getLogger(__name__)
+
+#: Output formats of ``recon run --format``; the first is the default.
+FORMATS = ("tiff", "zarr")
+
+#: OME-NGFF version of the Zarr output: the default of ``ome-zarr`` (0.18: 0.5, Zarr v3).
+NGFF_VERSION = "0.5"
+
+#: Path of the full-resolution array inside the Zarr group.
+ZARR_DATASET = "0"
+
+
+class OutputExistsError(ReconError):
+    """The output holds something this run must not overwrite."""
+
+
+@dataclass(frozen=True)
+class VolumeGeometry:
+    """Where the voxels of every volume of a series lie.
+
+    Attributes
+    ----------
+    shape : tuple of int
+        ``(nz, ny, nx)``.
+    voxel_size_um : tuple of float
+        ``(dz, dy, dx)`` (µm).
+    origin_xyz_um : tuple of float
+        Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm).
+    """
+
+    shape: tuple
+    voxel_size_um: tuple
+    origin_xyz_um: tuple
+
+
+def make_writer(volume_format: str, out: str | os.PathLike, *, zarr_chunk_z: int | None = None):
+    """The writer of ``volume_format`` (one of :data:`FORMATS`) for the output ``out``.
+
+    Raises
+    ------
+    InputError
+        Unknown format, or a Zarr chunk size for another format or below 1.
+    """
+    if volume_format not in FORMATS:
+        raise InputError(f"--format must be one of {', '.join(FORMATS)}, got {volume_format!r}")
+    if volume_format == "tiff":
+        if zarr_chunk_z is not None:
+            raise InputError("--zarr-chunk-z applies only to --format zarr")
+        return TiffSeriesWriter(Path(out))
+    if zarr_chunk_z is not None and (
+        isinstance(zarr_chunk_z, bool) or not isinstance(zarr_chunk_z, int) or zarr_chunk_z < 1
+    ):
+        raise InputError(f"--zarr-chunk-z must be an integer >= 1, got {zarr_chunk_z!r}")
+    return ZarrSeriesWriter(Path(out), zarr_chunk_z)
+
+
+# -- TIFF ------------------------------------------------------------------------------------
+@dataclass
+class TiffSeriesWriter:
+    """Numbered TIFF volumes ``out/NNNNNN.tif`` (see the module docstring)."""
+
+    out: Path
+    geometry: VolumeGeometry | None = None
+    format: str = "tiff"
+
+    def path(self, k: int) -> Path:
+        return self.out / f"{k:06d}.tif"
+
+    def label(self, k: int) -> str:
+        return self.path(k).name
+
+    def prepare(self, n_frames: int, geometry: VolumeGeometry, times_s=None, overwrite=False):
+        self.geometry = geometry
+        self.out.mkdir(parents=True, exist_ok=True)
+
+    def write(self, k: int, volume: np.ndarray, meta: Mapping) -> dict:
+        from hrvbase.io import file_record
+        from lfsim.io import write_tiff
+
+        g = self.geometry
+        write_tiff(
+            self.path(k),
+            np.asarray(volume, dtype=np.float32),
+            metadata=dict(meta),
+            pixel_size_um=g.voxel_size_um,
+            origin_xyz_um=g.origin_xyz_um,
+            overwrite=True,
+        )
+        return file_record(self.path(k))
+
+    def verify(self, k: int, record: Mapping | None) -> bool:
+        from hrvbase.io import verify_record
+
+        return verify_record(self.path(k), record)
+
+    def exists(self, k: int) -> bool:
+        return self.path(k).is_file()
+
+    def indices(self) -> list[int]:
+        pattern = "[0-9][0-9][0-9][0-9][0-9][0-9].tif"
+        return sorted(int(p.name[:6]) for p in self.out.glob(pattern))
+
+    def remove(self, k: int) -> None:
+        self.path(k).unlink(missing_ok=True)
+
+    def clear(self) -> None:
+        for k in self.indices():
+            self.remove(k)
+
+    def discard(self) -> None:
+        """Nothing to undo before the first volume."""
+
+    def record_extra(self) -> dict:
+        return {}
+
+
+# -- Zarr ------------------------------------------------------------------------------------
+def _time_axis(times_s: Sequence | None) -> tuple[float, float, str | None]:
+    """``(scale, translation, unit)`` of the t axis: seconds when the frame times are known and
+    evenly spaced (at least two frames), else the frame index (unitless)."""
+    t = None if times_s is None else list(times_s)
+    if t and len(t) >= 2 and all(v is not None and math.isfinite(v) for v in t):
+        d = np.diff(np.asarray(t, dtype=float))
+        if d[0] > 0 and np.allclose(d, d[0], rtol=1e-6, atol=0):
+            return float(d[0]), float(t[0]), "second"
+    return 1.0, 0.0, None
+
+
+@dataclass
+class ZarrSeriesWriter:
+    """One OME-Zarr image ``out`` of axes ``(t, z, y, x)`` (see the module docstring).
+
+    Parameters
+    ----------
+    out : Path
+        The store (a folder, conventionally ``NAME.zarr``).
+    chunk_z : int, optional
+        Planes per chunk (default: the whole frame, one chunk per frame).
+    """
+
+    out: Path
+    chunk_z: int | None = None
+    format: str = "zarr"
+
+    # The chunk key encoding is Zarr v3's "default" with "/": frame k's chunks are the files
+    # under out/0/c/k/.
+    def _frame_dir(self, k: int) -> Path:
+        return self.out / ZARR_DATASET / "c" / str(k)
+
+    def label(self, k: int) -> str:
+        return f"{self.out.name}[t={k}]"
+
+    def _array(self, mode: str = "r+"):
+        import zarr
+
+        return zarr.open_array(store=str(self.out), path=ZARR_DATASET, mode=mode, zarr_format=3)
+
+    def chunks(self, shape: Sequence[int]) -> tuple[int, int, int, int]:
+        nz, ny, nx = (int(v) for v in shape)
+        cz = nz if self.chunk_z is None else min(self.chunk_z, nz)
+        return (1, cz, ny, nx)
+
+    def prepare(self, n_frames: int, geometry: VolumeGeometry, times_s=None, overwrite=False):
+        """Create (or, resuming, resize) the ``(n_frames, nz, ny, nx)`` array and write the
+        OME-NGFF metadata.
+
+        Raises
+        ------
+        OutputExistsError
+            The store holds an array of another voxel shape, type or chunking (without
+            ``overwrite``, which replaces it).
+        """
+        import zarr
+        from ome_zarr.format import FormatV05
+        from ome_zarr.writer import write_multiscales_metadata
+
+        shape = (int(n_frames), *(int(v) for v in geometry.shape))
+        chunks = self.chunks(geometry.shape)
+        self.out.mkdir(parents=True, exist_ok=True)
+        group = zarr.open_group(store=str(self.out), mode="a", zarr_format=3)
+        arr = None
+        if ZARR_DATASET in group:
+            arr = group[ZARR_DATASET]
+            same = (
+                isinstance(arr, zarr.Array)
+                and arr.ndim == 4
+                and tuple(arr.shape[1:]) == shape[1:]
+                and arr.dtype == np.float32
+                and tuple(arr.chunks) == chunks
+            )
+            if not same:
+                if not overwrite:
+                    had = list(getattr(arr, "chunks", []))
+                    raise OutputExistsError(
+                        f"output {str(self.out)!r} holds a Zarr array {ZARR_DATASET!r} of "
+                        f"another shape, type or chunking (chunks {had}, this run "
+                        f"{list(chunks)}); use a new output or --overwrite (nothing was written)"
+                    )
+                log.info("%s: replacing the array of another chunking", self.out)
+                shutil.rmtree(self.out / ZARR_DATASET)
+                arr = None
+            elif arr.shape[0] != shape[0]:
+                arr.resize(shape)
+        if arr is None:
+            group.create_array(
+                ZARR_DATASET,
+                shape=shape,
+                chunks=chunks,
+                dtype="float32",
+                fill_value=float("nan"),
+                chunk_key_encoding={"name": "default", "separator": "/"},
+                dimension_names=("t", "z", "y", "x"),
+            )
+        dt, t0, t_unit = _time_axis(times_s)
+        axes = [
+            {"name": "t", "type": "time", **({"unit": t_unit} if t_unit else {})},
+            *({"name": a, "type": "space", "unit": "micrometer"} for a in "zyx"),
+        ]
+        x0, y0, z0 = (float(v) for v in geometry.origin_xyz_um)
+        write_multiscales_metadata(
+            group,
+            datasets=[
+                {
+                    "path": ZARR_DATASET,
+                    "coordinateTransformations": [
+                        {"type": "scale", "scale": [dt, *map(float, geometry.voxel_size_um)]},
+                        {"type": "translation", "translation": [t0, z0, y0, x0]},
+                    ],
+                }
+            ],
+            fmt=FormatV05(),
+            axes=axes,
+            name=self.out.stem,
+        )
+
+    def write(self, k: int, volume: np.ndarray, meta: Mapping) -> dict:
+        """Write frame ``k`` (its chunks only); its record ``{"t", "sha256", "dtype"}``."""
+        from hrvbase.io import array_sha256
+
+        vol = np.ascontiguousarray(volume, dtype=np.float32)
+        arr = self._array("r+")
+        if vol.shape != tuple(arr.shape[1:]):
+            raise InputError(
+                f"{self.label(k)}: volume is {vol.shape}, the array holds {tuple(arr.shape[1:])}"
+            )
+        self.remove(k)  # a damaged frame's chunks, and temporary files an interrupt left
+        arr[k] = vol
+        return {"t": int(k), "sha256": array_sha256(vol), "dtype": "<f4", "order": "C"}
+
+    def read(self, k: int) -> np.ndarray:
+        return np.asarray(self._array("r")[k])
+
+    def verify(self, k: int, record: Mapping | None) -> bool:
+        from hrvbase.io import array_sha256
+
+        if not record or record.get("t") != k or "sha256" not in record:
+            return False
+        if not self._frame_dir(k).is_dir():
+            return False
+        try:
+            return array_sha256(self.read(k)) == record["sha256"]
+        except Exception:  # a corrupt chunk fails to decode (assorted types): redo the frame
+            log.debug("%s: cannot read frame %d", self.out, k, exc_info=True)
+            return False
+
+    def exists(self, k: int) -> bool:
+        return self._frame_dir(k).is_dir()
+
+    def indices(self) -> list[int]:
+        base = self.out / ZARR_DATASET / "c"
+        if not base.is_dir():
+            return []
+        return sorted(int(p.name) for p in base.iterdir() if p.name.isdigit() and p.is_dir())
+
+    def remove(self, k: int) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            shutil.rmtree(self._frame_dir(k))
+
+    def clear(self) -> None:
+        """Remove the array and the group metadata (only this tool's files)."""
+        with contextlib.suppress(FileNotFoundError):
+            shutil.rmtree(self.out / ZARR_DATASET)
+        (self.out / "zarr.json").unlink(missing_ok=True)
+
+    def discard(self) -> None:
+        """Before the first volume: remove what :meth:`prepare` made."""
+        self.clear()
+
+    def record_extra(self) -> dict:
+        return {
+            "zarr": {
+                "ngff_version": NGFF_VERSION,
+                "dataset": ZARR_DATASET,
+                "axes": ["t", "z", "y", "x"],
+                "chunk_z": self.chunk_z,
+            }
+        }
+
+
+__all__ = [
+    "FORMATS",
+    "NGFF_VERSION",
+    "OutputExistsError",
+    "TiffSeriesWriter",
+    "VolumeGeometry",
+    "ZarrSeriesWriter",
+    "make_writer",
+]

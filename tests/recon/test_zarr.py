@@ -1,0 +1,219 @@
+"""`recon run --format zarr`: one OME-Zarr image, read back with the ome-zarr reader (as
+napari-ome-zarr does), resumed frame by frame, refused where TIFF output is, and tracked
+exactly like the TIFF series."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recon.cli import main
+
+from .test_pipeline import EXPERIMENT, FAST, ROOT
+
+ARGS = [*FAST, "--iterations", "2", "--fps", "100"]
+
+
+@pytest.fixture(scope="module")
+def series(backend, tmp_path_factory):
+    """The 3-frame test dataset reconstructed as TIFF files and as an OME-Zarr image (chunks of
+    4 planes)."""
+    from lfsim.dataset import generate_dataset
+    from lfsim.experiment import load_experiment
+
+    d = tmp_path_factory.mktemp("zarr")
+    toml = d / "exp.toml"
+    toml.write_text(EXPERIMENT.format(scene=(ROOT / "scenes" / "small.xml").as_posix()))
+    dataset = d / "dataset"
+    generate_dataset(load_experiment(toml), dataset, progress=False)
+    tiff, store = d / "vol", d / "vol.zarr"
+    assert main(["-q", "run", str(dataset), *ARGS, "-o", str(tiff)]) == 0
+    argv = ["-q", "run", str(dataset), *ARGS, "--format", "zarr", "--zarr-chunk-z", "4"]
+    assert main([*argv, "-o", str(store)]) == 0
+    return dataset, tiff, store
+
+
+def run(capsys, *args):
+    rc = main([*map(str, args)])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def chunk_files(store: Path) -> dict[str, tuple[bytes, int]]:
+    """Bytes and modification time of every chunk file, by key."""
+    return {
+        p.relative_to(store).as_posix(): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted((store / "0" / "c").rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_ome_zarr_reader_sees_shape_chunks_voxel_sizes_and_units(series):
+    import zarr
+    from ome_zarr.io import parse_url
+    from ome_zarr.reader import Multiscales, Reader
+
+    from lfsim.io import read_tiff
+    from recon.volume_store import NGFF_VERSION
+
+    _, tiff, store = series
+    meta = json.loads((store / "recon.json").read_text())
+    assert meta["format"] == "zarr" and meta["status"] == "complete"
+    nz, ny, nx = meta["volume_shape"]
+    nodes = list(Reader(parse_url(str(store)))())
+    node = nodes[0]
+    assert node.load(Multiscales) is not None
+    data = node.data[0]
+    assert data.shape == (3, nz, ny, nx) and data.dtype == np.float32
+    assert data.chunks[0] == (1, 1, 1) and data.chunks[2:] == ((ny,), (nx,))
+    assert set(data.chunks[1][:-1]) == {4} and sum(data.chunks[1]) == nz
+    assert zarr.open_array(str(store / "0"), mode="r").chunks == (1, 4, ny, nx)
+    axes = node.metadata["axes"]
+    assert [a["name"] for a in axes] == ["t", "z", "y", "x"]
+    assert [a.get("unit") for a in axes] == ["second", *["micrometer"] * 3]
+    assert [a["type"] for a in axes] == ["time", "space", "space", "space"]
+    (scale, translation) = node.metadata["coordinateTransformations"][0]
+    assert scale["type"] == "scale" and translation["type"] == "translation"
+    assert scale["scale"] == pytest.approx([0.01, 20.0, 25 / 3, 25 / 3])  # 1/fps, dz, dy, dx
+    root = json.loads((store / "zarr.json").read_text())
+    assert root["zarr_format"] == 3 and root["attributes"]["ome"]["version"] == NGFF_VERSION
+    # The voxels are the TIFF series', placed at the same origin (centre of voxel 0).
+    for k in range(3):
+        vol, vmeta = read_tiff(tiff / f"{k:06d}.tif")
+        np.testing.assert_allclose(
+            np.asarray(data[k]), vol, rtol=1e-5, atol=1e-6 * float(np.abs(vol).max())
+        )
+        x0, y0, z0 = vmeta["origin_xyz_um"]
+        assert translation["translation"] == pytest.approx([0.0, z0, y0, x0])
+    # recon.json's checksum of each frame is that of its float32 values in C order.
+    from hrvbase.io import array_sha256
+
+    assert [f["output"]["sha256"] for f in meta["frames"]] == [
+        array_sha256(np.asarray(data[k])) for k in range(3)
+    ]
+
+
+def test_track_on_zarr_equals_track_on_tiff(series, tmp_path, capsys):
+    from track.cli import main as track
+    from track.tables import read_points_csv, read_tracks_csv
+    from track.volumes import scan_volumes
+
+    _, tiff, store = series
+    a, b = scan_volumes(tiff), scan_volumes(store)
+    assert [v.shape for v in a] == [v.shape for v in b]
+    assert [v.voxel_size_um for v in a] == [v.voxel_size_um for v in b]
+    for va, vb in zip(a, b, strict=True):
+        assert vb.origin_xyz_um == pytest.approx(va.origin_xyz_um, abs=1e-9)
+    outs = []
+    for src in (tiff, store):
+        out = tmp_path / src.name
+        argv = ["run", src, "-o", out, "--no-progress"]
+        assert track([str(v) for v in argv]) == 0, capsys.readouterr().err
+        outs.append(out)
+    ta, tb = (read_tracks_csv(o / "tracks.csv") for o in outs)
+    assert len(ta["track_id"]) >= 12  # 5-6 particles in each of 3 frames
+    for key in ta:
+        np.testing.assert_allclose(tb[key], ta[key], rtol=1e-9, atol=1e-9)
+    for k in range(3):
+        pa, pb = (read_points_csv(o / "particles" / f"{k:06d}.csv") for o in outs)
+        assert pa.shape[0] >= 4
+        np.testing.assert_allclose(pb, pa, rtol=1e-9, atol=1e-9)
+    s = json.loads((outs[1] / "summary.json").read_text())
+    assert [f["input"] for f in s["frames"]] == [f"{store}[t={k}]" for k in range(3)]
+
+
+def test_resume_redoes_exactly_the_damaged_frame(series, tmp_path, capsys):
+    dataset, _, original = series
+    store = tmp_path / "vol.zarr"
+    shutil.copytree(original, store)
+    args = ["run", dataset, *ARGS, "--format", "zarr", "--zarr-chunk-z", "4", "-o", store]
+    before = chunk_files(store)
+    # A truncated chunk of frame 1: that frame, and only it, is reconstructed again.
+    damaged = store / "0" / "c" / "1" / "2" / "0" / "0"
+    damaged.write_bytes(damaged.read_bytes()[:10])
+    rc, out, err = run(capsys, *args)
+    assert rc == 0, err
+    assert "1 volume(s) reconstructed, 2 already done" in out
+    assert "vol.zarr[t=1] changed on disk" in err
+    after = chunk_files(store)
+    assert {k: v[0] for k, v in after.items()} == {k: v[0] for k, v in before.items()}
+    rewritten = {k.split("/")[2] for k in after if after[k][1] != before[k][1]}
+    assert rewritten == {"1"}
+    # A frame whose chunks are gone (an interrupted run): redone, the others kept.
+    shutil.rmtree(store / "0" / "c" / "2")
+    rc, out, err = run(capsys, *args)
+    assert rc == 0 and "1 volume(s) reconstructed, 2 already done" in out
+    again = chunk_files(store)
+    assert {k: v[0] for k, v in again.items()} == {k: v[0] for k, v in before.items()}
+    assert {k.split("/")[2] for k in again if again[k][1] != after[k][1]} == {"2"}
+
+
+def test_refusals_and_bad_options(series, tmp_path, capsys):
+    import zarr
+
+    dataset, tiff, original = series
+    store = tmp_path / "vol.zarr"
+    shutil.copytree(original, store)
+    before = chunk_files(store)
+    zarr_args = ["--format", "zarr", "--zarr-chunk-z", "4"]
+    # Other settings: refused, nothing touched; --overwrite replaces the store.
+    other = ["run", dataset, *FAST, "--iterations", "1", *zarr_args, "-o", store]
+    rc, _, err = run(capsys, "-q", *other)
+    assert rc == 2 and "other inputs or settings" in err and err.count("\n") == 1
+    assert chunk_files(store) == before
+    # Another chunking of the same volumes: refused likewise.
+    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, "--format", "zarr", "-o", store)
+    assert rc == 2 and "chunking" in err and str(store) in err and err.count("\n") == 1
+    assert chunk_files(store) == before
+    rc, _, err = run(capsys, "-q", *other, "--overwrite")
+    assert rc == 0, err
+    assert json.loads((store / "recon.json").read_text())["settings"]["iterations"] == 1
+    # A Zarr store recon did not write: refused, even with --overwrite.
+    foreign = tmp_path / "foreign.zarr"
+    zarr.open_group(str(foreign), mode="w").attrs["mine"] = 1
+    for extra in ([], ["--overwrite"]):
+        rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, *zarr_args, "-o", foreign, *extra)
+        assert rc == 2 and "not empty" in err and str(foreign) in err
+    assert zarr.open_group(str(foreign), mode="r").attrs["mine"] == 1
+    # One format over the other: refused.
+    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, *zarr_args, "-o", tiff)
+    assert rc == 2 and "tiff volumes" in err and err.count("\n") == 1
+    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, "-o", original)
+    assert rc == 2 and "zarr volumes" in err and err.count("\n") == 1
+    # Bad options: one line naming the option.
+    for bad, text in (
+        (["--format", "foo"], "--format"),
+        (["--zarr-chunk-z", "2"], "--zarr-chunk-z applies only to --format zarr"),
+        (["--format", "zarr", "--zarr-chunk-z", "0"], "--zarr-chunk-z"),
+    ):
+        rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, *bad, "-o", tmp_path / "x.zarr")
+        assert rc == 2 and text in err and "Traceback" not in err, err
+        assert err.strip().count("\n") <= 1  # argparse: usage line + error line
+    assert not (tmp_path / "x.zarr").exists()
+
+
+def test_frames_written_concurrently_by_other_processes(tmp_path):
+    """Writers pickle; frames written at once by worker processes land in their own chunks."""
+    import multiprocessing
+    import pickle
+    from concurrent.futures import ProcessPoolExecutor
+
+    from recon.volume_store import VolumeGeometry, make_writer
+
+    rng = np.random.default_rng(5)
+    vols = rng.normal(size=(6, 5, 4, 3)).astype(np.float32)
+    writer = make_writer("zarr", tmp_path / "p.zarr", zarr_chunk_z=2)
+    writer.prepare(6, VolumeGeometry((5, 4, 3), (2.0, 1.0, 1.0), (0.0, 0.0, 0.0)))
+    assert pickle.loads(pickle.dumps(writer)) == writer
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(2, mp_context=ctx) as pool:
+        records = list(pool.map(writer.write, range(6), vols, [{}] * 6))
+    assert writer.indices() == list(range(6))
+    assert all(writer.verify(k, r) for k, r in enumerate(records))
+    np.testing.assert_array_equal(np.stack([writer.read(k) for k in range(6)]), vols)
+    # A frame's record does not fit another frame.
+    assert not writer.verify(1, records[0]) and not writer.verify(1, {**records[1], "t": 0})
