@@ -250,7 +250,7 @@ def markdown(study_dict: dict, result: dict) -> str:
         lines += ["", f"## {variant}: pooled numbers", ""]
         lines += ["| quantity | value |", "|---|---|"]
         for k, val in v["summary"].items():
-            unit = "strain" if "_E_" in k else "um"
+            unit = "strain" if "_E_" in k and "_ratio_" not in k else "um"
             lines.append(f"| {k} | {_num(val, unit)} |")
         rows = v.get("rows", [])
         cols = [c for c in SHOWN[st["kind"]] if rows and c in rows[0]]
