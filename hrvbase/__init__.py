@@ -8,7 +8,9 @@ What every package needs, defined once:
   and the guard that keeps outputs off the user's inputs;
 - :mod:`hrvbase.validate`: number and array validators (e.g. ``(N, 3)`` point arrays);
 - :mod:`hrvbase.cli`: logging, ``-q``/``-v``/``--version`` and the error handling of every
-  command line.
+  command line;
+- :mod:`hrvbase.known_fields`: analytic heterogeneous displacement fields (Gaussian
+  indentation, stiff inclusion) that ``lfsim`` prescribes and ``track``'s tests link.
 
 ``lfsim``, ``recon``, ``track`` and ``hrvptm`` import it; it imports none of them.
 """

@@ -4,7 +4,9 @@ One function per kind of study (:data:`hrvptm.config.KINDS`). Each returns an
 :class:`Analysis`: per-frame (or per-pair) table rows, pooled summary numbers and the arrays
 the plots need. Lengths in µm, strains dimensionless (0.01 = 1 %), Green–Lagrange
 ``E = (FᵀF − I)/2`` (docs/conventions.md); the imposed strain comes from the prescribed motion's
-deformation gradient (``lfsim.motion``), or from central differences of a user field.
+deformation gradient (``lfsim.motion``): one ``F`` for a homogeneous motion, the analytic
+gradient at every grid node for a known heterogeneous field (``gaussian_indentation``,
+``stiff_inclusion``), central differences of a user field.
 
 Failed frames
 -------------
@@ -309,6 +311,10 @@ def imposed_amplitude(motion, k: int) -> tuple[str, float]:
         return "engineering strain (%)", 100.0 * float(motion.amplitude(k))
     if name == "simple_shear":
         return "shear γ (%)", 100.0 * float(motion.amplitude(k))
+    if name == "gaussian_indentation":
+        return "indentation depth (µm)", float(motion.amplitude(k))
+    if name == "stiff_inclusion":
+        return "far-field strain (%)", 100.0 * float(motion.amplitude(k))
     return "frame", float(k)
 
 
@@ -319,6 +325,8 @@ def imposed_F(motion, k: int, X_um: np.ndarray) -> np.ndarray:
         return np.eye(3)
     if getattr(motion, "homogeneous", False):
         return np.asarray(motion.deformation_gradient(k), float)
+    if hasattr(motion, "deformation_gradient_at"):  # a known field: its analytic gradient
+        return np.asarray(motion.deformation_gradient_at(X_um, k), float)
     return numerical_deformation_gradient(lambda X: motion.displacement(X, k), X_um)
 
 
@@ -349,6 +357,87 @@ def _sampling_floor(truth0: dict, ids: np.ndarray, true_u: np.ndarray, fld) -> n
     return ideal.E[fld.mask]
 
 
+def heterogeneous_errors(motion, k: int, fld, X0_um: np.ndarray, grid, E_meas, E_true) -> dict:
+    """A heterogeneous field against its truth at the same nodes, and against the best the
+    pipeline could do with these particles.
+
+    Parameters
+    ----------
+    motion : lfsim.motion.Motion
+        The imposed (non-homogeneous) motion.
+    k : int
+        Frame (the field is from frame 0 to ``k``).
+    fld : track.fields.GridField
+        The measured total field of frame ``k``.
+    X0_um : numpy.ndarray, shape (N, 3)
+        Detected frame-0 positions of the particles tracked to frame ``k`` (µm).
+    grid : track.fields.GridSettings
+        The study's gridding settings (``[track.grid]``).
+    E_meas, E_true : numpy.ndarray, shape (K, 3, 3)
+        Measured and imposed Green–Lagrange strain at the K supported nodes of ``fld``.
+
+    Returns
+    -------
+    dict
+        ``u_node_rmsd_{x,y,z}``: the gridded displacement against the imposed one at the
+        supported nodes (µm); ``u_node_ideal_rmsd_{x,y,z}`` and ``E_ideal_rmsd_c``: the same
+        for the *ideal* field, the imposed displacement evaluated at the detected particles
+        ``X0_um`` and gridded exactly as the study grids (same settings, same grid, same
+        nodes): what perfect localisation and tracking would give, the error of sampling the
+        field at these particles only (NaN with fewer than 10 particles);
+        ``E_ratio_ideal_c = E_rmsd_c / E_ideal_rmsd_c``. Strains dimensionless.
+    """
+    from track.fields import field_on_grid, fit_displacement
+
+    Z, Y, X = np.meshgrid(fld.z_um, fld.y_um, fld.x_um, indexing="ij")
+    nodes = np.column_stack([X[fld.mask], Y[fld.mask], Z[fld.mask]])
+    u_true = motion.displacement(nodes, k)
+    out = {}
+    d_meas = fld.u[fld.mask] - u_true
+    ideal = None
+    if len(X0_um) >= 10:
+        u_at = motion.displacement(X0_um, k)
+        ideal = field_on_grid(fit_displacement(X0_um, u_at, grid), fld.axes)
+    for j, ax in enumerate(AXES):
+        out[f"u_node_rmsd_{ax}"] = float(np.sqrt(np.mean(d_meas[:, j] ** 2)))
+        out[f"u_node_ideal_rmsd_{ax}"] = (
+            float(np.sqrt(np.mean((ideal.u[fld.mask][:, j] - u_true[:, j]) ** 2)))
+            if ideal is not None
+            else math.nan
+        )
+    for c, (i, j) in TENSOR_COMPONENTS.items():
+        meas = float(np.sqrt(np.mean((E_meas[:, i, j] - E_true[:, i, j]) ** 2)))
+        if ideal is not None:
+            d = ideal.E[fld.mask][:, i, j] - E_true[:, i, j]
+            floor = float(np.sqrt(np.mean(d**2)))
+        else:
+            floor = math.nan
+        out[f"E_ideal_rmsd_{c}"] = floor
+        out[f"E_ratio_ideal_{c}"] = meas / floor if floor > 0 else math.nan
+    return out
+
+
+def _pool_heterogeneous(rows: list[dict], summary: dict) -> None:
+    """Pooled (RMS over frames, weighted by the nodes) numbers of :func:`heterogeneous_errors`."""
+    rows = [r for r in rows if "E_ideal_rmsd_xx" in r and r.get("E_n")]
+    if not rows:
+        return
+    w = np.array([r["E_n"] for r in rows], float)
+
+    def pool(key: str) -> float:
+        v = np.array([r[key] for r in rows], float)
+        ok = np.isfinite(v)
+        return float(np.sqrt(np.sum(w[ok] * v[ok] ** 2) / np.sum(w[ok]))) if ok.any() else math.nan
+
+    for ax in AXES:
+        summary[f"pooled_u_node_rmsd_{ax}"] = pool(f"u_node_rmsd_{ax}")
+        summary[f"pooled_u_node_ideal_rmsd_{ax}"] = pool(f"u_node_ideal_rmsd_{ax}")
+    for c in TENSOR_COMPONENTS:
+        summary[f"pooled_E_ideal_rmsd_{c}"] = floor = pool(f"E_ideal_rmsd_{c}")
+        meas = summary.get(f"pooled_E_rmsd_{c}", math.nan)
+        summary[f"pooled_E_ratio_ideal_{c}"] = meas / floor if floor > 0 else math.nan
+
+
 def analyse_series(data: VariantData) -> Analysis:
     """Cumulative displacements of the tracked particles and the gridded strain fields.
 
@@ -361,7 +450,12 @@ def analyse_series(data: VariantData) -> Analysis:
     ``c`` in xx, yy, zz, xy, xz, yz (``E_se`` with n = tracked particles). ``E_floor_rmsd_c``
     is the sampling floor: the RMSD of the strain gridded (exactly, on the same grid and nodes)
     from the *true* displacements of the same tracked particles — zero for homogeneous
-    motions, the error no tracker can beat with this particle density otherwise.
+    motions, the error no tracker can beat with this particle density otherwise. For a
+    heterogeneous motion (not homogeneous: a known field or a user field) the rows also hold
+    the node-by-node comparison of :func:`heterogeneous_errors` (``u_node_rmsd_*``,
+    ``u_node_ideal_rmsd_*``, ``E_ideal_rmsd_*``, ``E_ratio_ideal_*``) and the summary their
+    pooled values (``pooled_u_node_rmsd_*``, ``pooled_E_ideal_rmsd_*``,
+    ``pooled_E_ratio_ideal_*``).
     """
     from track.field_files import read_field_npz
     from track.tables import read_tracks_csv
@@ -436,6 +530,10 @@ def analyse_series(data: VariantData) -> Analysis:
             E_meas = fld.E[fld.mask]
             ts = tensor_stats(E_meas, E_true, "E_", n_independent=max(int(known.sum()), 1))
             row.update(ts)
+            if motion is not None and not getattr(motion, "homogeneous", False):
+                E_t = np.broadcast_to(E_true, E_meas.shape)
+                grid = st.track.series.grid
+                row.update(heterogeneous_errors(motion, k, fld, x0[i0][known], grid, E_meas, E_t))
             E_floor = _sampling_floor(truth0, start[known], true_u, fld)
             for c in TENSOR_COMPONENTS:
                 i, j = TENSOR_COMPONENTS[c]
@@ -471,6 +569,7 @@ def analyse_series(data: VariantData) -> Analysis:
         summary[f"pooled_E_err_{c}"] = float(e.mean()) if len(e) else math.nan
         vals = [abs(r[f"E_err_{c}"]) for r in rows if not math.isnan(r[f"E_err_{c}"])]
         summary[f"worst_E_abs_mean_err_{c}"] = float(max(vals)) if vals else math.nan
+    _pool_heterogeneous(rows, summary)
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
     return _with_failures(Analysis(rows, summary, arrays), failures)

@@ -24,8 +24,9 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
 
     [motion]                        # optional (no section: every frame is the reference)
     type = "simple_shear"           # translation | rotation | uniaxial_tension | simple_shear
-    plane = "xz"                    #   | user_field; keys of lfsim.motion's classes; an
-    step_gamma = 0.025              #   explicit `values` schedule needs one value per frame
+    plane = "xz"                    #   | gaussian_indentation | stiff_inclusion | user_field;
+    step_gamma = 0.025              #   keys of lfsim.motion's classes; an explicit `values`
+                                    #   schedule needs one value per frame
     center_um = [0, 0, 250]
 
     [render]

@@ -24,6 +24,19 @@ motion                 amplitude        deformation
 ``SimpleShear``        ``γ``            plane ``"ab"``: ``x_a = X_a + γ (X_b − c_b)``
 =====================  ===============  =====================================================
 
+Heterogeneous motions scale a known field (:mod:`hrvbase.known_fields`, the fields that
+``track.synthetic`` tests the linker on) by the same kind of per-frame amplitude:
+
+==========================  ===================  ============================================
+motion                      amplitude            deformation
+==========================  ===================  ============================================
+``GaussianIndentation``     depth (µm)           ``u_z = −A exp(−ρ²/2w²) exp(−(s − Z)/D)``
+``StiffInclusion``          far-field strain ε   stretch ε along ``axis`` around a rigid sphere
+==========================  ===================  ============================================
+
+Their deformation gradient varies in space: ``deformation_gradient_at(X_um, frame)``
+(analytic, shape (N, 3, 3)).
+
 :class:`UserField` wraps an arbitrary displacement function ``f(X_um, frame, **params)``.
 :func:`motion_from_dict` builds any of them from an experiment file's table.
 """
@@ -44,6 +57,13 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+
+from hrvbase.known_fields import (
+    inclusion_displacement,
+    inclusion_gradient,
+    indentation_displacement,
+    indentation_gradient,
+)
 
 from .errors import ConfigError, LfsimError
 
@@ -174,8 +194,8 @@ class Motion:
 
 
 @dataclass(frozen=True)
-class _Homogeneous(Motion):
-    """Homogeneous motion ``x = c + F (X − c) + t`` with a per-frame amplitude.
+class _Scheduled(Motion):
+    """A motion scaled by one amplitude per frame: ``k · step`` or ``values[k]``.
 
     Subclasses name their step field in ``_step_name``; exactly one of it and ``values`` must
     be given.
@@ -183,7 +203,6 @@ class _Homogeneous(Motion):
 
     values: tuple | None = field(default=None, kw_only=True)
 
-    homogeneous: ClassVar[bool] = True
     _step_name: ClassVar[str] = ""
     _vector_amplitude: ClassVar[bool] = False
 
@@ -243,6 +262,13 @@ class _Homogeneous(Motion):
             )
         a = self.values[int(frame)]
         return np.asarray(a) if self._vector_amplitude else a
+
+
+@dataclass(frozen=True)
+class _Homogeneous(_Scheduled):
+    """Homogeneous motion ``x = c + F (X − c) + t`` with a per-frame amplitude."""
+
+    homogeneous: ClassVar[bool] = True
 
     @property
     def center(self) -> np.ndarray:
@@ -442,6 +468,193 @@ class SimpleShear(_Homogeneous):
         return F
 
 
+# -- heterogeneous motions ------------------------------------------------------------------
+def _positive(where: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise ConfigError(f"{where} must be a finite number, got {value!r}")
+    if not value > 0:
+        raise ConfigError(f"{where} must be > 0, got {value!r}")
+    return float(value)
+
+
+def _finite(where: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise ConfigError(f"{where} must be a finite number, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class _Heterogeneous(_Scheduled):
+    """A known heterogeneous field ``u(X, k) = amplitude(k) · û(X)``, linear in its amplitude.
+
+    Subclasses define ``_field(X, amplitude)`` and ``_gradient(X, amplitude)`` (the shared
+    definitions of :mod:`hrvbase.known_fields`). The deformation gradient varies in space:
+    :meth:`deformation_gradient_at` gives it at reference points.
+    """
+
+    homogeneous: ClassVar[bool] = False
+
+    def displacement(self, X_um, frame) -> np.ndarray:
+        """Displacement ``u`` (N, 3) µm at reference positions ``X_um`` (N, 3) µm."""
+        X = _check_points(X_um)
+        return self._field(X, self.amplitude(frame))
+
+    def positions(self, X_um, frame) -> np.ndarray:
+        """Current positions ``x = X + u(X, k)`` (N, 3) µm."""
+        X = _check_points(X_um)
+        return X + self._field(X, self.amplitude(frame))
+
+    def displacement_gradient(self, X_um, frame) -> np.ndarray:
+        """``∂u_i/∂X_j`` (N, 3, 3) at reference positions ``X_um`` (N, 3) µm (analytic)."""
+        X = _check_points(X_um)
+        return self._gradient(X, self.amplitude(frame))
+
+    def deformation_gradient_at(self, X_um, frame) -> np.ndarray:
+        """``F = I + ∂u/∂X`` (N, 3, 3) at reference positions ``X_um`` (N, 3) µm."""
+        return np.eye(3) + self.displacement_gradient(X_um, frame)
+
+    def deformation_gradient(self, frame) -> np.ndarray:
+        """Not defined: use :meth:`deformation_gradient_at`."""
+        raise LfsimError(
+            f"{self.type_name} is not a homogeneous motion; it has no single deformation "
+            "gradient (use deformation_gradient_at(X_um, frame))"
+        )
+
+    def _field(self, X: np.ndarray, amplitude: float) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError
+
+    def _gradient(self, X: np.ndarray, amplitude: float) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class GaussianIndentation(_Heterogeneous):
+    """A Gaussian punch pressed into the face ``z = surface_z_um``, deeper every frame.
+
+    ``u_z = −A(k) exp(−ρ²/(2 w²)) exp(−(surface_z_um − Z)/D)``, ``u_x = u_y = 0``, with ``ρ``
+    the lateral distance from ``center_xy_um``, ``A(k) = k · step_um`` (or ``values[k]``) the
+    indentation depth at the punch centre on the face (µm, > 0 towards −z), ``w = width_um``
+    and ``D = decay_um`` (:func:`hrvbase.known_fields.indentation_displacement`, the field of
+    ``track.synthetic``'s ``gaussian_indentation``). Meant for particles below the face
+    (``Z ≤ surface_z_um``), where the field decays into the volume.
+
+    Parameters
+    ----------
+    surface_z_um : float
+        z of the indented face, µm.
+    width_um : float
+        Lateral standard deviation of the punch, µm (> 0).
+    decay_um : float
+        Decay depth into the volume, µm (> 0).
+    step_um : float
+        Indentation depth added per frame, µm.
+    center_xy_um : array_like, shape (2,)
+        Punch centre (x, y), µm.
+    values : sequence of float, optional, keyword-only
+        Explicit indentation depth of every frame in µm, instead of ``step_um``.
+    """
+
+    surface_z_um: float
+    width_um: float
+    decay_um: float
+    step_um: float | None = None
+    center_xy_um: tuple[float, float] = (0.0, 0.0)
+
+    type_name: ClassVar[str] = "gaussian_indentation"
+    _step_name: ClassVar[str] = "step_um"
+
+    def __post_init__(self) -> None:
+        n = self.type_name
+        object.__setattr__(self, "surface_z_um", _finite(f"{n} surface_z_um", self.surface_z_um))
+        object.__setattr__(self, "width_um", _positive(f"{n} width_um", self.width_um))
+        object.__setattr__(self, "decay_um", _positive(f"{n} decay_um", self.decay_um))
+        c = self.center_xy_um
+        if isinstance(c, str | bytes) or not hasattr(c, "__len__") or len(c) != 2:
+            raise ConfigError(f"{n} center_xy_um must be two numbers (x, y), got {c!r}")
+        xy = tuple(_finite(f"{n} center_xy_um", v) for v in c)
+        object.__setattr__(self, "center_xy_um", xy)
+        super().__post_init__()
+
+    def _params(self, amplitude: float) -> dict:
+        return {
+            "depth_um": float(amplitude),
+            "center_xy_um": self.center_xy_um,
+            "surface_z_um": self.surface_z_um,
+            "width_um": self.width_um,
+            "decay_um": self.decay_um,
+        }
+
+    def _field(self, X, amplitude):
+        return indentation_displacement(X, **self._params(amplitude))
+
+    def _gradient(self, X, amplitude):
+        return indentation_gradient(X, **self._params(amplitude))
+
+
+@dataclass(frozen=True)
+class StiffInclusion(_Heterogeneous):
+    """A nearly rigid sphere in an incompressible matrix stretched along ``axis``.
+
+    ``u = (1 − φ(r)) ε(k) M (X − c)`` with ``M = ê êᵀ − ½ (I − ê êᵀ)``, ``φ = 1 − δ`` inside the
+    sphere (radius ``a``) and ``(1 − δ)(a/r)³`` outside, ``ε(k) = k · step_strain`` (or
+    ``values[k]``) the far-field engineering strain along the axis and ``δ = inner_fraction``
+    (:func:`hrvbase.known_fields.inclusion_displacement`, the field of ``track.synthetic``'s
+    ``stiff_inclusion``): the far-field stretch away from the sphere, almost none inside it and
+    a strain concentration of about ``3 ε`` at its poles.
+
+    Parameters
+    ----------
+    radius_um : float
+        Radius of the sphere, µm (> 0).
+    axis : {"x", "y", "z"}
+        Stretch axis.
+    step_strain : float
+        Far-field engineering strain added per frame.
+    center_um : array_like, shape (3,)
+        Centre of the sphere (x, y, z), µm.
+    inner_fraction : float
+        Strain inside the sphere as a fraction of the far field, in [0, 1) (0: rigid).
+    values : sequence of float, optional, keyword-only
+        Explicit far-field strain of every frame, instead of ``step_strain``.
+    """
+
+    radius_um: float
+    axis: str = "x"
+    step_strain: float | None = None
+    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inner_fraction: float = 0.05
+
+    type_name: ClassVar[str] = "stiff_inclusion"
+    _step_name: ClassVar[str] = "step_strain"
+
+    def __post_init__(self) -> None:
+        n = self.type_name
+        if self.axis not in _AXES:
+            raise ConfigError(f"{n} axis must be 'x', 'y' or 'z', got {self.axis!r}")
+        object.__setattr__(self, "radius_um", _positive(f"{n} radius_um", self.radius_um))
+        object.__setattr__(self, "center_um", _vec3(f"{n} center_um", self.center_um))
+        f = _finite(f"{n} inner_fraction", self.inner_fraction)
+        if not 0.0 <= f < 1.0:
+            raise ConfigError(f"{n} inner_fraction must be in [0, 1), got {self.inner_fraction!r}")
+        object.__setattr__(self, "inner_fraction", f)
+        super().__post_init__()
+
+    def _params(self, amplitude: float) -> dict:
+        return {
+            "strain": float(amplitude),
+            "center_um": self.center_um,
+            "radius_um": self.radius_um,
+            "inner_fraction": self.inner_fraction,
+            "axis": self.axis,
+        }
+
+    def _field(self, X, amplitude):
+        return inclusion_displacement(X, **self._params(amplitude))
+
+    def _gradient(self, X, amplitude):
+        return inclusion_gradient(X, **self._params(amplitude))
+
+
 # -- user-defined fields ----------------------------------------------------------------------
 def _split_spec(spec: str) -> tuple[str, str]:
     if not isinstance(spec, str) or ":" not in spec:
@@ -579,7 +792,16 @@ class UserField(Motion):
 
 
 MOTION_TYPES: dict[str, type[Motion]] = {
-    cls.type_name: cls for cls in (Translation, Rotation, UniaxialTension, SimpleShear, UserField)
+    cls.type_name: cls
+    for cls in (
+        Translation,
+        Rotation,
+        UniaxialTension,
+        SimpleShear,
+        GaussianIndentation,
+        StiffInclusion,
+        UserField,
+    )
 }
 
 

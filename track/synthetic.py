@@ -30,6 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from hrvbase.known_fields import (
+    inclusion_displacement,
+    inclusion_gradient,
+    indentation_displacement,
+    indentation_gradient,
+)
 from track.errors import InputError
 
 logger = logging.getLogger(__name__)
@@ -142,7 +148,9 @@ class GaussianIndentation(KnownField):
     """A punch pressed into the top face (z = ``top_um``) at ``(x, y) = centre``.
 
     ``u_z = −A exp(−ρ²/(2 w²)) exp(−(top − z)/D)`` with ``ρ`` the lateral distance from the
-    centre, ``w`` the width and ``D`` the decay depth; ``u_x = u_y = 0``.
+    centre, ``w`` the width and ``D`` the decay depth; ``u_x = u_y = 0``. The field is
+    :func:`hrvbase.known_fields.indentation_displacement` (lfsim's ``gaussian_indentation``
+    motion is the same).
     """
 
     centre_xy_um: np.ndarray = field(default_factory=lambda: np.zeros(2))
@@ -150,26 +158,20 @@ class GaussianIndentation(KnownField):
     width_um: float = 1.0
     depth_um: float = 1.0
 
-    def _uz(self, x):
-        rho2 = np.sum((x[:, :2] - self.centre_xy_um) ** 2, axis=1)
-        return -self.amplitude_um * np.exp(
-            -rho2 / (2 * self.width_um**2) - (self.top_um - x[:, 2]) / self.depth_um
-        )
+    def _params(self) -> dict:
+        return {
+            "depth_um": self.amplitude_um,
+            "center_xy_um": self.centre_xy_um,
+            "surface_z_um": self.top_um,
+            "width_um": self.width_um,
+            "decay_um": self.depth_um,
+        }
 
     def __call__(self, xyz_um) -> np.ndarray:
-        x = _points(xyz_um)
-        out = np.zeros_like(x)
-        out[:, 2] = self._uz(x)
-        return out
+        return indentation_displacement(_points(xyz_um), **self._params())
 
     def gradient(self, xyz_um) -> np.ndarray:
-        x = _points(xyz_um)
-        uz = self._uz(x)
-        out = np.zeros((x.shape[0], 3, 3))
-        out[:, 2, 0] = -uz * (x[:, 0] - self.centre_xy_um[0]) / self.width_um**2
-        out[:, 2, 1] = -uz * (x[:, 1] - self.centre_xy_um[1]) / self.width_um**2
-        out[:, 2, 2] = uz / self.depth_um
-        return out
+        return indentation_gradient(_points(xyz_um), **self._params())
 
 
 @dataclass(frozen=True)
@@ -239,6 +241,8 @@ class StiffInclusion(KnownField):
     ``u = (1 − φ(r)) E (x − c)`` with ``E = ε diag(1, −½, −½)``, ``φ = 1 − δ`` inside the
     sphere (radius ``a``; strain ``δ ε`` there) and ``(1 − δ)(a/r)³`` outside: continuous,
     the far-field stretch outside, a strain concentration of about ``3 ε`` at the interface.
+    The field is :func:`hrvbase.known_fields.inclusion_displacement` (lfsim's
+    ``stiff_inclusion`` motion is the same).
     """
 
     centre_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -246,29 +250,20 @@ class StiffInclusion(KnownField):
     radius_um: float = 1.0
     inner_fraction: float = 0.05
 
-    def _parts(self, x):
-        d = x - self.centre_um
-        r = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
-        e = self.strain * np.array([1.0, -0.5, -0.5])
-        ed = d * e
-        k = 1.0 - self.inner_fraction
-        outside = r >= self.radius_um
-        ro = np.maximum(r, self.radius_um)
-        phi = np.where(outside, k * (self.radius_um / ro) ** 3, k)
-        dphi = np.where(outside, -3.0 * k * self.radius_um**3 / ro**4, 0.0)
-        return d, r, e, ed, phi, dphi
+    def _params(self) -> dict:
+        return {
+            "strain": self.strain,
+            "center_um": self.centre_um,
+            "radius_um": self.radius_um,
+            "inner_fraction": self.inner_fraction,
+            "axis": "x",
+        }
 
     def __call__(self, xyz_um) -> np.ndarray:
-        x = _points(xyz_um)
-        _, _, _, ed, phi, _ = self._parts(x)
-        return (1.0 - phi)[:, None] * ed
+        return inclusion_displacement(_points(xyz_um), **self._params())
 
     def gradient(self, xyz_um) -> np.ndarray:
-        x = _points(xyz_um)
-        d, r, e, ed, phi, dphi = self._parts(x)
-        out = (1.0 - phi)[:, None, None] * np.diag(e)[None]
-        out -= (dphi / r)[:, None, None] * ed[:, :, None] * d[:, None, :]
-        return out
+        return inclusion_gradient(_points(xyz_um), **self._params())
 
 
 @dataclass(frozen=True)

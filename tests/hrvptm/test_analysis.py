@@ -146,6 +146,7 @@ def test_series_shear_displacements_strains_and_tracking(tmp_path):
         assert r["E_floor_rmsd_xz"] < 1e-6  # an affine field is sampled exactly
     assert a.summary["wrong_tracks"] == 0
     assert a.summary["pooled_E_floor_rmsd_zz"] < 1e-6
+    assert "E_ideal_rmsd_xx" not in a.rows[0]  # node-by-node columns: heterogeneous motions
     assert a.arrays["peak_frame"] == 3
     assert a.arrays["field"]["frame"] == 3
 
@@ -184,6 +185,48 @@ def test_series_of_a_non_affine_field_reports_the_sampling_floor(tmp_path):
         assert floor > 0.002  # a cosine across 600 µm sampled by 60 particles: not exact
         assert floor <= last[f"E_rmsd_{c}"] < 1.1 * floor  # measured 0.81/0.83, 0.67/0.70 %
     assert a.summary["pooled_E_floor_rmsd_xz"] > 0.002
+
+
+def test_series_of_a_stiff_inclusion_against_the_truth_node_by_node(tmp_path):
+    """A known heterogeneous field (a rigid sphere in a matrix stretched along x): the truth is
+    the analytic field at every node, not an affine fit; with almost noise-free detections the
+    measured error sits on the ideal field's (the truth at the detected particles, gridded the
+    study's way), and the report has the section that compares them."""
+    from hrvptm.report import markdown
+
+    motion = {
+        "type": "stiff_inclusion",
+        "radius_um": 130.0,
+        "center_um": [0, 0, 260],
+        "step_strain": 0.05,
+    }
+    study = _study(3, motion, "series")
+    paths = _fake_variant(tmp_path, study, bias=(0, 0, 0), noise_um=(0.02, 0.02, 0.05))
+    _link(tmp_path, paths, 3)
+    a = analyse_series(VariantData.load(study, paths))
+    assert a.arrays["amplitude_label"] == "far-field strain (%)"
+    assert [r["amplitude"] for r in a.rows] == pytest.approx([5.0, 10.0])
+    E_true = a.arrays["field"]["E_true"]  # per node, varying: 3 ε at the poles, ≈ 0 inside
+    assert E_true.ndim == 3 and np.ptp(E_true[:, 0, 0]) > 0.1
+    last = a.rows[-1]
+    assert last["tracking_ratio"] == 1.0
+    for c in ("xx", "yy", "xy"):
+        ideal = last[f"E_ideal_rmsd_{c}"]
+        assert ideal > 0.002  # 60 particles do not resolve the sphere: a real sampling floor
+        assert 0.9 < last[f"E_ratio_ideal_{c}"] < 1.25  # measured / ideal ≈ 1 without noise
+        assert last[f"E_rmsd_{c}"] == pytest.approx(last[f"E_ratio_ideal_{c}"] * ideal)
+    for ax in "xyz":
+        assert last[f"u_node_rmsd_{ax}"] < 1.5 * last[f"u_node_ideal_rmsd_{ax}"] + 0.05
+    s = a.summary
+    assert s["pooled_E_ideal_rmsd_xx"] > 0.002 and 0.9 < s["pooled_E_ratio_ideal_xx"] < 1.25
+    assert s["pooled_u_node_rmsd_x"] > 0
+    variant = {"seconds": {}, "summary": s, "rows": a.rows, "failures": []}
+    md = markdown(study.to_dict(), {"variants": {"mismatched": variant}})
+    assert "## Heterogeneous field against the truth and the sampling floor" in md
+    row = next(
+        line for line in md.splitlines() if line.startswith("| mismatched | strain RMSD E_xx")
+    )
+    assert f"{100 * s['pooled_E_ideal_rmsd_xx']:.2f} %" in row
 
 
 def test_localization_counts_a_frame_without_detections_as_failed(tmp_path):

@@ -362,3 +362,104 @@ def test_bad_points_and_frames():
         m.positions(X, "1")
     with pytest.raises(ConfigError, match="finite"):
         m.positions(X, math.nan)
+
+
+# -- known heterogeneous fields ---------------------------------------------------------------
+HETERO = [
+    {
+        "type": "stiff_inclusion",
+        "axis": "x",
+        "radius_um": 130.0,
+        "center_um": [0.0, 0.0, 260.0],
+        "step_strain": 0.05,
+    },
+    {"type": "stiff_inclusion", "axis": "z", "radius_um": 80.0, "values": [0.0, 0.02, -0.03]},
+    {
+        "type": "gaussian_indentation",
+        "surface_z_um": 400.0,
+        "width_um": 150.0,
+        "decay_um": 120.0,
+        "center_xy_um": [20.0, -10.0],
+        "step_um": 4.0,
+    },
+]
+
+
+@pytest.mark.parametrize("d", HETERO, ids=lambda d: d["type"] + "_" + str(len(d)))
+def test_heterogeneous_motions_scale_with_the_schedule_and_have_exact_gradients(d):
+    m = motion_from_dict(d)
+    assert isinstance(m, MOTION_TYPES[d["type"]]) and not m.homogeneous
+    assert motion_from_dict(m.to_dict()) == m
+    np.testing.assert_array_equal(m.displacement(X, 0), 0.0)  # frame 0: the reference
+    u1, u2 = m.displacement(X, 1), m.displacement(X, 2)
+    a1, a2 = m.amplitude(1), m.amplitude(2)
+    np.testing.assert_allclose(a1 * u2, a2 * u1, atol=1e-9)  # linear in the amplitude
+    np.testing.assert_allclose(m.positions(X, 2), X + u2)
+    h = 1e-3
+    num = np.stack([(m.displacement(X + h * e, 2) - m.displacement(X - h * e, 2)) / (2 * h)
+                    for e in np.eye(3)], axis=2)  # fmt: skip
+    np.testing.assert_allclose(m.displacement_gradient(X, 2), num, atol=1e-7)
+    np.testing.assert_allclose(m.deformation_gradient_at(X, 2), np.eye(3) + num, atol=1e-7)
+    with pytest.raises(LfsimError, match="not a homogeneous motion"):
+        m.deformation_gradient(2)
+
+
+def test_stiff_inclusion_is_rigid_inside_and_stretched_far_away():
+    m = motion_from_dict(HETERO[0])  # ε = 5 % per frame along x around a 130 µm sphere
+    c = np.array([0.0, 0.0, 260.0])
+    inside = c + np.array([[0.0, 0.0, 0.0], [60.0, -40.0, 30.0]])
+    G = m.displacement_gradient(inside, 2)  # ε = 10 %: 5 % of it inside the sphere
+    np.testing.assert_allclose(G, np.broadcast_to(np.diag([0.005, -0.0025, -0.0025]), G.shape))
+    far = c + np.array([[1e5, 0.0, 0.0], [0.0, 1e5, 0.0]])
+    G = m.displacement_gradient(far, 2)
+    np.testing.assert_allclose(G, np.broadcast_to(np.diag([0.1, -0.05, -0.05]), G.shape), atol=1e-6)
+    pole = c + np.array([[130.0, 0.0, 0.0]])  # the strain concentration at the pole: ≈ 3 ε
+    assert 2.5 * 0.1 < m.displacement_gradient(pole, 2)[0, 0, 0] < 3.2 * 0.1
+
+
+def test_gaussian_indentation_is_the_track_synthetic_field():
+    """One field definition (hrvbase.known_fields) for lfsim's motion and track's test field."""
+    from track.synthetic import GaussianIndentation as TrackIndentation
+    from track.synthetic import StiffInclusion as TrackInclusion
+
+    m = motion_from_dict(HETERO[2])
+    t = TrackIndentation("g", 8.0, centre_xy_um=np.array([20.0, -10.0]), top_um=400.0,
+                         width_um=150.0, depth_um=120.0)  # fmt: skip
+    np.testing.assert_array_equal(m.displacement(X, 2), t(X))
+    m = motion_from_dict(HETERO[0])
+    t = TrackInclusion("s", 1.0, centre_um=np.array([0.0, 0.0, 260.0]), strain=0.15,
+                       radius_um=130.0)  # fmt: skip
+    np.testing.assert_allclose(m.displacement(X, 3), t(X), rtol=1e-12)  # 3 · 0.05 vs 0.15
+
+
+@pytest.mark.parametrize(
+    ("d", "match"),
+    [
+        ({"type": "stiff_inclusion", "step_strain": 0.1}, "radius_um"),
+        ({"type": "stiff_inclusion", "radius_um": 0, "step_strain": 0.1}, "radius_um must be > 0"),
+        ({"type": "stiff_inclusion", "radius_um": 9, "axis": "w", "step_strain": 0.1}, "axis"),
+        (
+            {"type": "stiff_inclusion", "radius_um": 9, "inner_fraction": 1.0, "step_strain": 0.1},
+            r"inner_fraction must be in \[0, 1\)",
+        ),
+        ({"type": "stiff_inclusion", "radius_um": 9}, "exactly one of 'step_strain'"),
+        (
+            {"type": "gaussian_indentation", "surface_z_um": 1, "width_um": -1, "decay_um": 1,
+             "step_um": 1},
+            "width_um must be > 0",
+        ),
+        (
+            {"type": "gaussian_indentation", "surface_z_um": 1, "width_um": 1, "decay_um": 1,
+             "center_xy_um": [0, 0, 0], "step_um": 1},
+            r"center_xy_um must be two numbers \(x, y\)",
+        ),
+        (
+            {"type": "gaussian_indentation", "surface_z_um": "top", "width_um": 1, "decay_um": 1,
+             "step_um": 1},
+            "surface_z_um must be a finite number",
+        ),
+    ],
+)  # fmt: skip
+def test_heterogeneous_motion_errors(d, match):
+    with pytest.raises(ConfigError, match=match):
+        motion_from_dict(d)
