@@ -37,8 +37,12 @@ all its arrays:
 from __future__ import annotations
 
 import logging
+import os
+from contextlib import nullcontext
+from itertools import pairwise
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .arrays import NUMPY, drjit_arrays
 from .errors import InputError
@@ -233,6 +237,46 @@ class LightFieldProjector(_ProjectorBase):
         return self.backward_dr(polyphase)
 
 
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return max(1, os.cpu_count() or 1)
+
+
+def resolve_threads(threads: int | None = None, workers: int = 1) -> int:
+    """Threads for one projector: ``threads``, or the cores shared among ``workers``.
+
+    Parameters
+    ----------
+    threads : int, optional
+        Asked for (≥ 1); ``None``: :func:`available_cores` divided among ``workers``.
+    workers : int
+        Frames reconstructed at once on this machine (each with its own projector), so that
+        ``threads × workers`` stays within the cores.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
+    if int(workers) != workers or workers < 1:
+        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if threads is None:
+        return max(1, available_cores() // int(workers))
+    if isinstance(threads, bool) or int(threads) != threads or threads < 1:
+        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
+    return int(threads)
+
+
+def _parts(n: int, k: int) -> list[tuple[int, int]]:
+    """``[0, n)`` cut into at most ``k`` consecutive non-empty ranges of near-equal length."""
+    k = max(1, min(k, n))
+    edges = [n * j // k for j in range(k + 1)]
+    return [(a, b) for a, b in pairwise(edges) if b > a]
+
+
 class SparseProjector(_ProjectorBase):
     """``H`` and ``Hᵀ`` as per-depth sparse × dense products (CPU; see the module docstring).
 
@@ -246,16 +290,41 @@ class SparseProjector(_ProjectorBase):
     block_mb : float
         Memory bound (MB) of one shifted-channel block ``B``; larger depths are split into
         groups of sub-positions.
+    threads : int, optional
+        Threads of one projection (default: every core, :func:`resolve_threads`).
+
+    Notes
+    -----
+    **Threads.** scipy.sparse's compiled products and numpy's copies release the GIL, so the
+    work is shared by a thread pool (one per call; nothing is kept between calls):
+
+    - ``H``: the image is cut into slabs of lenslet rows ``v``; each thread builds the shifted
+      channels ``B`` of its slab only and computes its slab of ``Y`` over every block;
+    - ``Hᵀ``: per block, the rows of ``Aᵀ`` (ranges of lenslet shifts ``q``) are split among
+      the threads (``Z = Aᵀ Y``), then the output lenslet rows, each thread adding the shifted
+      ``Z`` planes into its slab of the volume.
+
+    Every output element is summed by one thread in the same order whatever the number of
+    threads (the slabs and row ranges cut only *which* elements a thread computes), so the
+    result is bit-identical for any ``threads`` (tested for 1, 2 and 3).
     """
 
-    def __init__(self, bank: PSFBank, n_lenslets: tuple[int, int], block_mb: float = 256.0):
+    def __init__(
+        self,
+        bank: PSFBank,
+        n_lenslets: tuple[int, int],
+        block_mb: float = 256.0,
+        threads: int | None = None,
+    ):
         import scipy.sparse as sp
 
         self._init_common(bank, n_lenslets)
+        self.threads = resolve_threads(threads)
         c, r, qy, qx = self._terms()
         s2 = self.s * self.s
         plane = self.nx * self.ny
-        self._blocks = []  # (first channel, n channels, shifts (Q, 2), A (R × Q·C), Aᵀ)
+        # (first channel, n channels, shifts (Q, 2), A (R × Q·C), Aᵀ in row blocks)
+        self._blocks = []
         depth = c // s2
         bounds = np.searchsorted(depth, np.arange(self.nz + 1))
         for k in range(self.nz):
@@ -278,55 +347,107 @@ class SparseProjector(_ProjectorBase):
                     (bank.w[lo:hi][sel].astype(np.float32), (r[lo:hi][sel], cols)),
                     shape=(self.n_res, len(shifts) * ng),
                 )
-                self._blocks.append((k * s2 + g0, ng, shifts, a, a.T.tocsr()))
+                at = a.T.tocsr()
+                # Aᵀ cut into ranges of shifts (rows i·ng … (i1)·ng), one per thread.
+                at_parts = [
+                    (i0, i1, at[i0 * ng : i1 * ng]) for i0, i1 in _parts(len(shifts), self.threads)
+                ]
+                self._blocks.append((k * s2 + g0, ng, shifts, a, at_parts))
 
-    def _padded(self, shifts):
-        hy = int(np.abs(shifts[:, 0]).max())
-        hx = int(np.abs(shifts[:, 1]).max())
-        return hy, hx
+    # -- helpers ---------------------------------------------------------------------------
+    def _map(self, pool, fn, items) -> list:
+        """``fn`` over ``items`` on ``pool`` (in order; inline when there is no pool)."""
+        if pool is None:
+            return [fn(item) for item in items]
+        return list(pool.map(fn, items))
+
+    def _pool(self):
+        from concurrent.futures import ThreadPoolExecutor
+
+        if self.threads == 1:
+            return nullcontext(None)
+        return ThreadPoolExecutor(self.threads, thread_name_prefix="recon-projector")
+
+    # -- H ---------------------------------------------------------------------------------
+    def _forward_slab(self, v: np.ndarray, v0: int, v1: int) -> np.ndarray:
+        """Rows ``v0 … v1 − 1`` of the lenslet grid of ``H v``: ``(n_res, (v1 − v0)·nx)``."""
+        ny, nx = self.ny, self.nx
+        rows = v1 - v0
+        y = np.zeros((self.n_res, rows * nx), np.float32)
+        for c0, ng, shifts, a, _ in self._blocks:
+            hy = int(np.abs(shifts[:, 0]).max())
+            hx = int(np.abs(shifts[:, 1]).max())
+            # voxel lenslet rows v0 − hy … v1 + hy − 1 of these channels, zero outside
+            vp = np.zeros((ng, rows + 2 * hy, nx + 2 * hx), np.float32)
+            s0, s1 = max(0, v0 - hy), min(ny, v1 + hy)
+            vp[:, s0 - (v0 - hy) : s1 - (v0 - hy), hx : hx + nx] = v[c0 : c0 + ng, s0:s1]
+            # pixel lenslet (v, u) reads voxel lenslet (v − qy, u − qx): B[i] is the window
+            # of vp at (hy − qy, hx − qx); one gather for all shifts, (Q, ng, rows, nx)
+            win = sliding_window_view(vp, (rows, nx), axis=(1, 2)).transpose(1, 2, 0, 3, 4)
+            b = win[hy - shifts[:, 0], hx - shifts[:, 1]]
+            y += a @ b.reshape(len(shifts) * ng, rows * nx)
+        return y
 
     def forward_flat(self, channels: np.ndarray) -> np.ndarray:
         """``H``: flat channels → flat polyphase image (numpy float32)."""
         ny, nx = self.ny, self.nx
         v = np.asarray(channels, np.float32).reshape(self.n_channels, ny, nx)
-        y = np.zeros((self.n_res, ny * nx), np.float32)
-        for c0, ng, shifts, a, _ in self._blocks:
-            hy, hx = self._padded(shifts)
-            vp = np.zeros((ng, ny + 2 * hy, nx + 2 * hx), np.float32)
-            vp[:, hy : hy + ny, hx : hx + nx] = v[c0 : c0 + ng]
-            b = np.empty((len(shifts), ng, ny, nx), np.float32)
-            for i, (sy, sx) in enumerate(shifts):
-                # pixel lenslet (v, u) reads voxel lenslet (v - qy, u - qx)
-                b[i] = vp[:, hy - sy : hy - sy + ny, hx - sx : hx - sx + nx]
-            y += a @ b.reshape(len(shifts) * ng, ny * nx)
+        slabs = _parts(ny, self.threads)
+        with self._pool() as pool:
+            parts = self._map(pool, lambda r: self._forward_slab(v, *r), slabs)
+        if len(slabs) == 1:
+            return parts[0].ravel()
+        y = np.empty((self.n_res, ny, nx), np.float32)
+        for (v0, v1), part in zip(slabs, parts, strict=True):
+            y[:, v0:v1] = part.reshape(self.n_res, v1 - v0, nx)
         return y.ravel()
 
+    # -- Hᵀ --------------------------------------------------------------------------------
     def backward_flat(self, polyphase: np.ndarray) -> np.ndarray:
         """``Hᵀ``: flat polyphase image → flat channels (numpy float32)."""
         ny, nx = self.ny, self.nx
         yr = np.asarray(polyphase, np.float32).reshape(self.n_res, ny * nx)
         out = np.zeros((self.n_channels, ny, nx), np.float32)
-        for c0, ng, shifts, _, at in self._blocks:
-            hy, hx = self._padded(shifts)
-            z = (at @ yr).reshape(len(shifts), ng, ny, nx)
-            acc = np.zeros((ng, ny + 2 * hy, nx + 2 * hx), np.float32)
-            for i, (sy, sx) in enumerate(shifts):
-                acc[:, hy - sy : hy - sy + ny, hx - sx : hx - sx + nx] += z[i]
-            out[c0 : c0 + ng] += acc[:, hy : hy + ny, hx : hx + nx]
+        slabs = _parts(ny, self.threads)
+        with self._pool() as pool:
+            for c0, ng, shifts, _, at_parts in self._blocks:
+                # Z = Aᵀ Y, shift range by shift range: z[i] is (ng, ny, nx) for shift i
+                zs = self._map(pool, lambda p: p[2] @ yr, at_parts)
+                z = [None] * len(shifts)
+                for (i0, i1, _), zp in zip(at_parts, zs, strict=True):
+                    z[i0:i1] = list(zp.reshape(i1 - i0, ng, ny, nx))
+                dst = out[c0 : c0 + ng]
+
+                def add_shifted(rng, z=z, shifts=shifts, dst=dst):
+                    # voxel lenslet (v, u) gathers pixel lenslet (v + qy, u + qx), shifts in
+                    # order; rows v0 … v1 − 1 only
+                    v0, v1 = rng
+                    for zi, (sy, sx) in zip(z, shifts, strict=True):
+                        a0, a1 = max(v0, -sy), min(v1, ny - sy)
+                        b0, b1 = max(0, -sx), min(nx, nx - sx)
+                        if a0 < a1 and b0 < b1:
+                            dst[:, a0:a1, b0:b1] += zi[:, a0 + sy : a1 + sy, b0 + sx : b1 + sx]
+
+                self._map(pool, add_shifted, slabs)
         return out.ravel()
 
 
 PROJECTORS = ("auto", "gather", "sparse")
 
 
-def make_projector(bank: PSFBank, n_lenslets: tuple[int, int], kind: str = "auto"):
+def make_projector(
+    bank: PSFBank, n_lenslets: tuple[int, int], kind: str = "auto", threads: int | None = None
+):
     """The fastest projector for the current backend (or the one asked for).
 
     ``"auto"``: :class:`SparseProjector` on the CPU (LLVM backend), :class:`LightFieldProjector`
-    on CUDA — the choice measured by ``benchmarks/bench_projectors.py``.
+    on CUDA — the choice measured by ``benchmarks/bench_projectors.py``. ``threads``: threads
+    of the CPU projector (:func:`resolve_threads`; default every core); the gather projector
+    runs on the Dr.Jit backend's own threads (:func:`lfsim.backend.init_backend`).
     """
     if kind not in PROJECTORS:
         raise InputError(f"projector must be one of {PROJECTORS}, got {kind!r}")
+    threads = resolve_threads(threads)
     if kind == "auto":
         from lfsim.backend import backend_info, init_backend
 
@@ -334,4 +455,4 @@ def make_projector(bank: PSFBank, n_lenslets: tuple[int, int], kind: str = "auto
         kind = "gather" if info.device == "cuda" else "sparse"
     if kind == "gather":
         return LightFieldProjector(bank, n_lenslets)
-    return SparseProjector(bank, n_lenslets)
+    return SparseProjector(bank, n_lenslets, threads=threads)
