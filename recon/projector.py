@@ -436,18 +436,23 @@ PROJECTORS = ("auto", "gather", "sparse")
 
 
 def make_projector(
-    bank: PSFBank, n_lenslets: tuple[int, int], kind: str = "auto", threads: int | None = None
+    bank: PSFBank,
+    n_lenslets: tuple[int, int],
+    kind: str = "auto",
+    threads: int | None = None,
+    workers: int = 1,
 ):
     """The fastest projector for the current backend (or the one asked for).
 
     ``"auto"``: :class:`SparseProjector` on the CPU (LLVM backend), :class:`LightFieldProjector`
     on CUDA — the choice measured by ``benchmarks/bench_projectors.py``. ``threads``: threads
-    of the CPU projector (:func:`resolve_threads`; default every core); the gather projector
+    of the CPU projector, ``None``: the cores divided among ``workers``, the frames
+    reconstructed at once on this machine (:func:`resolve_threads`). The gather projector
     runs on the Dr.Jit backend's own threads (:func:`lfsim.backend.init_backend`).
     """
     if kind not in PROJECTORS:
         raise InputError(f"projector must be one of {PROJECTORS}, got {kind!r}")
-    threads = resolve_threads(threads)
+    threads = resolve_threads(threads, workers)
     if kind == "auto":
         from lfsim.backend import backend_info, init_backend
 

@@ -166,5 +166,9 @@ def test_make_projector_passes_threads(small_bank):
 
     p = make_projector(small_bank, (20, 20), "sparse", threads=3)
     assert isinstance(p, SparseProjector) and p.threads == 3
+    from recon.projector import available_cores
+
+    p = make_projector(small_bank, (20, 20), "sparse", workers=available_cores() + 1)
+    assert p.threads == 1  # more frame workers than cores: one thread each
     with pytest.raises(InputError, match="threads"):
         make_projector(small_bank, (20, 20), "sparse", threads=0)
