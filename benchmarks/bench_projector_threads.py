@@ -9,8 +9,13 @@ slows them alike. Reported per thread count: the multiply-adds of one projection
 time per projection, G multiply-adds per second, the speed-up over the first thread count,
 the CPU seconds (all threads) per projection and the work efficiency (CPU seconds of the
 first thread count over this one's: below 1 where splitting costs extra work; on a busy
-machine the steadier measure, as wall times then depend on what else runs). The outputs
-of every thread count are checked to be bit-identical to the first's.
+machine the steadier measure, as wall times then depend on what else runs) and the cores the
+projection got (CPU seconds over wall seconds: near the thread count on a quiet machine, less
+where other work or the GIL holds threads back). The outputs
+of every thread count are checked to be bit-identical to the first's. Last, the same thread
+counts run a reference load that is parallel by construction (numpy ufuncs on one
+independent array per thread, no GIL): its speed-up is what the machine allows at that
+moment, the ceiling to read the projector's against when other work shares the cores.
 
 Default case: the paper-size frame — paper optics, 85 × 53 lenslets (1280 × 800 px), depths
 −80…720 µm in 5 µm steps (161 planes), ``s = 5``: 1.5·10¹⁰ multiply-adds per projection. The
@@ -35,6 +40,28 @@ from statistics import median
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def reference_speedup(threads: list[int], seconds: float = 0.5) -> dict[int, float]:
+    """Speed-up of embarrassingly parallel numpy work on each thread count over the first."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    arrays = [np.ones(2_000_000, np.float32) for _ in range(max(threads))]
+
+    def work(x):
+        for _ in range(20):
+            np.sqrt(x, out=x)
+            np.multiply(x, np.float32(1.0001), out=x)
+
+    rate = {}
+    for t in threads:
+        n, t0 = 0, time.perf_counter()
+        with ThreadPoolExecutor(t) as ex:
+            while time.perf_counter() - t0 < seconds:
+                list(ex.map(work, arrays[:t]))
+                n += t
+        rate[t] = n / (time.perf_counter() - t0)
+    return {t: rate[t] / rate[threads[0]] for t in threads}
 
 
 def main() -> int:
@@ -97,7 +124,7 @@ def main() -> int:
                 return 1
     print(
         f"{'threads':>7s} {'H s':>8s} {'Hᵀ s':>8s} {'s/proj':>8s} {'GMAC/s':>8s} "
-        f"{'speed-up':>8s} {'cpu s/proj':>10s} {'work eff.':>9s}   "
+        f"{'speed-up':>8s} {'cpu s/proj':>10s} {'work eff.':>9s} {'cores':>5s}   "
         f"(medians of {args.repeats} repeats)"
     )
     base = base_cpu = None
@@ -108,8 +135,14 @@ def main() -> int:
         base_cpu = base_cpu or median(cpu[t])
         print(
             f"{t:7d} {th:8.2f} {tb:8.2f} {per:8.2f} {macs / per / 1e9:8.2f} "
-            f"{base / per:8.2f} {median(cpu[t]):10.2f} {base_cpu / median(cpu[t]):9.2f}"
+            f"{base / per:8.2f} {median(cpu[t]):10.2f} {base_cpu / median(cpu[t]):9.2f} "
+            f"{median(cpu[t]) / per:5.2f}"
         )
+    ref = reference_speedup(args.threads)
+    print(
+        "reference (GIL-free numpy work, one array per thread) speed-up: "
+        + ", ".join(f"{t} threads {ref[t]:.2f}" for t in args.threads)
+    )
     print(
         f"outputs bit-identical across {args.threads} threads; load average at the end "
         f"{os.getloadavg()[0]:.2f}"
