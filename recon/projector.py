@@ -277,6 +277,19 @@ def _parts(n: int, k: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in pairwise(edges) if b > a]
 
 
+def _parts_by_weight(weights: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Indices ``[0, len(weights))`` cut into at most ``k`` consecutive non-empty ranges of
+    about equal total weight."""
+    n = len(weights)
+    k = max(1, min(k, n))
+    cum = np.r_[0.0, np.cumsum(np.asarray(weights, np.float64))]  # weight before index i
+    edges = {0, n}
+    for target in cum[-1] * np.arange(1, k) / k:
+        i = int(np.searchsorted(cum, target))  # cum[i - 1] < target <= cum[i]
+        edges.add(i if i > 0 and cum[i] - target < target - cum[i - 1] else max(i - 1, 0))
+    return list(pairwise(sorted(edges)))
+
+
 class SparseProjector(_ProjectorBase):
     """``H`` and ``Hᵀ`` as per-depth sparse × dense products (CPU; see the module docstring).
 
@@ -348,9 +361,12 @@ class SparseProjector(_ProjectorBase):
                     shape=(self.n_res, len(shifts) * ng),
                 )
                 at = a.T.tocsr()
-                # Aᵀ cut into ranges of shifts (rows i·ng … (i1)·ng), one per thread.
+                # Aᵀ cut into ranges of shifts (rows i0·ng … i1·ng), one per thread, of about
+                # equal non-zeros
+                per_shift = np.diff(at.indptr[::ng])
                 at_parts = [
-                    (i0, i1, at[i0 * ng : i1 * ng]) for i0, i1 in _parts(len(shifts), self.threads)
+                    (i0, i1, at[i0 * ng : i1 * ng])
+                    for i0, i1 in _parts_by_weight(per_shift, self.threads)
                 ]
                 self._blocks.append((k * s2 + g0, ng, shifts, a, at_parts))
 

@@ -172,3 +172,19 @@ def test_make_projector_passes_threads(small_bank):
     assert p.threads == 1  # more frame workers than cores: one thread each
     with pytest.raises(InputError, match="threads"):
         make_projector(small_bank, (20, 20), "sparse", threads=0)
+
+
+def test_work_split_covers_every_index_once():
+    from recon.projector import _parts, _parts_by_weight
+
+    assert _parts(20, 3) == [(0, 6), (6, 13), (13, 20)]
+    assert _parts(2, 5) == [(0, 1), (1, 2)]
+    assert _parts_by_weight(np.array([10, 1, 1, 1]), 2) == [(0, 1), (1, 4)]  # heavy first
+    assert _parts_by_weight(np.array([1, 1, 1, 10]), 3) == [(0, 3), (3, 4)]
+    assert _parts_by_weight(np.array([1, 2, 3, 4, 5, 6]), 4) == [(0, 3), (3, 4), (4, 5), (5, 6)]
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        w = rng.integers(0, 100, int(rng.integers(1, 40)))
+        parts = _parts_by_weight(w, int(rng.integers(1, 8)))
+        assert [a for a, _ in parts][1:] == [b for _, b in parts][:-1]  # contiguous
+        assert parts[0][0] == 0 and parts[-1][1] == len(w) and all(b > a for a, b in parts)
