@@ -31,7 +31,9 @@ all its arrays:
   the volume channels shifted by every ``q`` — contiguous rows of ``nx · ny`` values, which
   the CPU streams with SIMD instead of gathering element by element; ``Hᵀ`` uses ``A_kᵀ``
   and adds the shifted rows back. Same terms, so the same operator to rounding (tested),
-  and about 4× faster than the gathers on a 2-core CPU. Numpy arrays throughout.
+  and about 4× faster than the gathers on a 2-core CPU. Numpy arrays throughout; one
+  projection is shared by a thread pool (``threads``, default every core), bit-identical
+  for any thread count.
 """
 
 from __future__ import annotations
