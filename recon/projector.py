@@ -253,7 +253,9 @@ def resolve_threads(threads: int | None = None, workers: int = 1) -> int:
     Parameters
     ----------
     threads : int, optional
-        Asked for (≥ 1); ``None``: :func:`available_cores` divided among ``workers``.
+        Asked for (≥ 1); ``None``: the environment variable ``HRVPTM_THREADS`` if set (as for
+        the Dr.Jit backend, :func:`lfsim.backend.init_backend`), else :func:`available_cores`
+        divided among ``workers``.
     workers : int
         Frames reconstructed at once on this machine (each with its own projector), so that
         ``threads × workers`` stays within the cores.
@@ -265,6 +267,14 @@ def resolve_threads(threads: int | None = None, workers: int = 1) -> int:
     """
     if int(workers) != workers or workers < 1:
         raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if threads is None and os.environ.get("HRVPTM_THREADS"):
+        env = os.environ["HRVPTM_THREADS"]
+        try:
+            return resolve_threads(int(env))
+        except (ValueError, InputError):
+            raise InputError(
+                f"environment variable HRVPTM_THREADS must be an integer >= 1, got {env!r}"
+            ) from None
     if threads is None:
         return max(1, available_cores() // int(workers))
     if isinstance(threads, bool) or int(threads) != threads or threads < 1:

@@ -149,6 +149,7 @@ def test_resolve_threads(monkeypatch):
     from recon import projector
     from recon.projector import resolve_threads
 
+    monkeypatch.delenv("HRVPTM_THREADS", raising=False)
     monkeypatch.setattr(projector, "available_cores", lambda: 8)
     assert resolve_threads() == 8
     assert resolve_threads(None, workers=3) == 2  # threads × workers ≤ cores
@@ -159,15 +160,22 @@ def test_resolve_threads(monkeypatch):
             resolve_threads(bad)
     with pytest.raises(InputError, match="workers must be an integer >= 1"):
         resolve_threads(None, workers=0)
+    monkeypatch.setenv("HRVPTM_THREADS", "3")  # the Dr.Jit backend's variable, too
+    assert resolve_threads() == 3 and resolve_threads(None, workers=2) == 3
+    assert resolve_threads(2) == 2
+    monkeypatch.setenv("HRVPTM_THREADS", "0")
+    with pytest.raises(InputError, match="HRVPTM_THREADS must be an integer >= 1, got '0'"):
+        resolve_threads()
 
 
-def test_make_projector_passes_threads(small_bank):
+def test_make_projector_passes_threads(small_bank, monkeypatch):
     from recon.projector import SparseProjector, make_projector
 
     p = make_projector(small_bank, (20, 20), "sparse", threads=3)
     assert isinstance(p, SparseProjector) and p.threads == 3
     from recon.projector import available_cores
 
+    monkeypatch.delenv("HRVPTM_THREADS", raising=False)
     p = make_projector(small_bank, (20, 20), "sparse", workers=available_cores() + 1)
     assert p.threads == 1  # more frame workers than cores: one thread each
     with pytest.raises(InputError, match="threads"):
