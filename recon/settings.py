@@ -79,12 +79,13 @@ class ReconSettings:
         localised less well, 0.53/0.45/5.2 µm RMS against 0.25/0.25/3.8 µm).
     threads : int or None
         CPU threads of one frame's reconstruction (≥ 1): the scipy.sparse projector's thread
-        pool (:class:`recon.projector.SparseProjector`). ``None``: every core the process may
-        use, divided among the frames reconstructed at once (:func:`recon.projector.
-        resolve_threads`); with ``W`` frame workers on one machine keep ``threads × W`` ≤ the
-        cores, or they compete for them. The volumes are bit-identical for any value, so it
-        is not part of the output folder's fingerprint (:data:`RUN_ONLY_FIELDS`). ``recon
-        run --threads N`` sets it and the Dr.Jit backend's threads.
+        pool (:class:`recon.projector.SparseProjector`). ``None``: ``HRVPTM_THREADS`` if set,
+        else every core the process may use, divided among the frames reconstructed at once
+        (:func:`recon.projector.resolve_threads`); with ``W`` frame workers on one machine
+        keep ``threads × W`` ≤ the cores, or they compete for them. The volumes are
+        bit-identical for any value, so it is not part of the output folder's fingerprint
+        (:data:`RUN_ONLY_FIELDS`). ``recon run --threads N`` sets it and the Dr.Jit backend's
+        threads.
     """
 
     z_min_um: float | None = None
