@@ -87,8 +87,9 @@ def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
         metavar="N",
         default=argparse.SUPPRESS if suppress else None,
         help="CPU threads of the reconstruction commands: run's CPU projector (its threads "
-        "setting) and the Dr.Jit backend (default: all cores); with several frames "
-        "reconstructed at once keep threads x workers <= cores; calibration runs on one core",
+        "setting) and the Dr.Jit backend (default: HRVPTM_THREADS, else all cores); with "
+        "several frames reconstructed at once keep threads x frames <= cores; calibration "
+        "runs on one core",
     )
     return common
 
