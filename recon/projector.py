@@ -325,13 +325,15 @@ class SparseProjector(_ProjectorBase):
 
     - ``H``: the image is cut into slabs of lenslet rows ``v``; each thread builds the shifted
       channels ``B`` of its slab only and computes its slab of ``Y`` over every block;
-    - ``Hᵀ``: per block, the rows of ``Aᵀ`` (ranges of lenslet shifts ``q``) are split among
-      the threads (``Z = Aᵀ Y``), then the output lenslet rows, each thread adding the shifted
-      ``Z`` planes into its slab of the volume.
+    - ``Hᵀ``: the blocks (each its own channels; with few blocks for the threads, ranges of
+      a block's channels) are shared out: a thread computes ``Z = Aᵀ Y`` of its channels and
+      adds the shifted ``Z`` planes into them. Up to ``threads`` such ``Z`` (each at most
+      ``block_mb``) are held at once.
 
     Every output element is summed by one thread in the same order whatever the number of
-    threads (the slabs and row ranges cut only *which* elements a thread computes), so the
-    result is bit-identical for any ``threads`` (tested for 1, 2 and 3).
+    threads (the slabs and ranges cut only *which* elements a thread computes), so the result
+    is bit-identical for any ``threads`` (tested for 1, 2, 3 and 16), and to the serial
+    formulation.
     """
 
     def __init__(
@@ -348,8 +350,7 @@ class SparseProjector(_ProjectorBase):
         c, r, qy, qx = self._terms()
         s2 = self.s * self.s
         plane = self.nx * self.ny
-        # (first channel, n channels, shifts (Q, 2), A (R × Q·C), Aᵀ in row blocks)
-        self._blocks = []
+        self._blocks = []  # (first channel, n channels, shifts (Q, 2), A (R × Q·C))
         depth = c // s2
         bounds = np.searchsorted(depth, np.arange(self.nz + 1))
         for k in range(self.nz):
@@ -372,15 +373,18 @@ class SparseProjector(_ProjectorBase):
                     (bank.w[lo:hi][sel].astype(np.float32), (r[lo:hi][sel], cols)),
                     shape=(self.n_res, len(shifts) * ng),
                 )
-                at = a.T.tocsr()
-                # Aᵀ cut into ranges of shifts (rows i0·ng … i1·ng), one per thread, of about
-                # equal non-zeros
-                per_shift = np.diff(at.indptr[::ng])
-                at_parts = [
-                    (i0, i1, at[i0 * ng : i1 * ng])
-                    for i0, i1 in _parts_by_weight(per_shift, self.threads)
-                ]
-                self._blocks.append((k * s2 + g0, ng, shifts, a, at_parts))
+                self._blocks.append((k * s2 + g0, ng, shifts, a))
+
+        # Hᵀ tasks: a block, or where there are few blocks for the threads a range of its
+        # channels (about equal non-zeros), with the rows of Aᵀ of those channels
+        self._backward_tasks = []  # (first channel, n channels, shifts, Aᵀ rows (Q·n × R))
+        split = -(-4 * self.threads // max(len(self._blocks), 1))
+        for c0, ng, shifts, a in self._blocks:
+            at = a.T.tocsr()  # rows i·ng + channel
+            per_channel = np.diff(at.indptr).reshape(len(shifts), ng).sum(axis=0)
+            for g0, g1 in _parts_by_weight(per_channel, split):
+                rows = (np.arange(len(shifts))[:, None] * ng + np.arange(g0, g1)).ravel()
+                self._backward_tasks.append((c0 + g0, g1 - g0, shifts, at[rows]))
 
     # -- helpers ---------------------------------------------------------------------------
     def _map(self, pool, fn, items) -> list:
@@ -402,7 +406,7 @@ class SparseProjector(_ProjectorBase):
         ny, nx = self.ny, self.nx
         rows = v1 - v0
         y = np.zeros((self.n_res, rows * nx), np.float32)
-        for c0, ng, shifts, a, _ in self._blocks:
+        for c0, ng, shifts, a in self._blocks:
             hy = int(np.abs(shifts[:, 0]).max())
             hx = int(np.abs(shifts[:, 1]).max())
             # voxel lenslet rows v0 − hy … v1 + hy − 1 of these channels, zero outside
@@ -431,32 +435,26 @@ class SparseProjector(_ProjectorBase):
         return y.ravel()
 
     # -- Hᵀ --------------------------------------------------------------------------------
+    def _backward_task(self, yr: np.ndarray, out: np.ndarray, task) -> None:
+        """Channels ``c0 … c0 + n − 1`` of ``Hᵀ``: ``Z = Aᵀ Y``, then the shifted ``Z`` planes
+        added into ``out`` (these channels are no other task's)."""
+        ny, nx = self.ny, self.nx
+        c0, n, shifts, at = task
+        z = (at @ yr).reshape(len(shifts), n, ny, nx)
+        dst = out[c0 : c0 + n]
+        for zi, (sy, sx) in zip(z, shifts, strict=True):
+            # voxel lenslet (v, u) gathers pixel lenslet (v + qy, u + qx), shifts in order
+            a0, a1 = max(0, -sy), min(ny, ny - sy)
+            b0, b1 = max(0, -sx), min(nx, nx - sx)
+            if a0 < a1 and b0 < b1:
+                dst[:, a0:a1, b0:b1] += zi[:, a0 + sy : a1 + sy, b0 + sx : b1 + sx]
+
     def backward_flat(self, polyphase: np.ndarray) -> np.ndarray:
         """``Hᵀ``: flat polyphase image → flat channels (numpy float32)."""
-        ny, nx = self.ny, self.nx
-        yr = np.asarray(polyphase, np.float32).reshape(self.n_res, ny * nx)
-        out = np.zeros((self.n_channels, ny, nx), np.float32)
-        slabs = _parts(ny, self.threads)
+        yr = np.asarray(polyphase, np.float32).reshape(self.n_res, self.ny * self.nx)
+        out = np.zeros((self.n_channels, self.ny, self.nx), np.float32)
         with self._pool() as pool:
-            for c0, ng, shifts, _, at_parts in self._blocks:
-                # Z = Aᵀ Y, shift range by shift range: z[i] is (ng, ny, nx) for shift i
-                zs = self._map(pool, lambda p: p[2] @ yr, at_parts)
-                z = [None] * len(shifts)
-                for (i0, i1, _), zp in zip(at_parts, zs, strict=True):
-                    z[i0:i1] = list(zp.reshape(i1 - i0, ng, ny, nx))
-                dst = out[c0 : c0 + ng]
-
-                def add_shifted(rng, z=z, shifts=shifts, dst=dst):
-                    # voxel lenslet (v, u) gathers pixel lenslet (v + qy, u + qx), shifts in
-                    # order; rows v0 … v1 − 1 only
-                    v0, v1 = rng
-                    for zi, (sy, sx) in zip(z, shifts, strict=True):
-                        a0, a1 = max(v0, -sy), min(v1, ny - sy)
-                        b0, b1 = max(0, -sx), min(nx, nx - sx)
-                        if a0 < a1 and b0 < b1:
-                            dst[:, a0:a1, b0:b1] += zi[:, a0 + sy : a1 + sy, b0 + sx : b1 + sx]
-
-                self._map(pool, add_shifted, slabs)
+            self._map(pool, lambda t: self._backward_task(yr, out, t), self._backward_tasks)
         return out.ravel()
 
 

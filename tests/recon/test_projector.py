@@ -126,13 +126,16 @@ def test_sparse_projector_is_the_same_operator(small_bank, small_projector, rng)
 
 @pytest.mark.parametrize("block_mb", [256.0, 0.5])
 def test_sparse_projector_threads_are_bit_identical(small_bank, rng, block_mb):
-    """1, 2 and 3 threads (slabs of 20, 10 and 6–7 lenslet rows; Aᵀ cut into 1–3 shift
-    ranges) give the same bits: every output element is summed in one order."""
+    """1, 2, 3 and 16 threads (H: slabs of 20, 10, 6–7 and 1–2 lenslet rows; Hᵀ: whole
+    blocks, or with 16 threads ranges of a block's channels) give the same bits: every output
+    element is summed in one order."""
     from recon.projector import SparseProjector
 
-    ps = [SparseProjector(small_bank, (20, 20), block_mb=block_mb, threads=t) for t in (1, 2, 3)]
-    assert [p.threads for p in ps] == [1, 2, 3]
-    assert max(len(b[4]) for b in ps[2]._blocks) == 3  # Aᵀ really is split
+    counts = (1, 2, 3, 16)
+    ps = [SparseProjector(small_bank, (20, 20), block_mb=block_mb, threads=t) for t in counts]
+    assert [p.threads for p in ps] == list(counts)
+    if block_mb == 256.0:  # 49 blocks for 16 threads: Hᵀ splits blocks by channels
+        assert len(ps[-1]._backward_tasks) > len(ps[-1]._blocks) == len(ps[0]._backward_tasks)
     x = rng.random(ps[0].volume_shape).astype(np.float32)
     y = rng.random(ps[0].image_shape).astype(np.float32)
     # a sparse volume too: far-off shifts landing outside the grid must be cut per slab
