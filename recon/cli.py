@@ -89,8 +89,10 @@ def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
         type=int_in(1),
         metavar="N",
         default=argparse.SUPPRESS if suppress else None,
-        help="worker threads for the Dr.Jit backend of the reconstruction commands "
-        "(default: all cores); calibration runs on one core",
+        help="CPU threads of the reconstruction commands: run's CPU projector (its threads "
+        "setting) and the Dr.Jit backend (default: HRVPTM_THREADS, else all cores); with "
+        "several frames reconstructed at once keep threads x frames <= cores; calibration "
+        "runs on one core",
     )
     return common
 
@@ -580,12 +582,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
             zip(("z_min_um", "z_max_um"), _parse_range(args.z_range, "--z-range"), strict=True)
         )
     )
+    # the global --threads: the projector's (ReconSettings.threads) and Dr.Jit's threads
+    threads = {} if getattr(args, "threads", None) is None else {"threads": args.threads}
     settings = settings_from_args(
         ReconSettings,
         args,
         RUN_SETTINGS,
-        extra={**z, "roi_px": _parse_roi(args.roi)},
-        names={"z_min_um": "--z-range", "z_max_um": "--z-range", "roi_px": "--roi"},
+        extra={**z, "roi_px": _parse_roi(args.roi), **threads},
+        names={
+            "z_min_um": "--z-range",
+            "z_max_um": "--z-range",
+            "roi_px": "--roi",
+            "threads": "--threads",
+        },
     )
     background = None if args.background == "none" else args.background
     if background not in (None, "auto"):

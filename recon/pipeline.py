@@ -259,7 +259,7 @@ def reconstruct_series(
     dark_sum = None if pp.dark is None else hashlib.sha256(pp.dark.tobytes()).hexdigest()
     fp = _fingerprint(
         {
-            "settings": st.to_dict(),
+            "settings": st.result_dict(),  # not the threads: same volumes for any count
             "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
             "optics": optics.to_dict(),
             "grid": grid.to_dict(),
@@ -324,7 +324,7 @@ def reconstruct_series(
             bank = compute_psf_bank(
                 ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
             )
-            projector = make_projector(bank, (nx, ny), st.projector)
+            projector = make_projector(bank, (nx, ny), st.projector, threads=st.threads)
             filt = (
                 DepthFilter.for_optics(ropt, depths, st.s, st.filter_window)
                 if st.filter_window is not None
@@ -332,6 +332,7 @@ def reconstruct_series(
             )
             meta["psf_seconds"] = time.perf_counter() - t0
             meta["macs_per_projection"] = projector.macs_per_projection
+            meta["projector_threads"] = getattr(projector, "threads", None)
             it = todo
             if progress:
                 from tqdm.auto import tqdm

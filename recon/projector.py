@@ -31,14 +31,20 @@ all its arrays:
   the volume channels shifted by every ``q`` — contiguous rows of ``nx · ny`` values, which
   the CPU streams with SIMD instead of gathering element by element; ``Hᵀ`` uses ``A_kᵀ``
   and adds the shifted rows back. Same terms, so the same operator to rounding (tested),
-  and about 4× faster than the gathers on a 2-core CPU. Numpy arrays throughout.
+  and about 4× faster than the gathers on a 2-core CPU. Numpy arrays throughout; one
+  projection is shared by a thread pool (``threads``, default every core), bit-identical
+  for any thread count.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+from contextlib import nullcontext
+from itertools import pairwise
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .arrays import NUMPY, drjit_arrays
 from .errors import InputError
@@ -233,6 +239,69 @@ class LightFieldProjector(_ProjectorBase):
         return self.backward_dr(polyphase)
 
 
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return max(1, os.cpu_count() or 1)
+
+
+def resolve_threads(threads: int | None = None, workers: int = 1) -> int:
+    """Threads for one projector: ``threads``, or the cores shared among ``workers``.
+
+    Parameters
+    ----------
+    threads : int, optional
+        Asked for (≥ 1); ``None``: the environment variable ``HRVPTM_THREADS`` if set (as for
+        the Dr.Jit backend, :func:`lfsim.backend.init_backend`), else :func:`available_cores`
+        divided among ``workers``.
+    workers : int
+        Frames reconstructed at once on this machine (each with its own projector), so that
+        ``threads × workers`` stays within the cores.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
+    if int(workers) != workers or workers < 1:
+        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if threads is None and os.environ.get("HRVPTM_THREADS"):
+        env = os.environ["HRVPTM_THREADS"]
+        try:
+            return resolve_threads(int(env))
+        except (ValueError, InputError):
+            raise InputError(
+                f"environment variable HRVPTM_THREADS must be an integer >= 1, got {env!r}"
+            ) from None
+    if threads is None:
+        return max(1, available_cores() // int(workers))
+    if isinstance(threads, bool) or int(threads) != threads or threads < 1:
+        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
+    return int(threads)
+
+
+def _parts(n: int, k: int) -> list[tuple[int, int]]:
+    """``[0, n)`` cut into at most ``k`` consecutive non-empty ranges of near-equal length."""
+    k = max(1, min(k, n))
+    edges = [n * j // k for j in range(k + 1)]
+    return [(a, b) for a, b in pairwise(edges) if b > a]
+
+
+def _parts_by_weight(weights: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Indices ``[0, len(weights))`` cut into at most ``k`` consecutive non-empty ranges of
+    about equal total weight."""
+    n = len(weights)
+    k = max(1, min(k, n))
+    cum = np.r_[0.0, np.cumsum(np.asarray(weights, np.float64))]  # weight before index i
+    edges = {0, n}
+    for target in cum[-1] * np.arange(1, k) / k:
+        i = int(np.searchsorted(cum, target))  # cum[i - 1] < target <= cum[i]
+        edges.add(i if i > 0 and cum[i] - target < target - cum[i - 1] else max(i - 1, 0))
+    return list(pairwise(sorted(edges)))
+
+
 class SparseProjector(_ProjectorBase):
     """``H`` and ``Hᵀ`` as per-depth sparse × dense products (CPU; see the module docstring).
 
@@ -246,16 +315,42 @@ class SparseProjector(_ProjectorBase):
     block_mb : float
         Memory bound (MB) of one shifted-channel block ``B``; larger depths are split into
         groups of sub-positions.
+    threads : int, optional
+        Threads of one projection (default: every core, :func:`resolve_threads`).
+
+    Notes
+    -----
+    **Threads.** scipy.sparse's compiled products and numpy's copies release the GIL, so the
+    work is shared by a thread pool (one per call; nothing is kept between calls):
+
+    - ``H``: the image is cut into slabs of lenslet rows ``v``; each thread builds the shifted
+      channels ``B`` of its slab only and computes its slab of ``Y`` over every block;
+    - ``Hᵀ``: the blocks (each its own channels; with few blocks for the threads, ranges of
+      a block's channels) are shared out: a thread computes ``Z = Aᵀ Y`` of its channels and
+      adds the shifted ``Z`` planes into them. Up to ``threads`` such ``Z`` (each at most
+      ``block_mb``) are held at once.
+
+    Every output element is summed by one thread in the same order whatever the number of
+    threads (the slabs and ranges cut only *which* elements a thread computes), so the result
+    is bit-identical for any ``threads`` (tested for 1, 2, 3 and 16), and to the serial
+    formulation.
     """
 
-    def __init__(self, bank: PSFBank, n_lenslets: tuple[int, int], block_mb: float = 256.0):
+    def __init__(
+        self,
+        bank: PSFBank,
+        n_lenslets: tuple[int, int],
+        block_mb: float = 256.0,
+        threads: int | None = None,
+    ):
         import scipy.sparse as sp
 
         self._init_common(bank, n_lenslets)
+        self.threads = resolve_threads(threads)
         c, r, qy, qx = self._terms()
         s2 = self.s * self.s
         plane = self.nx * self.ny
-        self._blocks = []  # (first channel, n channels, shifts (Q, 2), A (R × Q·C), Aᵀ)
+        self._blocks = []  # (first channel, n channels, shifts (Q, 2), A (R × Q·C))
         depth = c // s2
         bounds = np.searchsorted(depth, np.arange(self.nz + 1))
         for k in range(self.nz):
@@ -278,55 +373,112 @@ class SparseProjector(_ProjectorBase):
                     (bank.w[lo:hi][sel].astype(np.float32), (r[lo:hi][sel], cols)),
                     shape=(self.n_res, len(shifts) * ng),
                 )
-                self._blocks.append((k * s2 + g0, ng, shifts, a, a.T.tocsr()))
+                self._blocks.append((k * s2 + g0, ng, shifts, a))
 
-    def _padded(self, shifts):
-        hy = int(np.abs(shifts[:, 0]).max())
-        hx = int(np.abs(shifts[:, 1]).max())
-        return hy, hx
+        # Hᵀ tasks: a block, or where there are few blocks for the threads a range of its
+        # channels (about equal non-zeros), with the rows of Aᵀ of those channels
+        self._backward_tasks = []  # (first channel, n channels, shifts, Aᵀ rows (Q·n × R))
+        split = -(-4 * self.threads // max(len(self._blocks), 1))
+        for c0, ng, shifts, a in self._blocks:
+            at = a.T.tocsr()  # rows i·ng + channel
+            per_channel = np.diff(at.indptr).reshape(len(shifts), ng).sum(axis=0)
+            for g0, g1 in _parts_by_weight(per_channel, split):
+                rows = (np.arange(len(shifts))[:, None] * ng + np.arange(g0, g1)).ravel()
+                self._backward_tasks.append((c0 + g0, g1 - g0, shifts, at[rows]))
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _map(self, pool, fn, items) -> list:
+        """``fn`` over ``items`` on ``pool`` (in order; inline when there is no pool)."""
+        if pool is None:
+            return [fn(item) for item in items]
+        return list(pool.map(fn, items))
+
+    def _pool(self):
+        from concurrent.futures import ThreadPoolExecutor
+
+        if self.threads == 1:
+            return nullcontext(None)
+        return ThreadPoolExecutor(self.threads, thread_name_prefix="recon-projector")
+
+    # -- H ---------------------------------------------------------------------------------
+    def _forward_slab(self, v: np.ndarray, v0: int, v1: int) -> np.ndarray:
+        """Rows ``v0 … v1 − 1`` of the lenslet grid of ``H v``: ``(n_res, (v1 − v0)·nx)``."""
+        ny, nx = self.ny, self.nx
+        rows = v1 - v0
+        y = np.zeros((self.n_res, rows * nx), np.float32)
+        for c0, ng, shifts, a in self._blocks:
+            hy = int(np.abs(shifts[:, 0]).max())
+            hx = int(np.abs(shifts[:, 1]).max())
+            # voxel lenslet rows v0 − hy … v1 + hy − 1 of these channels, zero outside
+            vp = np.zeros((ng, rows + 2 * hy, nx + 2 * hx), np.float32)
+            s0, s1 = max(0, v0 - hy), min(ny, v1 + hy)
+            vp[:, s0 - (v0 - hy) : s1 - (v0 - hy), hx : hx + nx] = v[c0 : c0 + ng, s0:s1]
+            # pixel lenslet (v, u) reads voxel lenslet (v − qy, u − qx): B[i] is the window
+            # of vp at (hy − qy, hx − qx); one gather for all shifts, (Q, ng, rows, nx)
+            win = sliding_window_view(vp, (rows, nx), axis=(1, 2)).transpose(1, 2, 0, 3, 4)
+            b = win[hy - shifts[:, 0], hx - shifts[:, 1]]
+            y += a @ b.reshape(len(shifts) * ng, rows * nx)
+        return y
 
     def forward_flat(self, channels: np.ndarray) -> np.ndarray:
         """``H``: flat channels → flat polyphase image (numpy float32)."""
         ny, nx = self.ny, self.nx
         v = np.asarray(channels, np.float32).reshape(self.n_channels, ny, nx)
-        y = np.zeros((self.n_res, ny * nx), np.float32)
-        for c0, ng, shifts, a, _ in self._blocks:
-            hy, hx = self._padded(shifts)
-            vp = np.zeros((ng, ny + 2 * hy, nx + 2 * hx), np.float32)
-            vp[:, hy : hy + ny, hx : hx + nx] = v[c0 : c0 + ng]
-            b = np.empty((len(shifts), ng, ny, nx), np.float32)
-            for i, (sy, sx) in enumerate(shifts):
-                # pixel lenslet (v, u) reads voxel lenslet (v - qy, u - qx)
-                b[i] = vp[:, hy - sy : hy - sy + ny, hx - sx : hx - sx + nx]
-            y += a @ b.reshape(len(shifts) * ng, ny * nx)
+        slabs = _parts(ny, self.threads)
+        with self._pool() as pool:
+            parts = self._map(pool, lambda r: self._forward_slab(v, *r), slabs)
+        if len(slabs) == 1:
+            return parts[0].ravel()
+        y = np.empty((self.n_res, ny, nx), np.float32)
+        for (v0, v1), part in zip(slabs, parts, strict=True):
+            y[:, v0:v1] = part.reshape(self.n_res, v1 - v0, nx)
         return y.ravel()
+
+    # -- Hᵀ --------------------------------------------------------------------------------
+    def _backward_task(self, yr: np.ndarray, out: np.ndarray, task) -> None:
+        """Channels ``c0 … c0 + n − 1`` of ``Hᵀ``: ``Z = Aᵀ Y``, then the shifted ``Z`` planes
+        added into ``out`` (these channels are no other task's)."""
+        ny, nx = self.ny, self.nx
+        c0, n, shifts, at = task
+        z = (at @ yr).reshape(len(shifts), n, ny, nx)
+        dst = out[c0 : c0 + n]
+        for zi, (sy, sx) in zip(z, shifts, strict=True):
+            # voxel lenslet (v, u) gathers pixel lenslet (v + qy, u + qx), shifts in order
+            a0, a1 = max(0, -sy), min(ny, ny - sy)
+            b0, b1 = max(0, -sx), min(nx, nx - sx)
+            if a0 < a1 and b0 < b1:
+                dst[:, a0:a1, b0:b1] += zi[:, a0 + sy : a1 + sy, b0 + sx : b1 + sx]
 
     def backward_flat(self, polyphase: np.ndarray) -> np.ndarray:
         """``Hᵀ``: flat polyphase image → flat channels (numpy float32)."""
-        ny, nx = self.ny, self.nx
-        yr = np.asarray(polyphase, np.float32).reshape(self.n_res, ny * nx)
-        out = np.zeros((self.n_channels, ny, nx), np.float32)
-        for c0, ng, shifts, _, at in self._blocks:
-            hy, hx = self._padded(shifts)
-            z = (at @ yr).reshape(len(shifts), ng, ny, nx)
-            acc = np.zeros((ng, ny + 2 * hy, nx + 2 * hx), np.float32)
-            for i, (sy, sx) in enumerate(shifts):
-                acc[:, hy - sy : hy - sy + ny, hx - sx : hx - sx + nx] += z[i]
-            out[c0 : c0 + ng] += acc[:, hy : hy + ny, hx : hx + nx]
+        yr = np.asarray(polyphase, np.float32).reshape(self.n_res, self.ny * self.nx)
+        out = np.zeros((self.n_channels, self.ny, self.nx), np.float32)
+        with self._pool() as pool:
+            self._map(pool, lambda t: self._backward_task(yr, out, t), self._backward_tasks)
         return out.ravel()
 
 
 PROJECTORS = ("auto", "gather", "sparse")
 
 
-def make_projector(bank: PSFBank, n_lenslets: tuple[int, int], kind: str = "auto"):
+def make_projector(
+    bank: PSFBank,
+    n_lenslets: tuple[int, int],
+    kind: str = "auto",
+    threads: int | None = None,
+    workers: int = 1,
+):
     """The fastest projector for the current backend (or the one asked for).
 
     ``"auto"``: :class:`SparseProjector` on the CPU (LLVM backend), :class:`LightFieldProjector`
-    on CUDA — the choice measured by ``benchmarks/bench_projectors.py``.
+    on CUDA — the choice measured by ``benchmarks/bench_projectors.py``. ``threads``: threads
+    of the CPU projector, ``None``: the cores divided among ``workers``, the frames
+    reconstructed at once on this machine (:func:`resolve_threads`). The gather projector
+    runs on the Dr.Jit backend's own threads (:func:`lfsim.backend.init_backend`).
     """
     if kind not in PROJECTORS:
         raise InputError(f"projector must be one of {PROJECTORS}, got {kind!r}")
+    threads = resolve_threads(threads, workers)
     if kind == "auto":
         from lfsim.backend import backend_info, init_backend
 
@@ -334,4 +486,4 @@ def make_projector(bank: PSFBank, n_lenslets: tuple[int, int], kind: str = "auto
         kind = "gather" if info.device == "cuda" else "sparse"
     if kind == "gather":
         return LightFieldProjector(bank, n_lenslets)
-    return SparseProjector(bank, n_lenslets)
+    return SparseProjector(bank, n_lenslets, threads=threads)

@@ -39,6 +39,8 @@ BACKGROUND_MODELS = ("subtract", "model")
 MAX_DEPTHS = 4096
 #: Radius (lenslets) of a point's light disc at the ends of the default depth range.
 RANGE_PATTERN_LENSLETS = 6
+#: :class:`ReconSettings` fields that do not change the volumes (bit-identical results).
+RUN_ONLY_FIELDS = ("threads",)
 
 
 def _wrap(check, *args):
@@ -75,6 +77,15 @@ class ReconSettings:
         the data and in the forward model, ``y ≈ Hx + b`` (no clipping bias, but RL clears
         the background slowly: on a paper-size frame after 3 iterations the particles were
         localised less well, 0.53/0.45/5.2 µm RMS against 0.25/0.25/3.8 µm).
+    threads : int or None
+        CPU threads of one frame's reconstruction (≥ 1): the scipy.sparse projector's thread
+        pool (:class:`recon.projector.SparseProjector`). ``None``: ``HRVPTM_THREADS`` if set,
+        else every core the process may use, divided among the frames reconstructed at once
+        (:func:`recon.projector.resolve_threads`); with ``W`` frame workers on one machine
+        keep ``threads × W`` ≤ the cores, or they compete for them. The volumes are
+        bit-identical for any value, so it is not part of the output folder's fingerprint
+        (:data:`RUN_ONLY_FIELDS`). ``recon run --threads N`` sets it and the Dr.Jit backend's
+        threads.
     """
 
     z_min_um: float | None = None
@@ -88,6 +99,7 @@ class ReconSettings:
     roi_px: tuple | None = None
     projector: str = "auto"
     background_model: str = "subtract"
+    threads: int | None = None
 
     def __post_init__(self) -> None:
         if self.background_model not in BACKGROUND_MODELS:
@@ -139,6 +151,10 @@ class ReconSettings:
             "rays_per_pattern",
             _wrap(validate.int_in_range, self.rays_per_pattern, "rays_per_pattern", 1000),
         )
+        if self.threads is not None:
+            object.__setattr__(
+                self, "threads", _wrap(validate.int_in_range, self.threads, "threads", 1)
+            )
         if self.roi_px is not None:
             roi = tuple(int(v) for v in self.roi_px)
             if len(roi) != 4 or roi[0] >= roi[1] or roi[2] >= roi[3] or min(roi) < 0:
@@ -177,6 +193,11 @@ class ReconSettings:
         d["roi_px"] = list(self.roi_px) if self.roi_px else None
         return d
 
+    def result_dict(self) -> dict:
+        """:meth:`to_dict` without the fields that change how fast, not what, is computed
+        (:data:`RUN_ONLY_FIELDS`): what identifies the volumes."""
+        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
+
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
@@ -204,6 +225,7 @@ def default_s(optics, z_step_um: float) -> int:
 __all__ = [
     "BACKGROUND_MODELS",
     "MAX_DEPTHS",
+    "RUN_ONLY_FIELDS",
     "ReconSettings",
     "default_s",
     "default_z_limit_um",

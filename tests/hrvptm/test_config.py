@@ -77,6 +77,7 @@ def test_defaults_when_no_study_sections(tmp_path):
         ("[recon]\ns = 0\n", r"\[recon\] s must be an integer in 1..64"),
         ("[recon]\nlanczos_a = -1\n", r"\[recon\] lanczos_a must be >= 0"),
         ("[recon]\nstop_rel_change = -0.1\n", r"\[recon\] stop_rel_change must be >= 0"),
+        ("[recon]\nthreads = 0\n", r"\[recon\] threads must be an integer >= 1"),
         ("[track.detect]\nthreshold = 1.5\n", r"\[track.detect\] threshold must be"),
         ("[track]\nmode = 'batch'\n", r"\[track\] mode must be"),
         ("[track]\nthreshold = 0.3\n", r"\[track\] unknown key 'threshold'"),

@@ -112,6 +112,35 @@ def test_resume_and_refusal(dataset, tmp_path, capsys):
     assert (foreign / "notes.txt").read_text() == "mine"
 
 
+def test_threads_setting_does_not_change_the_volumes(dataset, tmp_path, capsys):
+    """--threads sets ReconSettings.threads (recorded, and the projector's pool); a folder made
+    with 2 threads resumes with 1 (not part of the fingerprint), to the same bytes."""
+    from lfsim.io import read_json
+
+    vol_dir = tmp_path / "vol"
+    args = ["run", dataset, *FAST, "--iterations", "2", "--frames", "0:2", "-o", vol_dir]
+    assert run(capsys, "--threads", "2", *args)[0] == 0
+    meta = read_json(vol_dir / "recon.json")
+    assert meta["settings"]["threads"] == 2 and meta["projector_threads"] == 2
+    before = {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")}
+    assert len(before) == 2
+    (vol_dir / "000001.tif").unlink()
+    rc, out, err = main_verbose(capsys, *args, "--threads", "1")
+    assert rc == 0, err
+    assert "1 volume(s) reconstructed, 1 already done" in out
+    meta = read_json(vol_dir / "recon.json")
+    assert meta["settings"]["threads"] == 1 and meta["projector_threads"] == 1
+    assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
+    from recon.errors import InputError
+    from recon.settings import ReconSettings
+
+    assert ReconSettings(threads=3).result_dict() == ReconSettings().result_dict()
+    assert ReconSettings(threads=3).to_dict()["threads"] == 3
+    for bad in (0, 1.5, True):
+        with pytest.raises(InputError, match="threads must be an integer"):
+            ReconSettings(threads=bad)
+
+
 def main_verbose(capsys, *args):
     rc = main([*map(str, args)])
     out = capsys.readouterr()

@@ -122,3 +122,80 @@ def test_sparse_projector_is_the_same_operator(small_bank, small_projector, rng)
     assert isinstance(auto, winner)
     with pytest.raises(InputError, match="projector"):
         make_projector(small_bank, (20, 20), "fft")
+
+
+@pytest.mark.parametrize("block_mb", [256.0, 0.5])
+def test_sparse_projector_threads_are_bit_identical(small_bank, rng, block_mb):
+    """1, 2, 3 and 16 threads (H: slabs of 20, 10, 6–7 and 1–2 lenslet rows; Hᵀ: whole
+    blocks, or with 16 threads ranges of a block's channels) give the same bits: every output
+    element is summed in one order."""
+    from recon.projector import SparseProjector
+
+    counts = (1, 2, 3, 16)
+    ps = [SparseProjector(small_bank, (20, 20), block_mb=block_mb, threads=t) for t in counts]
+    assert [p.threads for p in ps] == list(counts)
+    if block_mb == 256.0:  # 49 blocks for 16 threads: Hᵀ splits blocks by channels
+        assert len(ps[-1]._backward_tasks) > len(ps[-1]._blocks) == len(ps[0]._backward_tasks)
+    x = rng.random(ps[0].volume_shape).astype(np.float32)
+    y = rng.random(ps[0].image_shape).astype(np.float32)
+    # a sparse volume too: far-off shifts landing outside the grid must be cut per slab
+    xs = np.where(rng.random(x.shape) < 0.01, x, 0).astype(np.float32)
+    ref_f, ref_fs, ref_b = ps[0].forward(x), ps[0].forward(xs), ps[0].backward(y)
+    assert (ref_f > 0).mean() > 0.5 and (ref_b > 0).mean() > 0.5 and (ref_fs > 0).any()
+    for p in ps[1:]:
+        assert p.forward(x).tobytes() == ref_f.tobytes()
+        assert p.forward(xs).tobytes() == ref_fs.tobytes()
+        assert p.backward(y).tobytes() == ref_b.tobytes()
+
+
+def test_resolve_threads(monkeypatch):
+    from recon import projector
+    from recon.projector import resolve_threads
+
+    monkeypatch.delenv("HRVPTM_THREADS", raising=False)
+    monkeypatch.setattr(projector, "available_cores", lambda: 8)
+    assert resolve_threads() == 8
+    assert resolve_threads(None, workers=3) == 2  # threads × workers ≤ cores
+    assert resolve_threads(None, workers=16) == 1
+    assert resolve_threads(5, workers=4) == 5  # asked for: kept
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(InputError, match="threads must be an integer >= 1"):
+            resolve_threads(bad)
+    with pytest.raises(InputError, match="workers must be an integer >= 1"):
+        resolve_threads(None, workers=0)
+    monkeypatch.setenv("HRVPTM_THREADS", "3")  # the Dr.Jit backend's variable, too
+    assert resolve_threads() == 3 and resolve_threads(None, workers=2) == 3
+    assert resolve_threads(2) == 2
+    monkeypatch.setenv("HRVPTM_THREADS", "0")
+    with pytest.raises(InputError, match="HRVPTM_THREADS must be an integer >= 1, got '0'"):
+        resolve_threads()
+
+
+def test_make_projector_passes_threads(small_bank, monkeypatch):
+    from recon.projector import SparseProjector, make_projector
+
+    p = make_projector(small_bank, (20, 20), "sparse", threads=3)
+    assert isinstance(p, SparseProjector) and p.threads == 3
+    from recon.projector import available_cores
+
+    monkeypatch.delenv("HRVPTM_THREADS", raising=False)
+    p = make_projector(small_bank, (20, 20), "sparse", workers=available_cores() + 1)
+    assert p.threads == 1  # more frame workers than cores: one thread each
+    with pytest.raises(InputError, match="threads"):
+        make_projector(small_bank, (20, 20), "sparse", threads=0)
+
+
+def test_work_split_covers_every_index_once():
+    from recon.projector import _parts, _parts_by_weight
+
+    assert _parts(20, 3) == [(0, 6), (6, 13), (13, 20)]
+    assert _parts(2, 5) == [(0, 1), (1, 2)]
+    assert _parts_by_weight(np.array([10, 1, 1, 1]), 2) == [(0, 1), (1, 4)]  # heavy first
+    assert _parts_by_weight(np.array([1, 1, 1, 10]), 3) == [(0, 3), (3, 4)]
+    assert _parts_by_weight(np.array([1, 2, 3, 4, 5, 6]), 4) == [(0, 3), (3, 4), (4, 5), (5, 6)]
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        w = rng.integers(0, 100, int(rng.integers(1, 40)))
+        parts = _parts_by_weight(w, int(rng.integers(1, 8)))
+        assert [a for a, _ in parts][1:] == [b for _, b in parts][:-1]  # contiguous
+        assert parts[0][0] == 0 and parts[-1][1] == len(w) and all(b > a for a, b in parts)
