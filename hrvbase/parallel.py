@@ -21,8 +21,9 @@ every worker process otherwise — with ``args`` sent to each worker once (``sca
 Failures. A worker process that dies (killed, out of memory) has its frames redone on
 another one by the scheduler; an unexpected exception in a frame is retried ``retries``
 times. An error the toolkit raises on purpose (:class:`~hrvbase.errors.HrvError`, e.g. an
-unreadable frame) is not retried: the map stops (frames not started are cancelled), hands
-back the frames that had already finished, then raises that error, as the serial loop would.
+unreadable frame) is not retried: the map stops (frames not started are cancelled, those
+running finish), hands back every frame that finished, then raises that error, as the serial
+loop would.
 
 Peak memory. When the map ends, the peak resident memory of every worker process (``ru_maxrss``)
 is logged at info level and kept in :attr:`FrameMap.peak_memory_bytes`.
@@ -134,7 +135,8 @@ class WorkerContext:
 
     ``build`` must be a module-level function (workers import it by name) and ``args``
     picklable; they are sent to every worker once. The built object is kept for the life of
-    the worker process, keyed by ``key`` (default: a fresh id per :class:`WorkerContext`).
+    the worker process, keyed by ``key`` (default: a fresh id per :class:`WorkerContext`); in
+    process it is dropped (and its ``close()`` called, if it has one) when the map ends.
     """
 
     build: Callable[..., Any]
@@ -178,6 +180,12 @@ def _run_task(func, item, key: str | None, build, args) -> Any:
         return func(item, ctx)
     except HrvError as exc:
         return _Failed(exc)
+
+
+def _processing(keys, dask_scheduler=None) -> list:
+    """(On the scheduler) the ``keys`` whose tasks are running on a worker."""
+    tasks = dask_scheduler.tasks
+    return [k for k in keys if k in tasks and tasks[k].state == "processing"]
 
 
 def _peak_rss_bytes() -> int:
@@ -271,6 +279,9 @@ class FrameMap:
             finally:
                 if self.context is not None:
                     _BUILT.pop(self.context.key, None)
+                    close = getattr(ctx, "close", None)
+                    if callable(close):  # e.g. files the context keeps open
+                        close()
                 self.peak_memory_bytes = {"main": _peak_rss_bytes()}
 
     def _connect(self):
@@ -336,6 +347,17 @@ class FrameMap:
             ", ".join(f"{k} {_mib(v)}" for k, v in sorted(self.peak_memory_bytes.items())),
         )
 
+    def _stop(self, futures) -> None:
+        """After a failure: frames not started are cancelled; those running on a worker finish
+        (and are handed back), so that no worker writes a frame after the map has ended."""
+        waiting = [f for f in futures if f.status != "finished"]
+        try:
+            running = set(self._client.run_on_scheduler(_processing, keys=[f.key for f in waiting]))
+        except Exception as exc:  # pragma: no cover - scheduler gone: cancel everything
+            log.debug("task states: %s", exc)
+            running = set()
+        self._client.cancel([f for f in waiting if f.key not in running])
+
     def _run_dask(self) -> Iterator[tuple[Any, Any]]:
         from distributed import as_completed
 
@@ -374,9 +396,7 @@ class FrameMap:
                     if isinstance(result, _Failed):
                         if first_error is None:
                             first_error = result.exc
-                            for f in futures:  # stop: frames not finished are not started
-                                if f.status != "finished":
-                                    f.cancel()
+                            self._stop(futures)
                         continue
                     bar.update(1)
                     yield futures[fut], result

@@ -39,9 +39,14 @@ each volume ``NNNNNN.tif``, its source (file, page of a stack), the frame's orig
 (from the file name, or the page) and its time (``number / --fps``, else from the TIFF
 metadata, else null).
 
-Global options (before or after the command): ``--threads N``, ``-v`` (info; ``-vv`` debug),
-``-q`` (errors only). Errors a user can cause (bad files, no lenslet grid, an existing output)
-print ``recon: error: <message>`` on stderr and exit with status 2, without a traceback.
+``run --workers N`` reconstructs N frames at a time on local Dask worker processes,
+``--scheduler ADDRESS`` on the workers of an existing Dask cluster (:mod:`hrvbase.parallel`);
+the volumes are the same as with one.
+
+Global options (before or after the command): ``--threads N`` (with ``--workers``: per
+worker), ``-v`` (info; ``-vv`` debug), ``-q`` (errors only). Errors a user can cause (bad
+files, no lenslet grid, an existing output) print ``recon: error: <message>`` on stderr and
+exit with status 2, without a traceback.
 """
 
 from __future__ import annotations
@@ -54,7 +59,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from hrvbase.cli import SettingOption, add_setting_options, int_in, settings_from_args
+from hrvbase.cli import (
+    SettingOption,
+    add_parallel_options,
+    add_setting_options,
+    int_in,
+    parallel_from_args,
+    settings_from_args,
+)
 
 from . import __version__
 from .calibration_file import (
@@ -435,6 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace volumes of another run (other inputs or settings) in VOLDIR (default: "
         "refuse)",
     )
+    add_parallel_options(run)
     run.set_defaults(func=_cmd_run)
     return parser
 
@@ -555,6 +568,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .pipeline import reconstruct_series
     from .preprocess import Preprocess, read_frame
 
+    parallel = parallel_from_args(args, threads=getattr(args, "threads", None))
     z = (
         {}
         if args.z_range is None
@@ -609,6 +623,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "fps": args.fps,
             "frame_times": time_source(frames, args.fps),
         },
+        parallel=parallel,
     )
     if not getattr(args, "quiet", False):
         sys.stdout.write(
