@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import threading
 import time
 import uuid
@@ -191,7 +192,6 @@ def _processing(keys, dask_scheduler=None) -> list:
 def _peak_rss_bytes() -> int:
     """Peak resident memory of this process (bytes)."""
     import resource
-    import sys
 
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return int(peak if sys.platform == "darwin" else peak * 1024)
@@ -254,8 +254,13 @@ class FrameMap:
     def _bar(self):
         from tqdm.auto import tqdm
 
+        # On stderr, shown on a terminal only (not in a log file or a captured stream).
         return tqdm(
-            total=len(self.items), desc=self.desc, unit=self.unit, disable=not self.progress
+            total=len(self.items),
+            desc=self.desc,
+            unit=self.unit,
+            disable=None if self.progress else True,
+            file=sys.stderr,
         )
 
     def _run(self) -> Iterator[tuple[Any, Any]]:
@@ -432,7 +437,7 @@ def frame_map(
     context : WorkerContext, optional
         Shared read-only input, built once per process and passed as ``ctx`` (None without).
     progress : bool
-        tqdm progress bar (frames completed).
+        tqdm progress bar of the frames completed, on stderr when it is a terminal.
     desc, unit : str
         Progress bar label and unit; ``desc`` also names the Dask tasks.
 
