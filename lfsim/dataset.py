@@ -523,8 +523,7 @@ def generate_dataset(
         run["finished"] = _now()
         write_json(rec_path, record, overwrite=True)
         raise
-    if not par.in_process:
-        record["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
+    record["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
 
     run["finished"] = record["finished"] = _now()
     record["status"] = "complete"

@@ -364,8 +364,7 @@ def reconstruct_series(
                     frame_entries[k].update(record)
                     write_json(meta_path, meta, overwrite=True)
                     done.append(k)
-            if not par.in_process:
-                meta["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
+            meta["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
     except BaseException:
         _clean_up_failed_start(out, created, done)
         raise

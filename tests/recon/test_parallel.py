@@ -73,7 +73,7 @@ def test_two_local_workers_give_the_serial_volumes(dataset4, serial, tmp_path, c
     par = read_json(out / "recon.json")["parallel"]
     assert par["mode"].startswith("2 local Dask workers")
     assert len(par["peak_memory_bytes"]) == 2
-    assert read_json(serial / "recon.json")["parallel"] == {"mode": "in process"}
+    assert read_json(serial / "recon.json")["parallel"]["mode"] == "in process"
     # Resume: nothing left to do, with workers or without.
     rc, _, err = run(capsys, "run", dataset4, *ARGS, "-o", out)
     assert rc == 0, err
@@ -120,10 +120,34 @@ def test_a_frame_failing_on_a_worker_fails_the_command(dataset4, tmp_path, capsy
     out = tmp_path / "vol"
     calib = tmp_path / "calib.json"
     scene = ROOT / "scenes" / "small.xml"
-    assert main(["-q", "calibrate", str(dataset4 / "white.tif"), "--scene", str(scene),
-                 "-o", str(calib)]) == 0  # fmt: skip
-    rc, _, err = run(capsys, "run", frames, "--scene", scene, "--calib", calib, *ARGS,
-                     "--workers", "2", "-o", out)  # fmt: skip
+    assert (
+        main(
+            [
+                "-q",
+                "calibrate",
+                str(dataset4 / "white.tif"),
+                "--scene",
+                str(scene),
+                "-o",
+                str(calib),
+            ]
+        )
+        == 0
+    )
+    rc, _, err = run(
+        capsys,
+        "run",
+        frames,
+        "--scene",
+        scene,
+        "--calib",
+        calib,
+        *ARGS,
+        "--workers",
+        "2",
+        "-o",
+        out,
+    )
     assert rc == 2
     last = err.splitlines()[-1]
     assert last.startswith("recon: error: cannot read frame") and "000002.tif" in last, err
