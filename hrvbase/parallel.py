@@ -16,7 +16,9 @@ the caller records each frame (and, e.g., links it) as soon as it exists:
 Shared read-only inputs (a PSF bank, a projector) are a :class:`WorkerContext`: its
 ``build(*args)`` runs at most once per process — in this process for ``workers=1``, once in
 every worker process otherwise — with ``args`` sent to each worker once (``scatter`` with
-``broadcast``), never once per frame.
+``broadcast``), never once per frame. (Sending is as fast as loading from disk: a 41 MB PSF
+bank reached 2 local workers in 0.8–1.0 s by ``scatter``, against 0.7 s for each to load it
+from the PSF cache, and it needs neither a cache nor a file system shared with the workers.)
 
 Failures. A worker process that dies (killed, out of memory) has its frames redone on
 another one by the scheduler; an unexpected exception in a frame is retried ``retries``
@@ -288,6 +290,7 @@ class FrameMap:
                     if callable(close):  # e.g. files the context keeps open
                         close()
                 self.peak_memory_bytes = {"main": _peak_rss_bytes()}
+                log.info("peak memory: %s", _mib(self.peak_memory_bytes["main"]))
 
     def _connect(self):
         import dask
