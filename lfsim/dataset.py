@@ -222,15 +222,16 @@ class _RenderModel:
 
 
 def _render_model(experiment, scene, reference, common_meta, out, backend) -> _RenderModel:
-    """The shared model; in a worker process the backend is started (the device of the main
-    process, ``HRVPTM_THREADS`` threads) and the scene loaded once."""
+    """The shared model. ``scene`` is the loaded scene (in process) or its file: in a worker
+    process the backend is started (the device of the main process, ``HRVPTM_THREADS``
+    threads) and the scene loaded, once."""
     from .backend import backend_info, init_backend
     from .scene import load_scene
 
-    if scene is None:
+    if isinstance(scene, str | os.PathLike):
         if backend_info() is None:
             init_backend("auto" if backend is None else backend.device)
-        scene = load_scene(experiment.scene)
+        scene = load_scene(scene)
     return _RenderModel(experiment, scene, reference, common_meta, out)
 
 
@@ -502,7 +503,15 @@ def generate_dataset(
     record["parallel"] = {"mode": par.describe()}
     context = WorkerContext(
         _render_model,
-        (experiment, scene if par.in_process else None, reference, common_meta, out, backend),
+        # Paths absolute: workers may run in another folder.
+        (
+            experiment,
+            scene if par.in_process else Path(experiment.scene).resolve(),
+            reference,
+            common_meta,
+            out.resolve(),
+            backend,
+        ),
     )
     fmap = frame_map(
         render_frame,

@@ -338,14 +338,14 @@ def reconstruct_series(
                     rgrid,
                     (o_x, o_y),
                     tuple(first.shape),
-                    out,
+                    out.resolve(),  # workers may run in another folder
                     _backend_device(),
                 ),
             )
             jobs = [
                 (
                     k,
-                    refs[k],
+                    replace(refs[k], path=Path(refs[k].path).resolve()),
                     {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS},
                 )
                 for k in todo

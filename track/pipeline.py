@@ -415,11 +415,12 @@ class _Detections:
         self._results = iter(())
         if todo:
             psf, self.psf_note = _first_psf(read_volume(vols[0]), vols[0], settings)
+            here = out.resolve()  # workers may run in another folder
             self._map = frame_map(
                 _detect_frame,
-                [(i, vols[i]) for i in todo],
+                [(i, dataclasses.replace(vols[i], path=vols[i].path.resolve())) for i in todo],
                 parallel=parallel,
-                context=WorkerContext(_psf_context, (settings, psf, out)),
+                context=WorkerContext(_psf_context, (settings, psf, here)),
                 progress=progress,
                 desc="detect",
                 unit="volume",

@@ -99,12 +99,26 @@ def test_loopback_cluster_with_a_killed_worker(dataset4, serial, tmp_path, capsy
     assert_same_run(serial, out)
 
 
-def test_loopback_cluster_same_volumes(dataset4, serial, tmp_path, capsys):
-    out = tmp_path / "vol"
+def test_loopback_cluster_same_volumes(dataset4, serial, tmp_path, capsys, monkeypatch):
+    import os
+
+    from lfsim.io import read_tiff
+
+    # Relative paths: the workers run in another folder (the repository).
+    monkeypatch.chdir(tmp_path)
+    frames = os.path.relpath(dataset4, tmp_path)
     with LoopbackCluster(tmp_path) as cluster:
-        rc, _, err = run(capsys, "run", dataset4, *ARGS, "--scheduler", cluster.address, "-o", out)
+        rc, _, err = run(capsys, "run", frames, *ARGS, "--scheduler", cluster.address, "-o", "vol")
     assert rc == 0, err
-    assert_same_run(serial, out)
+    assert not (ROOT / "vol").exists()
+    out = tmp_path / "vol"
+    vols = sorted(p.name for p in out.glob("[0-9]*.tif"))
+    assert len(vols) == 4
+    for name in vols:  # the same voxels (the metadata name the frames as given: relative)
+        a, meta_a = read_tiff(serial / name)
+        b, meta_b = read_tiff(out / name)
+        assert a.tobytes() == b.tobytes(), name
+        assert Path(meta_b["input"]).resolve() == Path(meta_a["input"]).resolve()
 
 
 def test_a_frame_failing_on_a_worker_fails_the_command(dataset4, tmp_path, capsys):
