@@ -27,6 +27,9 @@ unreadable frame) is not retried: the map stops (frames not started are cancelle
 running finish), hands back every frame that finished, then raises that error, as the serial
 loop would.
 
+Messages. What a frame logs on a worker (the toolkit's loggers, at this process's levels) is
+sent back with its result and logged here, as if the frame had run here.
+
 Peak memory. When the map ends, the peak resident memory of every worker process (``ru_maxrss``)
 is logged at info level and kept in :attr:`FrameMap.peak_memory_bytes`.
 """
@@ -176,13 +179,56 @@ class _Failed:
         self.exc = exc
 
 
-def _run_task(func, item, key: str | None, build, args) -> Any:
-    """What a worker runs for one frame."""
-    ctx = None if key is None else _context(key, build, args)
+#: Loggers whose messages on a worker are sent back with the frame's result and logged by the
+#: calling process (so that a command shows a frame's warnings wherever the frame ran).
+FORWARDED_LOGGERS = ("hrvbase", "lfsim", "recon", "track", "hrvptm")
+
+
+class _Captured(logging.Handler):
+    """Collects the records of one thread (the frame's) as ``(logger, level, message)``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.thread = threading.get_ident()
+        self.records: list[tuple[str, int, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.thread == self.thread:
+            self.records.append((record.name, record.levelno, record.getMessage()))
+
+
+@dataclass(frozen=True)
+class _Done:
+    """A frame's result (or :class:`_Failed`) with the log records it made on the worker."""
+
+    result: Any
+    logs: list
+
+
+def _run_task(func, item, key: str | None, build, args, levels: dict) -> _Done:
+    """What a worker runs for one frame: its log records (at the caller's ``levels``) are
+    returned with its result."""
+    handler = _Captured()
+    for name, level in levels.items():
+        lg = logging.getLogger(name)
+        lg.setLevel(level)
+        lg.addHandler(handler)
     try:
-        return func(item, ctx)
-    except HrvError as exc:
-        return _Failed(exc)
+        ctx = None if key is None else _context(key, build, args)
+        try:
+            result = func(item, ctx)
+        except HrvError as exc:
+            result = _Failed(exc)
+    finally:
+        for name in levels:
+            logging.getLogger(name).removeHandler(handler)
+    return _Done(result, handler.records)
+
+
+def _replay(logs: list) -> None:
+    """Log here what a frame logged on a worker."""
+    for name, level, message in logs:
+        logging.getLogger(name).log(level, "%s", message)
 
 
 def _processing(keys, dask_scheduler=None) -> list:
@@ -379,6 +425,7 @@ class FrameMap:
                 key, build = self.context.key, self.context.build
                 # One copy on every worker, sent once (not once per frame).
                 [args] = client.scatter([self.context.args], broadcast=True, hash=False)
+            levels = {n: logging.getLogger(n).getEffectiveLevel() for n in FORWARDED_LOGGERS}
             futures = {}
             for i, item in enumerate(self.items):
                 fut = client.submit(
@@ -388,6 +435,7 @@ class FrameMap:
                     key,
                     build,
                     args,
+                    levels,
                     key=f"{self.desc}-{i:06d}-{token}",
                     retries=self.parallel.retries,
                     pure=False,
@@ -398,7 +446,9 @@ class FrameMap:
                     if first_error is not None and fut.status != "finished":
                         continue
                     try:
-                        result = fut.result()
+                        done = fut.result()
+                        _replay(done.logs)
+                        result = done.result
                     except Exception as exc:  # an unexpected error, after its retries
                         result = _Failed(exc)
                     if isinstance(result, _Failed):

@@ -36,6 +36,14 @@ def _frame(k, ctx):
     return float(np.sum(x * ctx["bank"][:500])), os.getpid()
 
 
+def _warning_frame(k, ctx):
+    import logging
+
+    logging.getLogger("hrvbase.test").warning("frame %d: a warning on the worker", k)
+    logging.getLogger("hrvbase.test").debug("frame %d: a debug message", k)
+    return k
+
+
 def _slow_frame(k, ctx):
     time.sleep(0.8)
     Path(ctx["folder"], f"done_{k}").write_text("")
@@ -198,3 +206,13 @@ def test_loopback_cluster_killed_worker_frames_redone(tmp_path):
         assert cluster.workers[0].poll() is not None  # it was killed during the run
     assert got == {k: k * k for k in range(n)}
     assert len(fm.peak_memory_bytes) == 1  # the surviving worker
+
+
+def test_worker_messages_are_logged_here(caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    with frame_map(_warning_frame, range(3), parallel=Parallel(workers=2)) as fm:
+        assert sorted(k for k, _ in fm) == [0, 1, 2]
+    got = sorted(r.getMessage() for r in caplog.records if r.name == "hrvbase.test")
+    assert got == [f"frame {k}: a warning on the worker" for k in range(3)]
