@@ -14,7 +14,8 @@ Determinism. The reference particles are seeded once with ``numpy.random.default
 Frame ``k`` is traced with a render seed and noised with a generator both derived from
 ``(seed, k)`` only (:func:`frame_seeds`), and every file is written atomically; so the same
 experiment gives byte-identical files, and an interrupted run that is resumed gives exactly
-what an uninterrupted one gives.
+what an uninterrupted one gives — as does a run whose frames are rendered on Dask workers
+(``parallel``, :mod:`hrvbase.parallel`; :func:`render_frame` is one frame).
 
 Re-running on an existing folder:
 

@@ -9,6 +9,10 @@ frame, its source (file, page of a stack), original number, time and checksum (o
 or of a stack page's pixels). It is rewritten atomically after every frame: an interrupted run
 resumes with the frames it had not finished (a longer series extends a shorter one), and a
 folder whose volumes were made from other inputs or settings is refused.
+
+The frames may run on Dask workers (``parallel``, :mod:`hrvbase.parallel`): this module
+schedules them, :func:`reconstruct_frame` computes and writes one frame wherever it runs, and
+the volumes and records are the same as in process.
 """
 
 from __future__ import annotations

@@ -16,11 +16,14 @@ Results folder ``out_dir``::
     summary.json              parameters, input checksums, counts, tracking ratio and
                               status of every pair, failures, timings
 
-Every file is written atomically. Resuming: the SHA-256 of each volume is recorded and the
-detection of volumes whose particle table exists with the same checksum is skipped; linking
-and fields are recomputed. A folder made from other inputs or detection settings is refused
-unless ``overwrite`` (which then deletes only files ``track`` writes); a non-empty folder
-without a ``summary.json`` written by ``track`` is always refused.
+Every file is written atomically. The volumes may be detected on Dask workers (``parallel``,
+:mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
+the others are still being detected; the results are the same. Resuming: the SHA-256 of
+each volume is recorded and the detection of volumes whose particle table exists with the
+same checksum is skipped; linking and fields are recomputed. A folder made from other inputs
+or detection settings is refused unless ``overwrite`` (which then deletes only files
+``track`` writes); a non-empty folder without a ``summary.json`` written by ``track`` is
+always refused.
 
 Failures: a pair that cannot be linked (fewer than ``min_particles`` particles, no
 consistent matches), a field that cannot be gridded or (detection only) a volume without
