@@ -7,10 +7,12 @@ What every package needs, defined once:
 - :mod:`hrvbase.io`: atomic writes, JSON, checksums, output records that resume verifies,
   and the guard that keeps outputs off the user's inputs;
 - :mod:`hrvbase.validate`: number and array validators (e.g. ``(N, 3)`` point arrays);
-- :mod:`hrvbase.cli`: logging, ``-q``/``-v``/``--version`` and the error handling of every
-  command line;
+- :mod:`hrvbase.cli`: logging, ``-q``/``-v``/``--version``, ``--workers``/``--scheduler`` and
+  the error handling of every command line;
 - :mod:`hrvbase.known_fields`: analytic heterogeneous displacement fields (Gaussian
-  indentation, stiff inclusion) that ``lfsim`` prescribes and ``track``'s tests link.
+  indentation, stiff inclusion) that ``lfsim`` prescribes and ``track``'s tests link;
+- :mod:`hrvbase.parallel`: frames of a series in parallel, in process or on Dask (imported
+  only when a command runs frames on more than one process).
 
 ``lfsim``, ``recon``, ``track`` and ``hrvptm`` import it; it imports none of them.
 """

@@ -200,6 +200,64 @@ def number(ok: Callable[[float], bool], expected: str, *, keyword: str | None = 
     return parse
 
 
+# -- frames in parallel (hrvbase.parallel) ----------------------------------------------------
+def add_parallel_options(parser: argparse.ArgumentParser | Any) -> None:
+    """Add ``--workers N|auto`` and ``--scheduler ADDRESS`` (:mod:`hrvbase.parallel`), the same
+    in every command that processes frames; :func:`parallel_from_args` reads them."""
+    parser.add_argument(
+        "--workers",
+        default=None,
+        metavar="N",
+        help="process the frames on N local Dask worker processes ('auto': one per core), "
+        "each with its share of the cores; results are identical to 1 (default: 1, in this "
+        "process, no Dask)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="process the frames on the workers of an existing Dask cluster "
+        "(e.g. tcp://10.0.0.5:8786; `dask scheduler` / `dask worker`, or dask-jobqueue on "
+        "SLURM; default: none)",
+    )
+
+
+def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
+    """The :class:`hrvbase.parallel.Parallel` of ``--workers`` / ``--scheduler``.
+
+    ``threads`` (e.g. ``--threads``) sets the compute threads of each worker.
+
+    Raises
+    ------
+    InputError
+        ``--workers`` is not an integer >= 1 nor ``auto``, or ``--scheduler`` is empty; the
+        message names the option.
+    """
+    from .errors import InputError
+    from .parallel import Parallel
+
+    text = getattr(args, "workers", None)
+    workers: int | str = 1
+    if text is not None:
+        text = str(text).strip()
+        if text == "auto":
+            workers = "auto"
+        else:
+            try:
+                workers = int(text)
+            except ValueError:
+                workers = -1
+            if workers < 1:
+                raise InputError(f"--workers must be an integer >= 1 or 'auto', got {text!r}")
+    scheduler = getattr(args, "scheduler", None)
+    if scheduler is not None and not scheduler.strip():
+        raise InputError("--scheduler must be an address such as tcp://host:8786, got ''")
+    try:
+        return Parallel(workers=workers, scheduler=scheduler, threads=threads)
+    except InputError as exc:
+        raise InputError(rename_fields(str(exc), {"threads": "--threads"})) from None
+
+
 # -- options that set fields of a settings dataclass ---------------------------------------
 @dataclasses.dataclass(frozen=True)
 class SettingOption:
@@ -305,12 +363,14 @@ __all__ = [
     "EXIT_INTERNAL",
     "Parser",
     "SettingOption",
+    "add_parallel_options",
     "add_setting_options",
     "common_options",
     "int_in",
     "log_level",
     "number",
     "one_line",
+    "parallel_from_args",
     "rename_fields",
     "run_main",
     "settings_from_args",

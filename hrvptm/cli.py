@@ -3,14 +3,17 @@
 Commands::
 
     hrvptm study EXPERIMENT.toml -o REPORT [--until STAGE] [--overwrite] [-q | -v]
-    hrvptm demo -o DIR [--overwrite] [-q | -v]
+                 [--workers N | --scheduler ADDRESS]
+    hrvptm demo -o DIR [--overwrite] [-q | -v] [--workers N | --scheduler ADDRESS]
     hrvptm collect REPORT [REPORT ...] -o validation.md [--preamble INTRO.md]
 
 ``study`` simulates the experiment with lfsim, reconstructs it with recon, tracks it with
 track and compares every frame with the truth (:mod:`hrvptm.study`); a rerun resumes.
 ``demo`` runs the built-in small study (simple shear at test size, a few minutes on 2 cores)
 and prints its summary. ``collect`` gathers finished reports into one Markdown page (the
-project's ``docs/validation.md``).
+project's ``docs/validation.md``). ``--workers`` / ``--scheduler`` run the frames of the
+simulation, reconstruction and detection stages on Dask workers (:mod:`hrvbase.parallel`),
+with the same results.
 
 Errors a user can cause print one line ``hrvptm: error: <message>`` and exit with status 2.
 So does a study whose frames failed (not tracked, far too few particles detected, tracking
@@ -39,7 +42,7 @@ DEMO = Path(__file__).resolve().parent.parent / "scenes" / "experiments" / "demo
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``hrvptm`` argument parser."""
-    from hrvbase.cli import Parser, common_options
+    from hrvbase.cli import Parser, add_parallel_options, common_options
 
     from . import __version__
 
@@ -63,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
             action="store_true",
             help="exit 0 when frames failed (the report still says FAILED)",
         )
+        add_parallel_options(q)
 
     def command(name: str, text: str, description: str, func) -> argparse.ArgumentParser:
         q = sub.add_parser(name, parents=[shared], help=text, description=description)
@@ -125,11 +129,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(path: Path, args, command: str) -> dict:
+    from hrvbase.cli import parallel_from_args
     from hrvbase.io import check_output_folder, guard_output
 
     from .config import load_study
     from .study import run_study
 
+    parallel = parallel_from_args(args)
     guard_output(args.output, [path])
     check_output_folder(args.output)
     study = load_study(path)
@@ -141,6 +147,7 @@ def _run(path: Path, args, command: str) -> dict:
         progress=not args.quiet,
         command=command,
         allow_partial=args.allow_partial,
+        parallel=parallel,
     )
 
 

@@ -49,8 +49,9 @@ class VariantPaths:
         return self.root / "track"
 
 
-def simulate(experiment, paths: VariantPaths, *, progress: bool = True) -> float:
-    """Render the dataset (resumes a finished or interrupted one). Returns seconds spent."""
+def simulate(experiment, paths: VariantPaths, *, progress: bool = True, parallel=None) -> float:
+    """Render the dataset (resumes a finished or interrupted one) on ``parallel``
+    (:class:`hrvbase.parallel.Parallel`; default: in process). Returns seconds spent."""
     from hrvbase.errors import HrvError
     from hrvbase.io import read_json
     from lfsim import generate_dataset
@@ -66,15 +67,18 @@ def simulate(experiment, paths: VariantPaths, *, progress: bool = True) -> float
         if overwrite:
             log.info("%s: the experiment changed; the dataset is rendered again", paths.dataset)
     try:
-        generate_dataset(experiment, paths.dataset, overwrite=overwrite, progress=progress)
+        generate_dataset(
+            experiment, paths.dataset, overwrite=overwrite, progress=progress, parallel=parallel
+        )
     except HrvError as exc:
         raise StageError(f"simulation into {paths.dataset}: {exc}") from None
     return time.perf_counter() - t0
 
 
-def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
+def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=None) -> float:
     """Calibrate the white image and reconstruct every frame with the study's forward model
-    (``recon_scene``). Returns seconds spent."""
+    (``recon_scene``), the frames on ``parallel`` (default: in process). Returns seconds
+    spent."""
     from hrvbase.errors import HrvError
     from lfsim.scene import read_optics
     from recon.calibration import calibrate_white
@@ -104,16 +108,18 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True) -> float:
             overwrite=True,  # inside the report: replace only an outdated run of this study
             progress=progress,
             provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},
+            parallel=parallel,
         )
     except HrvError as exc:
         raise StageError(f"reconstruction into {paths.volumes}: {exc}") from None
     return time.perf_counter() - t0
 
 
-def track_stage(study, paths: VariantPaths, *, progress: bool = True) -> float:
+def track_stage(study, paths: VariantPaths, *, progress: bool = True, parallel=None) -> float:
     """Detect (and, for a series, link and grid) with :func:`track.pipeline.track_volumes`,
-    as ``track detect`` / ``track run`` would. Failed frames are kept (partial results
-    allowed): the analysis counts them and fails the study. Returns seconds spent."""
+    as ``track detect`` / ``track run`` would, the detection on ``parallel``. Failed frames
+    are kept (partial results allowed): the analysis counts them and fails the study. Returns
+    seconds spent."""
     from hrvbase.errors import HrvError
     from track.pipeline import track_volumes
 
@@ -129,6 +135,7 @@ def track_stage(study, paths: VariantPaths, *, progress: bool = True) -> float:
             allow_partial=True,
             progress=progress,
             provenance={"caller": "hrvptm"},
+            parallel=parallel,
         )
     except HrvError as exc:
         raise StageError(f"tracking {paths.volumes}: {exc}") from None

@@ -127,6 +127,7 @@ def run_study(
     progress: bool = True,
     command: str = "",
     allow_partial: bool = False,
+    parallel=None,
 ) -> dict:
     """Run (or resume) a study and write its report.
 
@@ -146,6 +147,9 @@ def run_study(
         Command line, recorded in the report.
     allow_partial : bool
         Return a failed study's result instead of raising (the report is the same).
+    parallel : hrvbase.parallel.Parallel, optional
+        Where the frames of each stage run (simulation, reconstruction, detection; default:
+        in process); the results are the same.
 
     Returns
     -------
@@ -178,9 +182,18 @@ def run_study(
         paths = VariantPaths(report / variant)
         totals = state["seconds_total"].setdefault(variant, {})
         steps = (
-            ("simulate", lambda e=experiment, p=paths: simulate(e, p, progress=progress)),
-            ("reconstruct", lambda p=paths: reconstruct(study, p, progress=progress)),
-            ("track", lambda p=paths: track_stage(study, p, progress=progress)),
+            (
+                "simulate",
+                lambda e=experiment, p=paths: simulate(e, p, progress=progress, parallel=parallel),
+            ),
+            (
+                "reconstruct",
+                lambda p=paths: reconstruct(study, p, progress=progress, parallel=parallel),
+            ),
+            (
+                "track",
+                lambda p=paths: track_stage(study, p, progress=progress, parallel=parallel),
+            ),
         )
         for i, (stage, fn) in enumerate(steps):
             if i > last:

@@ -13,7 +13,7 @@
                 [--seed 0] [--overwrite]
     lfsim micrometer SCENE.xml -o M.tif [--division-um 10] [--axis {x,y}] [--snr 50]
                 [--bit-depth 16] [--seed 0] [--overwrite]
-    lfsim dataset EXPERIMENT.toml -o DIR [--overwrite] [--quiet]
+    lfsim dataset EXPERIMENT.toml -o DIR [--overwrite] [--workers N | --scheduler ADDRESS]
 
 Lengths in µm. SNR is ``S / sigma_noise`` with ``S`` the 99.9th percentile of the noise-free
 image (for sparse images, such as a single particle, half the 99.9th percentile of its lit
@@ -314,21 +314,25 @@ def cmd_micrometer(args) -> int:
 
 
 def cmd_dataset(args) -> int:
+    from hrvbase.cli import parallel_from_args
     from hrvbase.io import check_output_folder, guard_output
 
     from .dataset import generate_dataset
     from .experiment import load_experiment
 
+    parallel = parallel_from_args(args, threads=args.threads)
     exp = load_experiment(args.experiment)
     guard_output(args.output, [args.experiment, exp.scene])
     check_output_folder(args.output)
-    generate_dataset(exp, args.output, overwrite=args.overwrite, progress=not args.quiet)
+    generate_dataset(
+        exp, args.output, overwrite=args.overwrite, progress=not args.quiet, parallel=parallel
+    )
     return 0
 
 
 # -- parser -----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
-    from hrvbase.cli import Parser, common_options
+    from hrvbase.cli import Parser, add_parallel_options, common_options
 
     from . import __version__
     from .experiment import DEFAULT_NOISE, WhiteConfig
@@ -494,6 +498,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace a dataset of another experiment (removes only lfsim's files; "
         "default: refuse)",
     )
+    add_parallel_options(d)
     d.set_defaults(func=cmd_dataset, needs_backend=True)
     return p
 

@@ -14,7 +14,8 @@ Determinism. The reference particles are seeded once with ``numpy.random.default
 Frame ``k`` is traced with a render seed and noised with a generator both derived from
 ``(seed, k)`` only (:func:`frame_seeds`), and every file is written atomically; so the same
 experiment gives byte-identical files, and an interrupted run that is resumed gives exactly
-what an uninterrupted one gives.
+what an uninterrupted one gives — as does a run whose frames are rendered on Dask workers
+(``parallel``, :mod:`hrvbase.parallel`; :func:`render_frame` is one frame).
 
 Re-running on an existing folder:
 
@@ -209,6 +210,97 @@ def _software() -> dict:
     return out
 
 
+# -- one frame (in this process or on a Dask worker) ------------------------------------------
+class _RenderModel:
+    """What every frame of a dataset shares (built once per process by :func:`_render_model`)."""
+
+    def __init__(self, experiment, scene, reference, common_meta, out):
+        self.experiment = experiment
+        self.scene = scene
+        self.reference = reference
+        self.common_meta = common_meta
+        self.out = Path(out)
+
+
+def _render_model(experiment, scene, reference, common_meta, out, backend) -> _RenderModel:
+    """The shared model. ``scene`` is the loaded scene (in process) or its file: in a worker
+    process the backend is started (the device of the main process, ``HRVPTM_THREADS``
+    threads) and the scene loaded, once."""
+    from .backend import backend_info, init_backend
+    from .scene import load_scene
+
+    if isinstance(scene, str | os.PathLike):
+        if backend_info() is None:
+            init_backend("auto" if backend is None else backend.device)
+        scene = load_scene(scene)
+    return _RenderModel(experiment, scene, reference, common_meta, out)
+
+
+def render_frame(k: int, model: _RenderModel) -> dict:
+    """Render, noise and write frame ``k`` (its ``.tif`` and truth ``.csv``, atomically).
+
+    The result depends on the experiment and ``k`` only (:func:`frame_seeds`), not on the
+    process that runs it.
+
+    Returns
+    -------
+    dict
+        The frame's record of ``dataset.json`` (``frame``, ``seconds``,
+        ``particles_in_field``, ``noise``, ``files``).
+    """
+    from .render import render_particles
+
+    experiment, out = model.experiment, model.out
+    optics = model.scene.optics
+    t0 = time.perf_counter()
+    reference = model.reference
+    particles = reference.with_positions(experiment.positions(reference.positions_um, k))
+    r_seed, n_rng = frame_seeds(experiment.seed, k)
+    clean = render_particles(
+        model.scene,
+        particles,
+        experiment.render.settings(r_seed),
+        tracer=experiment.render.tracer,
+        check_field=False,
+    )
+    try:
+        # Integer photon counts: the camera model thins them (no double shot noise).
+        img, info = apply_noise(clean, experiment.noise_for_frame(k), n_rng)
+    except ConfigError as exc:
+        raise ConfigError(f"experiment {experiment.name!r}, frame {k}: {exc}") from exc
+    x0, x1, y0, y1 = optics.field_of_view_um
+    p = particles.positions_um
+    inside = int(np.sum((p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)))
+    meta = {
+        **model.common_meta,
+        "kind": "frame",
+        "frame": k,
+        "render_seed": r_seed,
+        "rays_per_particle": experiment.render.rays_per_particle,
+        "photons": int(clean.sum(dtype=np.int64)),
+        "particles_in_field": inside,
+        "noise": info,
+    }
+    particles.to_csv(truth_path(out, k))
+    write_tiff(
+        frame_path(out, k),
+        img,
+        metadata=meta,
+        pixel_size_um=optics.object_pixel_um,
+        overwrite=True,
+    )
+    return {
+        "frame": k,
+        "seconds": time.perf_counter() - t0,
+        "particles_in_field": inside,
+        "noise": info,
+        "files": {
+            "frame": file_record(frame_path(out, k)),
+            "truth": file_record(truth_path(out, k)),
+        },
+    }
+
+
 # -- the generator ----------------------------------------------------------------------------
 def generate_dataset(
     experiment: Experiment,
@@ -216,6 +308,7 @@ def generate_dataset(
     *,
     overwrite: bool = False,
     progress: bool = True,
+    parallel=None,
 ) -> Path:
     """Render every frame of ``experiment`` (and the white image) into ``out_dir``.
 
@@ -229,6 +322,9 @@ def generate_dataset(
         regenerate a dataset of this one from scratch.
     progress : bool
         Show a tqdm progress bar over frames.
+    parallel : hrvbase.parallel.Parallel, optional
+        Where the frames are rendered (default: in this process, one after the other); the
+        files are the same however they run (each frame is seeded from ``(seed, k)``).
 
     Returns
     -------
@@ -246,7 +342,7 @@ def generate_dataset(
     """
     from . import __version__
     from .backend import backend_info, init_backend
-    from .render import check_depths, check_in_field, render_particles, render_white
+    from .render import check_depths, check_in_field, render_white
     from .scene import load_scene
 
     if not isinstance(experiment, Experiment):
@@ -402,77 +498,42 @@ def generate_dataset(
     if skipped:
         log.info("%s: %d of %d frames already present and verified, skipped", out, skipped, n)
 
-    from tqdm import tqdm
+    from hrvbase.parallel import Parallel, WorkerContext, frame_map
 
-    bar = tqdm(
-        total=n,
-        initial=skipped,
-        disable=not progress,
-        unit="frame",
+    par = Parallel() if parallel is None else parallel
+    record["parallel"] = {"mode": par.describe()}
+    context = WorkerContext(
+        _render_model,
+        # Paths absolute: workers may run in another folder.
+        (
+            experiment,
+            scene if par.in_process else Path(experiment.scene).resolve(),
+            reference,
+            common_meta,
+            out.resolve(),
+            backend,
+        ),
+    )
+    fmap = frame_map(
+        render_frame,
+        todo,
+        parallel=par,
+        context=context,
+        progress=progress,
         desc=experiment.name,
-        leave=False,
     )
     try:
-        for k in todo:
-            t0 = time.perf_counter()
-            particles = reference.with_positions(positions[k])
-            r_seed, n_rng = frame_seeds(experiment.seed, k)
-            clean = render_particles(
-                scene,
-                particles,
-                experiment.render.settings(r_seed),
-                tracer=experiment.render.tracer,
-                check_field=False,
-            )
-            try:
-                # Integer photon counts: the camera model thins them (no double shot noise).
-                img, info = apply_noise(clean, experiment.noise_for_frame(k), n_rng)
-            except ConfigError as exc:
-                raise ConfigError(f"experiment {experiment.name!r}, frame {k}: {exc}") from exc
-            x0, x1, y0, y1 = optics.field_of_view_um
-            p = particles.positions_um
-            inside = int(
-                np.sum((p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1))
-            )
-            meta = {
-                **common_meta,
-                "kind": "frame",
-                "frame": k,
-                "render_seed": r_seed,
-                "rays_per_particle": experiment.render.rays_per_particle,
-                "photons": int(clean.sum(dtype=np.int64)),
-                "particles_in_field": inside,
-                "noise": info,
-            }
-            particles.to_csv(truth_path(out, k))
-            write_tiff(
-                frame_path(out, k),
-                img,
-                metadata=meta,
-                pixel_size_um=optics.object_pixel_um,
-                overwrite=True,
-            )
-            seconds = time.perf_counter() - t0
-            record["frame_records"][k] = {
-                "frame": k,
-                "seconds": seconds,
-                "particles_in_field": inside,
-                "noise": info,
-                "files": {
-                    "frame": file_record(frame_path(out, k)),
-                    "truth": file_record(truth_path(out, k)),
-                },
-            }
-            run["frames_rendered"] += 1
-            write_json(rec_path, record, overwrite=True)
-            bar.update(1)
-            log.debug("frame %d: %.2f s", k, seconds)
+        with fmap:
+            for k, frame_record in fmap:
+                record["frame_records"][k] = frame_record
+                run["frames_rendered"] += 1
+                write_json(rec_path, record, overwrite=True)
+                log.debug("frame %d: %.2f s", k, frame_record["seconds"])
     except (HrvError, KeyboardInterrupt):
         run["finished"] = _now()
         write_json(rec_path, record, overwrite=True)
         raise
-    finally:
-        bar.close()
+    record["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
 
     run["finished"] = record["finished"] = _now()
     record["status"] = "complete"

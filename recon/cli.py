@@ -41,9 +41,14 @@ metadata, else null). ``--format zarr`` writes one OME-Zarr image instead (axes 
 one chunk per frame, or per ``--zarr-chunk-z`` planes; voxel size and origin in its metadata;
 ``recon.json`` inside it), for napari (``napari --plugin napari-ome-zarr out.zarr``).
 
-Global options (before or after the command): ``--threads N``, ``-v`` (info; ``-vv`` debug),
-``-q`` (errors only). Errors a user can cause (bad files, no lenslet grid, an existing output)
-print ``recon: error: <message>`` on stderr and exit with status 2, without a traceback.
+``run --workers N`` reconstructs N frames at a time on local Dask worker processes,
+``--scheduler ADDRESS`` on the workers of an existing Dask cluster (:mod:`hrvbase.parallel`);
+the volumes are the same as with one.
+
+Global options (before or after the command): ``--threads N`` (with ``--workers``: per
+worker), ``-v`` (info; ``-vv`` debug), ``-q`` (errors only). Errors a user can cause (bad
+files, no lenslet grid, an existing output) print ``recon: error: <message>`` on stderr and
+exit with status 2, without a traceback.
 """
 
 from __future__ import annotations
@@ -56,7 +61,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from hrvbase.cli import SettingOption, add_setting_options, int_in, settings_from_args
+from hrvbase.cli import (
+    SettingOption,
+    add_parallel_options,
+    add_setting_options,
+    int_in,
+    parallel_from_args,
+    settings_from_args,
+)
 
 from . import __version__
 from .calibration_file import (
@@ -455,6 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace volumes of another run (other inputs or settings) in VOLDIR (default: "
         "refuse)",
     )
+    add_parallel_options(run)
     run.set_defaults(func=_cmd_run)
     return parser
 
@@ -575,6 +588,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .pipeline import reconstruct_series
     from .preprocess import Preprocess, read_frame
 
+    parallel = parallel_from_args(args, threads=getattr(args, "threads", None))
     z = (
         {}
         if args.z_range is None
@@ -639,6 +653,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "fps": args.fps,
             "frame_times": time_source(frames, args.fps),
         },
+        parallel=parallel,
     )
     if not getattr(args, "quiet", False):
         sys.stdout.write(

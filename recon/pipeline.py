@@ -11,6 +11,10 @@ frame, its source (file, page of a stack), original number, time and checksum (o
 or of a stack page's pixels). It is rewritten atomically after every frame: an interrupted run
 resumes with the frames it had not finished (a longer series extends a shorter one), and a
 folder whose volumes were made from other inputs or settings is refused.
+
+The frames may run on Dask workers (``parallel``, :mod:`hrvbase.parallel`): this module
+schedules them, :func:`reconstruct_frame` computes and writes one frame wherever it runs, and
+the volumes and records are the same as in process.
 """
 
 from __future__ import annotations
@@ -154,10 +158,6 @@ def _fingerprint(payload: dict) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
-def volume_path(out_dir: Path, k: int) -> Path:
-    return out_dir / f"{k:06d}.tif"
-
-
 @dataclass
 class SeriesResult:
     """What :func:`reconstruct_series` did."""
@@ -181,6 +181,7 @@ def reconstruct_series(
     provenance: dict | None = None,
     volume_format: str = "tiff",
     zarr_chunk_z: int | None = None,
+    parallel=None,
 ) -> SeriesResult:
     """Reconstruct light-field frames into ``out_dir`` (see the module docstring).
 
@@ -206,6 +207,9 @@ def reconstruct_series(
         of axes ``(t, z, y, x)`` (:mod:`recon.volume_store`).
     zarr_chunk_z : int, optional
         Zarr only: planes per chunk (default: one chunk per frame).
+    parallel : hrvbase.parallel.Parallel, optional
+        Where the frames run (default: in this process, one after the other); the volumes
+        and their records are the same however they run (:func:`reconstruct_frame`).
 
     A run that fails before its first volume leaves no ``recon.json`` (nor the folder, if it
     made it), so that the corrected command needs no ``overwrite``; a record without volumes
@@ -220,10 +224,12 @@ def reconstruct_series(
         (without ``overwrite``). Nothing is written then.
     """
     from hrvbase.io import write_json
+    from hrvbase.parallel import Parallel, WorkerContext, frame_map
 
-    from .frames import FrameReader, FrameRef, check_frames, frame_checksums
+    from .frames import FrameRef, check_frames, frame_checksums
     from .rectify import rectify
 
+    par = Parallel() if parallel is None else parallel
     st = (settings or ReconSettings()).resolved(optics)
     pp = preprocess or Preprocess()
     scene_mla_kind = optics.mla_kind
@@ -295,6 +301,7 @@ def reconstruct_series(
             "format": writer.format,
             **writer.record_extra(),
             "frames": [],
+            "parallel": {"mode": par.describe()},
             **(provenance or {}),
         }
         frame_entries = []
@@ -324,74 +331,190 @@ def reconstruct_series(
             bank = compute_psf_bank(
                 ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
             )
-            projector = make_projector(bank, (nx, ny), st.projector, threads=st.threads)
-            filt = (
-                DepthFilter.for_optics(ropt, depths, st.s, st.filter_window)
-                if st.filter_window is not None
-                else None
-            )
             meta["psf_seconds"] = time.perf_counter() - t0
-            meta["macs_per_projection"] = projector.macs_per_projection
-            meta["projector_threads"] = getattr(projector, "threads", None)
-            it = todo
-            if progress:
-                from tqdm.auto import tqdm
-
-                it = tqdm(todo, desc="recon", unit="frame")
-            with FrameReader() as reader:
-                for k in it:
-                    t1 = time.perf_counter()
-                    ref = refs[k]
-                    raw = first if k == 0 else read_frame(ref.path, page=ref.page, reader=reader)
-                    if raw.shape != first.shape:
-                        raise InputError(
-                            f"frame {ref.label!r} is {raw.shape} px, the series started with "
-                            f"{first.shape}"
-                        )
-                    modelled = st.background_model == "model"
-                    img, pinfo = prepare_image(raw, pp, subtract_background=not modelled)
-                    rect, _ = _rectify_roi(rectify, img, grid, n, st.roi_px)
-                    res = richardson_lucy(
-                        rect,
-                        projector,
-                        st.iterations,
-                        depth_filter=filt,
-                        stop_rel_change=st.stop_rel_change,
-                        track_kl=False,
-                        # Rectified pixels are interpolated samples: a constant black
-                        # level keeps its value (no flux factor).
-                        background=max(pinfo["background"], 0.0) if modelled else 0.0,
-                    )
-                    source = {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS}
-                    record = writer.write(
-                        k,
-                        res.volume.astype(np.float32),
-                        {
-                            "frame": k,
-                            **source,
-                            "depths_um": list(map(float, depths)),
-                            "origin_um": [o_x, o_y],
-                            "iterations": res.iterations,
-                        },
-                    )
-                    secs[k] = time.perf_counter() - t1
-                    frame_entries[k].update(
-                        {
-                            "seconds": secs[k],
-                            "iterations": res.iterations,
-                            "preprocess": pinfo,
-                            "rel_change": res.rel_change,
-                            "output": record,
-                        }
-                    )
+            meta["macs_per_projection"] = int(bank.nnz) * nx * ny
+            # The projector and filter are built from the bank once per process (in each
+            # worker, from the one copy of the bank sent to it); each frame is computed and
+            # written by reconstruct_frame, wherever it runs.
+            model = WorkerContext(
+                _frame_model,
+                (
+                    bank,
+                    (nx, ny),
+                    st,
+                    pp,
+                    grid,
+                    ropt,
+                    rgrid,
+                    (o_x, o_y),
+                    tuple(first.shape),
+                    replace(writer, out=writer.out.resolve()),  # workers may run elsewhere
+                    _backend_device(),
+                ),
+            )
+            jobs = [
+                (
+                    k,
+                    replace(refs[k], path=Path(refs[k].path).resolve()),
+                    {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS},
+                )
+                for k in todo
+            ]
+            fmap = frame_map(
+                reconstruct_frame,
+                jobs,
+                parallel=par,
+                context=model,
+                progress=progress,
+                desc="recon",
+            )
+            with fmap:
+                for (k, _, _), record in fmap:
+                    # Threads of the projector that made it (the same for every frame).
+                    meta["projector_threads"] = record.pop("projector_threads")
+                    secs[k] = record["seconds"]
+                    frame_entries[k].update(record)
                     write_json(meta_path, meta, overwrite=True)
                     done.append(k)
+            meta["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
     except BaseException:
         _clean_up_failed_start(writer, created, done)
         raise
     meta["status"] = "complete"
     write_json(meta_path, meta, overwrite=True)
     return SeriesResult(out, done, skipped, secs)
+
+
+@dataclass
+class _FrameModel:
+    """What every frame of a series shares (built once per process by :func:`_frame_model`)."""
+
+    projector: object
+    depth_filter: DepthFilter | None
+    settings: ReconSettings
+    preprocess: Preprocess
+    grid: object
+    n: int
+    rgrid: ReconGrid
+    origin_xy_um: tuple[float, float]
+    image_shape: tuple[int, int]
+    writer: object
+    reader: object
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+def _backend_device() -> str:
+    """The Dr.Jit device of this process (for the workers to use the same)."""
+    from lfsim.backend import backend_info
+
+    info = backend_info()
+    return "auto" if info is None else info.device
+
+
+def _frame_model(
+    bank, n_lenslets, st, pp, grid, ropt, rgrid, origin_xy_um, image_shape, writer, device
+) -> _FrameModel:
+    """The shared model of the frames: projector and depth filter from the PSF bank (sent to
+    each worker once), the backend started in a worker process (``HRVPTM_THREADS`` threads,
+    which also size the projector's thread pool when ``st.threads`` is unset), and the
+    volume writer (:mod:`recon.volume_store`)."""
+    from lfsim.backend import backend_info, init_backend
+
+    from .frames import FrameReader
+
+    if backend_info() is None:
+        init_backend(device=device)
+    projector = make_projector(bank, n_lenslets, st.projector, threads=st.threads)
+    filt = (
+        DepthFilter.for_optics(ropt, rgrid.depths_um, st.s, st.filter_window)
+        if st.filter_window is not None
+        else None
+    )
+    return _FrameModel(
+        projector,
+        filt,
+        st,
+        pp,
+        grid,
+        round(ropt.px_per_lenslet),
+        rgrid,
+        origin_xy_um,
+        image_shape,
+        writer,
+        FrameReader(),
+    )
+
+
+def reconstruct_frame(job, model: _FrameModel) -> dict:
+    """Reconstruct one frame and write its volume atomically (``NNNNNN.tif``, or its chunks of
+    the OME-Zarr image: ``model.writer``).
+
+    The same in every process (the result depends on the frame and the model only).
+
+    Parameters
+    ----------
+    job : (int, recon.frames.FrameRef, dict)
+        Frame index ``k``, the frame, and its source entries of ``recon.json`` (recorded in the
+        volume's metadata).
+    model : _FrameModel
+
+    Returns
+    -------
+    dict
+        The frame's result entries of ``recon.json`` (``seconds``, ``iterations``,
+        ``preprocess``, ``rel_change``, ``output``: the volume's record, and
+        ``projector_threads``).
+
+    Raises
+    ------
+    InputError
+        The frame cannot be read, or its size is not the series'.
+    """
+    from .rectify import rectify
+
+    k, ref, source = job
+    st, rgrid = model.settings, model.rgrid
+    t1 = time.perf_counter()
+    raw = read_frame(ref.path, page=ref.page, reader=model.reader)
+    if raw.shape != model.image_shape:
+        raise InputError(
+            f"frame {ref.label!r} is {raw.shape} px, the series started with {model.image_shape}"
+        )
+    modelled = st.background_model == "model"
+    img, pinfo = prepare_image(raw, model.preprocess, subtract_background=not modelled)
+    rect, _ = _rectify_roi(rectify, img, model.grid, model.n, st.roi_px)
+    res = richardson_lucy(
+        rect,
+        model.projector,
+        st.iterations,
+        depth_filter=model.depth_filter,
+        stop_rel_change=st.stop_rel_change,
+        track_kl=False,
+        # Rectified pixels are interpolated samples: a constant black level keeps its value
+        # (no flux factor).
+        background=max(pinfo["background"], 0.0) if modelled else 0.0,
+    )
+    record = model.writer.write(
+        k,
+        res.volume.astype(np.float32),
+        {
+            "frame": k,
+            **source,
+            "depths_um": list(map(float, rgrid.depths_um)),
+            "origin_um": list(model.origin_xy_um),
+            "iterations": res.iterations,
+        },
+    )
+    return {
+        "seconds": time.perf_counter() - t1,
+        "iterations": res.iterations,
+        "preprocess": pinfo,
+        "rel_change": res.rel_change,
+        "projector_threads": getattr(model.projector, "threads", None),
+        "output": record,
+    }
 
 
 #: Per-frame entries of ``recon.json`` naming the frame's source.

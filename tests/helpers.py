@@ -47,3 +47,112 @@ def experiment_toml(**sections: Mapping[str, object]) -> str:
         lines = [f"[{section}]", *(f"{key} = {toml_value(v)}" for key, v in keys.items())]
         blocks.append("\n".join(lines) + "\n")
     return "\n".join(blocks)
+
+
+class LoopbackCluster:
+    """A real Dask cluster on 127.0.0.1 for a test: ``dask scheduler`` and ``workers`` ×
+    ``dask worker --nworkers 1 --nthreads 1`` as subprocesses (the ``dask`` next to the test's
+    Python), each in its own session so that a test can kill one with :meth:`kill_worker`.
+
+    Use as a context manager; :attr:`address` is the scheduler's ``tcp://`` address.
+    """
+
+    def __init__(self, folder: Path, workers: int = 2, timeout_s: float = 60.0) -> None:
+        self.folder = Path(folder)
+        self.n_workers = workers
+        self.timeout_s = timeout_s
+        self.procs: list = []
+        self.workers: list = []
+        self.address = ""
+
+    def _start(self, *args: str):
+        import os
+        import subprocess
+        import sys
+
+        exe = Path(sys.executable).with_name("dask")
+        root = Path(__file__).resolve().parents[1]  # this checkout's packages for the workers
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
+        }
+        log = open(self.folder / f"dask-{len(self.procs)}.log", "wb")
+        p = subprocess.Popen(
+            [str(exe), *args],
+            cwd=root,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        self.procs.append(p)
+        return p
+
+    def __enter__(self) -> LoopbackCluster:
+        import json
+        import time
+
+        from distributed import Client
+
+        sfile = self.folder / "scheduler.json"
+        self._start(
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--no-dashboard",
+            "--scheduler-file",
+            str(sfile),
+        )
+        t0 = time.monotonic()
+        while not sfile.is_file() or not sfile.read_text().strip():
+            if time.monotonic() - t0 > self.timeout_s:
+                self.__exit__()
+                raise RuntimeError("the test's Dask scheduler did not start")
+            time.sleep(0.1)
+        time.sleep(0.2)
+        self.address = json.loads(sfile.read_text())["address"]
+        for _ in range(self.n_workers):
+            self.workers.append(
+                self._start(
+                    "worker",
+                    "--scheduler-file",
+                    str(sfile),
+                    "--nworkers",
+                    "1",
+                    "--nthreads",
+                    "1",
+                    "--no-dashboard",
+                    "--host",
+                    "127.0.0.1",
+                )
+            )
+        with Client(self.address, timeout=self.timeout_s) as client:
+            client.wait_for_workers(self.n_workers, timeout=self.timeout_s)
+        return self
+
+    def kill_worker(self, i: int = 0) -> None:
+        """Kill worker process ``i`` (and its nanny) at once, as a crash would."""
+        import os
+        import signal
+
+        os.killpg(self.workers[i].pid, signal.SIGKILL)
+        self.workers[i].wait()
+
+    def __exit__(self, *exc) -> None:
+        import os
+        import signal
+
+        for p in reversed(self.procs):
+            if p.poll() is None:
+                try:
+                    os.killpg(p.pid, signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        for p in reversed(self.procs):
+            try:
+                p.wait(timeout=20)
+            except Exception:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()

@@ -24,6 +24,11 @@ field from frame 0 to frame ``NNNNNN`` on the reference grid; incremental mode a
 ``fields/increment_NNNNNN.npz``) and ``summary.json`` (parameters, input checksums, counts,
 tracking ratio and status of every pair, timings). Every file is written atomically.
 
+Frames in parallel: ``run``/``detect`` ``--workers N`` detect N volumes at a time on local
+Dask worker processes, ``--scheduler ADDRESS`` on the workers of an existing Dask cluster
+(:mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
+the others are still being detected. The results are the same as with one worker.
+
 Resuming: ``run``/``detect`` record each volume's SHA-256 in ``summary.json`` and skip the
 detection of volumes whose particle table exists with the same checksum; linking and fields
 are recomputed. A ``RESULTS`` folder made from other inputs or detection settings is refused
@@ -65,10 +70,12 @@ import numpy as np
 from hrvbase.cli import (
     Parser,
     SettingOption,
+    add_parallel_options,
     add_setting_options,
     common_options,
     int_in,
     number,
+    parallel_from_args,
     run_main,
     settings_from_args,
     show_progress,
@@ -235,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(r)
     _detect_options(r)
     _link_options(r)
+    add_parallel_options(r.add_argument_group("frames in parallel (detection)"))
     r.set_defaults(func=cmd_run)
     d = sub.add_parser("detect", parents=[common], help="detect particles in a folder of volumes")
     d.add_argument(
@@ -245,6 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _common(d)
     _detect_options(d)
+    add_parallel_options(d.add_argument_group("frames in parallel"))
     d.set_defaults(func=cmd_detect)
     k = sub.add_parser("link", parents=[common], help="link point clouds (CSV) and compute fields")
     k.add_argument(
@@ -353,11 +362,17 @@ def cmd_detect(args) -> int:
     from .pipeline import track_volumes
 
     settings = detect_settings(args)
+    parallel = parallel_from_args(args)
     _check_edge_margin(settings, scan_volumes(args.voldir)[0])
     return _report(
         args,
         lambda: track_volumes(
-            args.voldir, args.output, detect=settings, series=None, **_common_kwargs(args)
+            args.voldir,
+            args.output,
+            detect=settings,
+            series=None,
+            parallel=parallel,
+            **_common_kwargs(args),
         ),
     )
 
@@ -367,6 +382,7 @@ def cmd_run(args) -> int:
     from .pipeline import track_volumes, volume_extent_um
 
     detect, series = detect_settings(args), series_settings(args)  # validate before any work
+    parallel = parallel_from_args(args)
     vols = scan_volumes(args.voldir)
     _check_edge_margin(detect, vols[0])
     _check_grid_option(args, volume_extent_um(vols[0]), "the volume")
@@ -378,6 +394,7 @@ def cmd_run(args) -> int:
             detect=detect,
             series=series,
             vti_encoding=args.vti_encoding,
+            parallel=parallel,
             **_common_kwargs(args),
         ),
     )

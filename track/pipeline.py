@@ -16,11 +16,14 @@ Results folder ``out_dir``::
     summary.json              parameters, input checksums, counts, tracking ratio and
                               status of every pair, failures, timings
 
-Every file is written atomically. Resuming: the SHA-256 of each volume is recorded and the
-detection of volumes whose particle table exists with the same checksum is skipped; linking
-and fields are recomputed. A folder made from other inputs or detection settings is refused
-unless ``overwrite`` (which then deletes only files ``track`` writes); a non-empty folder
-without a ``summary.json`` written by ``track`` is always refused.
+Every file is written atomically. The volumes may be detected on Dask workers (``parallel``,
+:mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
+the others are still being detected; the results are the same. Resuming: the SHA-256 of
+each volume is recorded and the detection of volumes whose particle table exists with the
+same checksum is skipped; linking and fields are recomputed. A folder made from other inputs
+or detection settings is refused unless ``overwrite`` (which then deletes only files
+``track`` writes); a non-empty folder without a ``summary.json`` written by ``track`` is
+always refused.
 
 Failures: a pair that cannot be linked (fewer than ``min_particles`` particles, no
 consistent matches), a field that cannot be gridded or (detection only) a volume without
@@ -336,83 +339,141 @@ def _first_psf(vol, info, settings):
     return psf, f"estimated from {info.name}, shape {list(psf.shape)}"
 
 
-def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, progress: bool):
+def _detect_frame(job, ctx) -> dict:
+    """Detect the particles of one volume and write its table (atomically); any process.
+
+    ``job`` is ``(i, VolumeInfo)``, ``ctx`` ``(DetectSettings, psf or None, results folder)``.
+    Returns the positions ``(N, 3)``, the detection report and the frame's summary entries.
+    """
     from .detect import detect_particles
 
-    prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
-    frames = []
-    for v in vols:
-        frames.append({"index": v.index, "input": v.source(), "input_sha256": volume_checksum(v)})
-    summary["frames"] = frames
-    summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
-    clouds: list[np.ndarray | None] = [None] * len(vols)
-    reports: list[dict] = [{} for _ in vols]
-    for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
-        old = prev_frames.get(v.index)
-        part = numbered(out / "particles", v.index, ".csv")
-        if old and old.get("input_sha256") == f["input_sha256"]:
-            if verify_record(part, old.get("particles_file")):
-                clouds[i] = read_points_csv(part)
-                frames[i] = {**old, **f, "reused": True}
-            elif part.is_file():
-                log.warning(
-                    "%s changed on disk since it was written (truncated or edited); "
-                    "detecting volume %s again",
-                    part,
-                    v.name,
-                )
-    todo = [i for i in range(len(vols)) if clouds[i] is None]
-    if todo:
-        log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
-    else:
-        log.info("all %d volumes already detected; detection skipped", len(vols))
-    psf_note = (prev or {}).get("psf", "")
-    t_det = time.perf_counter()
-    if todo:
-        vol0 = read_volume(vols[0])
-        psf, psf_note = _first_psf(vol0, vols[0], settings)
-        with _bar(len(todo), progress, "detect", "volume") as bar:
-            for i in todo:
-                v = vols[i]
-                t0 = time.perf_counter()
-                vol = vol0 if i == 0 else read_volume(v)
-                det = detect_particles(
-                    vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um
-                )
-                part = numbered(out / "particles", v.index, ".csv")
-                write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
-                clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
-                reports[i] = det.report
-                frames[i].update(
-                    {
-                        "particles": str(part.relative_to(out)),
-                        "n_particles": int(clouds[i].shape[0]),
-                        "voxel_size_um": list(v.voxel_size_um),
-                        "origin_xyz_um": list(v.origin_xyz_um),
-                        "seconds": time.perf_counter() - t0,
-                        "report": det.report,
-                        "particles_file": file_record(part),
-                    }
-                )
-                if clouds[i].shape[0] == 0:
-                    log.info("volume %s: no particle found", v.name)
-                summary["psf"] = psf_note
-                write_json(out / SUMMARY, summary, overwrite=True)  # resumable after each
-                bar.update()
-    summary["psf"] = psf_note
-    summary["timings"]["detect_s"] = time.perf_counter() - t_det
-    summary["frame_ids"] = [v.index for v in vols]
-    return [
-        FrameDetections(
-            v.index,
-            v.source(),
-            c,
-            out / "particles" / f"{v.index:06d}.csv",
-            bool(f.get("reused", False)),
-            r,
-        )
-        for v, c, f, r in zip(vols, clouds, frames, reports, strict=True)
-    ]
+    _, v = job
+    settings, psf, out = ctx
+    t0 = time.perf_counter()
+    vol = read_volume(v)
+    det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um)
+    part = numbered(out / "particles", v.index, ".csv")
+    write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
+    positions = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
+    entry = {
+        "particles": str(part.relative_to(out)),
+        "n_particles": int(positions.shape[0]),
+        "voxel_size_um": list(v.voxel_size_um),
+        "origin_xyz_um": list(v.origin_xyz_um),
+        "seconds": time.perf_counter() - t0,
+        "report": det.report,
+        "particles_file": file_record(part),
+    }
+    return {"positions": positions, "report": det.report, "entry": entry}
+
+
+def _psf_context(settings, psf, out):
+    return settings, psf, out
+
+
+class _Detections:
+    """The detections of a series as they arrive (:mod:`hrvbase.parallel`).
+
+    A sequence of the frames' clouds (positions ``(N, 3)``, µm): item ``i`` waits until frame
+    ``i`` is detected, so that linking starts on the first frames while the others are still
+    being detected. :meth:`finish` waits for all and returns the :class:`FrameDetections`.
+    """
+
+    def __init__(self, vols, settings, out: Path, summary: dict, prev, progress, parallel):
+        from hrvbase.parallel import WorkerContext, frame_map
+
+        self.vols, self.out, self.summary = vols, out, summary
+        prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
+        frames = [
+            {"index": v.index, "input": v.source(), "input_sha256": volume_checksum(v)}
+            for v in vols
+        ]
+        summary["frames"] = frames
+        summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
+        self.frames = frames
+        self.clouds: list[np.ndarray | None] = [None] * len(vols)
+        self.reports: list[dict] = [{} for _ in vols]
+        for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
+            old = prev_frames.get(v.index)
+            part = numbered(out / "particles", v.index, ".csv")
+            if old and old.get("input_sha256") == f["input_sha256"]:
+                if verify_record(part, old.get("particles_file")):
+                    self.clouds[i] = read_points_csv(part)
+                    frames[i] = {**old, **f, "reused": True}
+                elif part.is_file():
+                    log.warning(
+                        "%s changed on disk since it was written (truncated or edited); "
+                        "detecting volume %s again",
+                        part,
+                        v.name,
+                    )
+        todo = [i for i in range(len(vols)) if self.clouds[i] is None]
+        if todo:
+            log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
+        else:
+            log.info("all %d volumes already detected; detection skipped", len(vols))
+        self.psf_note = (prev or {}).get("psf", "")
+        self.t0 = time.perf_counter()
+        self._map = None
+        self._results = iter(())
+        if todo:
+            psf, self.psf_note = _first_psf(read_volume(vols[0]), vols[0], settings)
+            here = out.resolve()  # workers may run in another folder
+            self._map = frame_map(
+                _detect_frame,
+                [(i, dataclasses.replace(vols[i], path=vols[i].path.resolve())) for i in todo],
+                parallel=parallel,
+                context=WorkerContext(_psf_context, (settings, psf, here)),
+                progress=progress,
+                desc="detect",
+                unit="volume",
+            )
+            self._results = iter(self._map)
+
+    def _take(self, job, result) -> None:
+        i, v = job
+        self.clouds[i] = result["positions"]
+        self.reports[i] = result["report"]
+        self.frames[i].update(result["entry"])
+        if self.clouds[i].shape[0] == 0:
+            log.info("volume %s: no particle found", v.name)
+        self.summary["psf"] = self.psf_note
+        write_json(self.out / SUMMARY, self.summary, overwrite=True)  # resumable after each
+
+    def __len__(self) -> int:
+        return len(self.vols)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        while self.clouds[i] is None:
+            self._take(*next(self._results))
+        return self.clouds[i]
+
+    def close(self) -> None:
+        if self._map is not None:
+            self._map.close()
+
+    def finish(self) -> list[FrameDetections]:
+        """Wait for every detection; record the detection's summary entries."""
+        try:
+            for job, result in self._results:
+                self._take(job, result)
+        finally:
+            self.close()
+        summary = self.summary
+        summary["psf"] = self.psf_note
+        summary["timings"]["detect_s"] = time.perf_counter() - self.t0
+        summary["frame_ids"] = [v.index for v in self.vols]
+        return [
+            FrameDetections(
+                v.index,
+                v.source(),
+                c,
+                self.out / "particles" / f"{v.index:06d}.csv",
+                bool(f.get("reused", False)),
+                r,
+            )
+            for v, c, f, r in zip(self.vols, self.clouds, self.frames, self.reports, strict=True)
+        ]
 
 
 # -- linking and outputs ---------------------------------------------------------------------
@@ -420,12 +481,12 @@ def _link_and_write(
     settings: SeriesSettings,
     out: Path,
     summary: dict,
-    frames: Sequence[FrameDetections],
+    clouds: Sequence[np.ndarray],
+    frame_ids: Sequence[int],
     vti_encoding: str,
     progress: bool,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
-    clouds = [f.positions_um for f in frames]
-    frame_ids = [f.index for f in frames]
+    """Link ``clouds`` (a list, or :class:`_Detections` arriving), grid and write the fields."""
     summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
         "mode": settings.mode,
@@ -627,6 +688,7 @@ def track_volumes(
     progress: bool = False,
     vti_encoding: str = "binary",
     provenance: Mapping[str, Any] | None = None,
+    parallel=None,
 ) -> TrackResult:
     """Detect the particles of a series of volumes and, with ``series``, link and grid them.
 
@@ -651,6 +713,10 @@ def track_volumes(
     vti_encoding : {"binary", "ascii"}
     provenance : mapping, optional
         Extra entries of ``summary.json`` (e.g. ``{"argv": [...]}``).
+    parallel : hrvbase.parallel.Parallel, optional
+        Where the volumes are detected (default: in this process, one after the other);
+        linking runs here, on the first frames while the others are still being detected.
+        The results are the same however they run.
 
     Returns
     -------
@@ -688,10 +754,17 @@ def track_volumes(
     command = "detect" if series is None else "run"
     summary = _new_summary(command, fp, params, provenance)
     out.mkdir(parents=True, exist_ok=True)
-    frames = _detect_all(vols, settings, out, summary, prev, progress)
+    detections = _Detections(vols, settings, out, summary, prev, progress, parallel)
     if series is None:
-        return _finish(out, summary, t0, allow_partial, command, frames)
-    pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)
+        return _finish(out, summary, t0, allow_partial, command, detections.finish())
+    try:  # linking starts on the first frames while the others are being detected
+        ids = [v.index for v in vols]
+        pairs, tracks, grid = _link_and_write(
+            series, out, summary, detections, ids, vti_encoding, progress
+        )
+    finally:
+        detections.close()
+    frames = detections.finish()
     return _finish(out, summary, t0, allow_partial, command, frames, pairs, tracks, grid)
 
 
@@ -780,7 +853,9 @@ def track_clouds(
         frames.append(FrameDetections(i, name, c, part))
     summary["frames"] = entries
     write_json(out / SUMMARY, summary, overwrite=True)
-    pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)
+    pairs, tracks, grid = _link_and_write(
+        series, out, summary, points, list(range(len(points))), vti_encoding, progress
+    )
     return _finish(out, summary, t0, allow_partial, "link", frames, pairs, tracks, grid)
 
 

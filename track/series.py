@@ -497,6 +497,23 @@ def _skipped(ref: int, dfm: int, reason: str) -> PairResult:
     )
 
 
+class _Checked:
+    """``clouds`` checked one by one as they are first used (a cloud may still be arriving,
+    e.g. from a detection running in parallel: ``clouds[i]`` waits for it)."""
+
+    def __init__(self, clouds: Sequence[np.ndarray]) -> None:
+        self._clouds = clouds
+        self._checked: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self._clouds)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        if i not in self._checked:
+            self._checked[i] = _points(self._clouds[i], f"frame {i} positions")
+        return self._checked[i]
+
+
 def link_pairs(
     clouds: Sequence[np.ndarray],
     settings: SeriesSettings | None = None,
@@ -509,7 +526,8 @@ def link_pairs(
     Parameters
     ----------
     clouds : sequence of ndarray, shape (N_i, 3)
-        Particle positions of each frame (µm).
+        Particle positions of each frame (µm); read in frame order as the pairs are linked
+        (a sequence whose items are still being computed may wait for them).
     settings : SeriesSettings, optional
     linker : callable, optional
         ``linker(ref_xyz, def_xyz, link_settings, initial_guess=None) -> result`` with
@@ -530,7 +548,7 @@ def link_pairs(
         ``"skipped: ..."`` status.
     """
     settings = settings or SeriesSettings()
-    pts = [_points(c, f"frame {i} positions") for i, c in enumerate(clouds)]
+    pts = _Checked(clouds)  # each cloud is read when its first pair is linked
     if len(pts) < 2:
         raise InputError(f"a series needs at least 2 frames, got {len(pts)}")
     linker = linker or _default_linker()

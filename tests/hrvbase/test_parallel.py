@@ -1,0 +1,218 @@
+"""hrvbase.parallel: the frame map in process, on a local cluster and on a loopback cluster
+started by the test (``dask scheduler`` + two ``dask worker`` processes), a killed worker, and
+the command-line options."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hrvbase.cli import add_parallel_options, parallel_from_args
+from hrvbase.errors import InputError
+from hrvbase.parallel import Parallel, WorkerContext, frame_map, in_order
+from tests.helpers import LoopbackCluster
+
+
+# -- per-frame functions (module level: the workers import them) ---------------------------
+def _build(offset, folder):
+    """The shared context: records each build (one line per process and context)."""
+    with open(Path(folder) / "builds.txt", "a") as fh:
+        fh.write(f"{os.getpid()}\n")
+    return {"offset": offset, "bank": np.arange(1000.0)}
+
+
+def _frame(k, ctx):
+    """A seeded computation per frame (the same whatever process runs it)."""
+    rng = np.random.default_rng([7, k])
+    x = rng.normal(size=500) + ctx["offset"]
+    return float(np.sum(x * ctx["bank"][:500])), os.getpid()
+
+
+def _warning_frame(k, ctx):
+    import logging
+
+    logging.getLogger("hrvbase.test").warning("frame %d: a warning on the worker", k)
+    logging.getLogger("hrvbase.test").debug("frame %d: a debug message", k)
+    return k
+
+
+def _slow_frame(k, ctx):
+    time.sleep(0.8)
+    Path(ctx["folder"], f"done_{k}").write_text("")
+    return k * k
+
+
+def _slow_ctx(folder):
+    return {"folder": folder}
+
+
+def _fail_on_3(k, ctx):
+    with open(Path(ctx["folder"]) / "attempts.txt", "a") as fh:
+        fh.write(f"{k}\n")
+    if k == 3:
+        raise InputError(f"frame {k} is unreadable")
+    return k
+
+
+def _expected(n, offset):
+    return [_frame(k, {"offset": offset, "bank": np.arange(1000.0)})[0] for k in range(n)]
+
+
+# -- settings and options -------------------------------------------------------------------
+@pytest.mark.parametrize("workers", [0, -1, 1.5, "two", True])
+def test_parallel_refuses_bad_workers(workers):
+    with pytest.raises(InputError, match="workers must be an integer >= 1"):
+        Parallel(workers=workers)
+
+
+def test_parallel_settings():
+    assert Parallel().in_process
+    assert Parallel(workers=1).describe() == "in process"
+    p = Parallel(workers=2, threads=3)
+    assert not p.in_process and p.worker_threads() == 3
+    assert Parallel(workers=2).worker_threads() >= 1
+    assert not Parallel(scheduler="tcp://127.0.0.1:1").in_process
+    with pytest.raises(InputError, match="scheduler must be an address"):
+        Parallel(scheduler=" ")
+
+
+def _parse(argv):
+    p = argparse.ArgumentParser()
+    add_parallel_options(p)
+    return p.parse_args(argv)
+
+
+@pytest.mark.parametrize("value", ["0", "-2", "x", ""])
+def test_cli_workers_error_names_the_option(value):
+    with pytest.raises(InputError, match=r"^--workers must be an integer >= 1 or 'auto'"):
+        parallel_from_args(_parse([f"--workers={value}"]))
+
+
+def test_cli_options():
+    assert parallel_from_args(_parse([])) == Parallel()
+    assert parallel_from_args(_parse(["--workers", "3"]), threads=2) == Parallel(3, threads=2)
+    assert parallel_from_args(_parse(["--workers", "auto"])).n_workers >= 1
+    got = parallel_from_args(_parse(["--scheduler", "tcp://h:1"]))
+    assert got.scheduler == "tcp://h:1"
+
+
+def test_unreachable_scheduler_names_the_option(monkeypatch):
+    monkeypatch.setattr("hrvbase.parallel.CONNECT_TIMEOUT_S", 2.0)
+    par = Parallel(scheduler="tcp://127.0.0.1:9")  # discard port: nothing listens
+    with pytest.raises(InputError, match=r"^--scheduler tcp://127.0.0.1:9: cannot reach"):
+        list(frame_map(_frame, range(2), parallel=par))
+
+
+# -- in process ----------------------------------------------------------------------------
+def test_in_process_runs_in_order_without_dask(tmp_path):
+    code = (
+        "import sys; from hrvbase.parallel import frame_map, WorkerContext; "
+        "from tests.hrvbase.test_parallel import _frame, _build; "
+        f"ctx = WorkerContext(_build, (2.0, {str(tmp_path)!r})); "
+        "out = list(frame_map(_frame, range(4), context=ctx)); "
+        "print([k for k, _ in out]); print(sorted(m for m in sys.modules if 'dask' in m "
+        "or m == 'distributed'))"
+    )
+    root = Path(__file__).resolve().parents[2]
+    res = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True
+    )
+    assert res.stdout.splitlines() == ["[0, 1, 2, 3]", "[]"]
+    assert len((tmp_path / "builds.txt").read_text().split()) == 1
+
+
+def test_in_process_failure_stops_at_the_frame(tmp_path):
+    ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
+    got = []
+    with pytest.raises(InputError, match="frame 3 is unreadable"):
+        for _k, r in frame_map(_fail_on_3, range(6), context=ctx):
+            got.append(r)
+    assert got == [0, 1, 2]
+    assert (tmp_path / "attempts.txt").read_text().split() == ["0", "1", "2", "3"]
+
+
+def test_in_order():
+    pairs = [(2, "c"), (0, "a"), (3, "d"), (1, "b")]
+    assert [k for k, _ in in_order(pairs, [0, 1, 2, 3])] == [0, 1, 2, 3]
+
+
+# -- local cluster ---------------------------------------------------------------------------
+def test_local_cluster_same_results_context_once_per_worker(tmp_path):
+    n = 8
+    ctx = WorkerContext(_build, (2.0, str(tmp_path)))
+    with frame_map(_frame, range(n), parallel=Parallel(workers=2), context=ctx) as fm:
+        got = dict(fm)
+    assert sorted(got) == list(range(n))
+    assert [got[k][0] for k in range(n)] == _expected(n, 2.0)  # bit for bit
+    pids = {pid for _, pid in got.values()}
+    assert os.getpid() not in pids and 1 <= len(pids) <= 2
+    builds = (tmp_path / "builds.txt").read_text().split()
+    assert sorted(set(builds)) == sorted(builds)  # at most once per process
+    assert set(map(int, builds)) == pids
+    assert len(fm.peak_memory_bytes) == 2
+    assert all(v > 10 * 2**20 for v in fm.peak_memory_bytes.values())
+
+
+def test_local_cluster_failure_is_raised_and_not_retried(tmp_path):
+    ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
+    got = []
+    with pytest.raises(InputError, match="frame 3 is unreadable"):
+        with frame_map(_fail_on_3, range(4), parallel=Parallel(workers=2), context=ctx) as fm:
+            for k, _ in fm:
+                got.append(k)
+    attempts = (tmp_path / "attempts.txt").read_text().split()
+    assert attempts.count("3") == 1  # a user error is not retried
+    assert set(got) <= {0, 1, 2}
+
+
+# -- a real loopback cluster -----------------------------------------------------------------
+def test_loopback_cluster_same_results(tmp_path):
+    n = 6
+    with LoopbackCluster(tmp_path) as cluster:
+        ctx = WorkerContext(_build, (1.0, str(tmp_path)))
+        par = Parallel(scheduler=cluster.address)
+        with frame_map(_frame, range(n), parallel=par, context=ctx) as fm:
+            got = dict(fm)
+    assert [got[k][0] for k in range(n)] == _expected(n, 1.0)
+    assert len({pid for _, pid in got.values()} - {os.getpid()}) >= 1
+    assert len(fm.peak_memory_bytes) == 2
+
+
+def test_loopback_cluster_killed_worker_frames_redone(tmp_path):
+    n = 6
+    with LoopbackCluster(tmp_path) as cluster:
+        ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
+        par = Parallel(scheduler=cluster.address)
+
+        def kill_after_first():
+            t0 = time.monotonic()
+            while not list(tmp_path.glob("done_*")) and time.monotonic() - t0 < 60:
+                time.sleep(0.05)
+            cluster.kill_worker(0)
+
+        killer = threading.Thread(target=kill_after_first)
+        killer.start()
+        with frame_map(_slow_frame, range(n), parallel=par, context=ctx) as fm:
+            got = dict(fm)
+        killer.join()
+        assert cluster.workers[0].poll() is not None  # it was killed during the run
+    assert got == {k: k * k for k in range(n)}
+    assert len(fm.peak_memory_bytes) == 1  # the surviving worker
+
+
+def test_worker_messages_are_logged_here(caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    with frame_map(_warning_frame, range(3), parallel=Parallel(workers=2)) as fm:
+        assert sorted(k for k, _ in fm) == [0, 1, 2]
+    got = sorted(r.getMessage() for r in caplog.records if r.name == "hrvbase.test")
+    assert got == [f"frame {k}: a warning on the worker" for k in range(3)]
