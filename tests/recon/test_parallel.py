@@ -194,3 +194,21 @@ def test_bad_parallel_options(dataset4, tmp_path, capsys, monkeypatch, option, m
     assert rc == 2
     assert err.startswith(f"recon: error: {message}") and err.count("\n") == 1, err
     assert not out.exists()  # nothing left behind
+
+
+def test_zarr_written_by_two_workers_is_the_serial_volumes(dataset4, serial, tmp_path, capsys):
+    """Workers write their frames into one OME-Zarr image: its voxels are the serial TIFFs'."""
+    import tifffile
+
+    from track.volumes import read_volume, scan_volumes
+
+    out = tmp_path / "vol.zarr"
+    rc, _, err = run(
+        capsys, "run", dataset4, *ARGS, "--format", "zarr", "--workers", "2", "-o", out
+    )
+    assert rc == 0, err
+    frames = scan_volumes(out)
+    assert [v.index for v in frames] == [0, 1, 2, 3]
+    for v in frames:
+        want = tifffile.imread(serial / f"{v.index:06d}.tif")
+        assert read_volume(v).tobytes() == want.astype("float32").tobytes(), v.name
