@@ -8,13 +8,16 @@ over them, :mod:`track.cli`) and return a :class:`TrackResult` with the same dat
 
 Results folder ``out_dir``::
 
-    particles/NNNNNN.csv      x_um, y_um, z_um, intensity of each frame's particles
-    matches_NNNNNN.csv        one per linked pair (NNNNNN = deformed frame)
-    tracks.csv                frame, track_id, x_um, y_um, z_um
+    particles/NNNNNN.csv      x_um, y_um, z_um, intensity, sigma_{x,y,z}_um of each frame's
+                              particles (standard uncertainties, µm)
+    matches_NNNNNN.csv        one per linked pair (NNNNNN = deformed frame), with the
+                              displacements' uncertainties sigma_d{x,y,z}_um
+    tracks.csv                frame, track_id, x_um, y_um, z_um, sigma_{x,y,z}_um
     fields/NNNNNN.npz, .vti   total field from frame 0 to frame NNNNNN (reference grid)
     fields/increment_NNNNNN.npz   incremental mode: the increment's field
     summary.json              parameters, input checksums, counts, tracking ratio and
-                              status of every pair, failures, timings
+                              status of every pair, the zero-displacement noise floor
+                              (``SeriesSettings.static_frames``), failures, timings
 
 Every file is written atomically. Resuming: the SHA-256 of each volume is recorded and the
 detection of volumes whose particle table exists with the same checksum is skipped; linking
@@ -56,8 +59,14 @@ from hrvbase.io import file_record, read_json, sha256_file, verify_record, write
 from .errors import FailedFramesError, InputError, TrackingError
 from .field_files import write_field_npz, write_field_vti
 from .fields import GridAxes, GridField
-from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, track_series
-from .tables import read_points_csv, write_matches_csv, write_points_csv, write_tracks_csv
+from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, noise_floor, track_series
+from .tables import (
+    read_point_sigmas,
+    read_points_csv,
+    write_matches_csv,
+    write_points_csv,
+    write_tracks_csv,
+)
 from .volumes import VolumeInfo, numbered, read_volume, scan_volumes
 
 log = logging.getLogger(__name__)
@@ -88,6 +97,9 @@ class FrameDetections:
     report : dict
         Detection report (counts per stage, threshold, ...; see
         :attr:`track.detect.Detection.report`); empty when reused or for point clouds.
+    sigma_um : ndarray, shape (N, 3), or None
+        Standard uncertainty of each centre (µm, x, y, z); NaN where unknown (tables written
+        without uncertainties), None for point clouds given without them.
     """
 
     index: int
@@ -96,6 +108,7 @@ class FrameDetections:
     particles: Path
     reused: bool = False
     report: dict = field(default_factory=dict)
+    sigma_um: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -119,6 +132,8 @@ class PairOutcome:
         Rows ``[row_ref, row_def]`` into the two frames' particle tables.
     displacement_um : ndarray, shape (K, 3)
         Displacement of each matched particle (µm, x, y, z).
+    sigma_displacement_um : ndarray, shape (K, 3), or None
+        Its standard uncertainty (µm, x, y, z); None when the particles came without.
     tracking_ratio : float
         Fraction of reference particles matched (NaN when not linked).
     field : GridField or None
@@ -142,6 +157,7 @@ class PairOutcome:
     increment_field: GridField | None = None
     smoothing_xyz: tuple[float, float, float] | None = None
     failure: str = ""
+    sigma_displacement_um: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -336,6 +352,11 @@ def _first_psf(vol, info, settings):
     return psf, f"estimated from {info.path.name}, shape {list(psf.shape)}"
 
 
+def _known_sigmas(sigma_um: np.ndarray) -> np.ndarray | None:
+    """A table's uncertainties, or None when it has none (all NaN: an older table)."""
+    return None if sigma_um.size == 0 or np.all(np.isnan(sigma_um)) else sigma_um
+
+
 def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, progress: bool):
     from .detect import detect_particles
 
@@ -346,6 +367,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
     summary["frames"] = frames
     summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
     clouds: list[np.ndarray | None] = [None] * len(vols)
+    sigmas: list[np.ndarray | None] = [None] * len(vols)
     reports: list[dict] = [{} for _ in vols]
     for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
         old = prev_frames.get(v.index)
@@ -353,6 +375,7 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
         if old and old.get("input_sha256") == f["input_sha256"]:
             if verify_record(part, old.get("particles_file")):
                 clouds[i] = read_points_csv(part)
+                sigmas[i] = _known_sigmas(read_point_sigmas(part))
                 frames[i] = {**old, **f, "reused": True}
             elif part.is_file():
                 log.warning(
@@ -380,8 +403,16 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
                     vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um
                 )
                 part = numbered(out / "particles", v.index, ".csv")
-                write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
+                write_points_csv(
+                    part,
+                    det.positions_um,
+                    det.intensities,
+                    sigma_xyz_um=det.sigma_um,
+                    overwrite=True,
+                )
                 clouds[i] = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
+                if det.sigma_um is not None:
+                    sigmas[i] = np.asarray(det.sigma_um, dtype=float).reshape(-1, 3)
                 reports[i] = det.report
                 frames[i].update(
                     {
@@ -410,8 +441,9 @@ def _detect_all(vols, settings, out: Path, summary: dict, prev: dict | None, pro
             out / "particles" / f"{v.index:06d}.csv",
             bool(f.get("reused", False)),
             r,
+            sg,
         )
-        for v, c, f, r in zip(vols, clouds, frames, reports, strict=True)
+        for v, c, f, r, sg in zip(vols, clouds, frames, reports, sigmas, strict=True)
     ]
 
 
@@ -425,11 +457,16 @@ def _link_and_write(
     progress: bool,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
     clouds = [f.positions_um for f in frames]
+    sigmas = None
+    if any(f.sigma_um is not None for f in frames):
+        sigmas = [f.sigma_um for f in frames]  # None → NaN (unknown) in track.series
     frame_ids = [f.index for f in frames]
     summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
         "mode": settings.mode,
         "min_particles": settings.min_particles,
+        "static_frames": settings.static_frames,
+        "predictor": settings.predictor,
         "grid": _settings_dict(settings.grid),
         "link": _settings_dict(settings.link),
     }
@@ -441,16 +478,40 @@ def _link_and_write(
     t0 = time.perf_counter()
     n_pairs = len(clouds) - 1
     with _bar(n_pairs, progress, "link", "pair") as bar:
-        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update())
+        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update(), sigmas=sigmas)
     t1 = time.perf_counter()
+    floor = noise_floor(pairs, settings.static_frames)
+    if floor is not None:
+        summary["noise_floor"] = floor.as_dict()
+        log.info(
+            "zero-displacement noise floor over the first %d (static) frames, %d displacements: "
+            "RMS x/y/z = %s µm (predicted σ %s µm)",
+            floor.frames,
+            floor.n_displacements,
+            "/".join(f"{v:.3g}" for v in floor.rms_xyz_um),
+            "/".join(f"{v:.3g}" for v in floor.predicted_xyz_um),
+        )
+    elif settings.static_frames >= 2:
+        log.warning(
+            "no noise floor: no pair among the first %d (static) frames was linked",
+            settings.static_frames,
+        )
     with _bar(n_pairs if settings.compute_fields else 0, progress, "fields", "field") as bar:
-        res = track_series(clouds, settings, pairs=pairs, on_field=lambda _k: bar.update())
+        res = track_series(
+            clouds, settings, pairs=pairs, on_field=lambda _k: bar.update(), sigmas=sigmas
+        )
     t2 = time.perf_counter()
     increments, outcomes = [], []
     for k, pair in enumerate(res.pairs):
         ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
         mfile = out / f"matches_{def_id:06d}.csv"
-        write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
+        write_matches_csv(
+            mfile,
+            pair.matches,
+            pair.displacement_um,
+            sigma_um=pair.sigma_displacement_um,
+            overwrite=True,
+        )
         lam = None if res.smoothing[k] is None else tuple(res.smoothing[k])
         entry = {
             "ref_frame": ref_id,
@@ -494,6 +555,7 @@ def _link_and_write(
                 inc,
                 lam,
                 _pair_failure(entry, settings.compute_fields),
+                pair.sigma_displacement_um,
             )
         )
     ids = np.asarray(frame_ids, dtype=np.int64)
@@ -739,10 +801,11 @@ def track_clouds(
         raise InputError(f"link needs at least 2 point clouds, got {len(clouds)}")
     series = _series(series)
     _check_vti(vti_encoding)
-    points, sources, checks, names = [], [], [], []
+    points, sources, checks, names, sigmas = [], [], [], [], []
     for i, c in enumerate(clouds):
         if isinstance(c, str | os.PathLike):
             points.append(read_points_csv(c))
+            sigmas.append(_known_sigmas(read_point_sigmas(c)))
             checks.append(sha256_file(c))
             sources.append(str(Path(c).resolve()))
             names.append(str(c))
@@ -754,6 +817,7 @@ def track_clouds(
                     f"shape {a.shape}"
                 )
             points.append(np.ascontiguousarray(a))
+            sigmas.append(None)
             checks.append(hashlib.sha256(points[-1].tobytes()).hexdigest())
             sources.append(f"array {i}")
             names.append(f"array {i}")
@@ -766,9 +830,9 @@ def track_clouds(
     summary["inputs"] = [{"path": p, "sha256": s} for p, s in zip(names, checks, strict=True)]
     out.mkdir(parents=True, exist_ok=True)
     entries, frames = [], []
-    for i, (name, c) in enumerate(zip(names, points, strict=True)):
+    for i, (name, c, sg) in enumerate(zip(names, points, sigmas, strict=True)):
         part = numbered(out / "particles", i, ".csv")
-        write_points_csv(part, c, overwrite=True)
+        write_points_csv(part, c, sigma_xyz_um=sg, overwrite=True)
         entries.append(
             {
                 "index": i,
@@ -777,7 +841,7 @@ def track_clouds(
                 "n_particles": int(c.shape[0]),
             }
         )
-        frames.append(FrameDetections(i, name, c, part))
+        frames.append(FrameDetections(i, name, c, part, sigma_um=sg))
     summary["frames"] = entries
     write_json(out / SUMMARY, summary, overwrite=True)
     pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)

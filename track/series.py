@@ -89,6 +89,14 @@ class SeriesSettings:
         Settings passed to the linker (:class:`track.matching.LinkSettings`).
     compute_fields : bool
         Grid displacements and strains (default) or only link.
+    static_frames : int
+        The first ``static_frames`` frames are known to be at rest (0: none): the spread of
+        the displacements between them is the series' zero-displacement noise floor
+        (:func:`noise_floor`), reported per axis. Needs ≥ 2 to be used.
+    predictor : bool
+        Incremental mode: link each pair from the previous increment's displacement field
+        (:func:`track.matching.increment_predictor`) as the linker's initial guess; the
+        linker checks the guess and falls back to its global bootstrap when it fails.
     """
 
     mode: str = "incremental"
@@ -96,12 +104,19 @@ class SeriesSettings:
     grid: GridSettings = field(default_factory=GridSettings)
     link: Any = None
     compute_fields: bool = True
+    static_frames: int = 0
+    predictor: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise InputError(f"mode must be one of {MODES}, got {self.mode!r}")
         if isinstance(self.min_particles, bool) or int(self.min_particles) < 4:
             raise InputError(f"min_particles must be an integer >= 4, got {self.min_particles!r}")
+        sf = self.static_frames
+        if isinstance(sf, bool) or not isinstance(sf, int | np.integer) or sf < 0:
+            raise InputError(f"static_frames must be an integer >= 0, got {sf!r}")
+        if not isinstance(self.predictor, bool):
+            raise InputError(f"predictor must be true or false, got {self.predictor!r}")
         if not isinstance(self.grid, GridSettings):
             raise InputError(f"grid must be a GridSettings, got {type(self.grid).__name__}")
         if int(self.grid.target_nodes) > MAX_GRID_NODES:
@@ -198,6 +213,10 @@ class PairResult:
         Fraction of reference particles matched (NaN when skipped).
     iterations : int
         Linker iterations (0 when skipped).
+    sigma_displacement_um : ndarray, shape (K, 3), or None
+        Standard uncertainty of each displacement (µm, x, y, z):
+        ``sqrt(σ_ref² + σ_def²)`` per axis from the two particles' uncertainties; None when
+        the clouds came without uncertainties (NaN where a particle's is unknown).
     """
 
     ref_frame: int
@@ -207,6 +226,7 @@ class PairResult:
     displacement_um: np.ndarray
     tracking_ratio: float = math.nan
     iterations: int = 0
+    sigma_displacement_um: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -224,12 +244,15 @@ class Tracks:
         Frame index, track id, and row of the particle in its frame's point table.
     xyz_um : ndarray, shape (M, 3)
         Position (µm).
+    sigma_xyz_um : ndarray, shape (M, 3), or None
+        Standard uncertainty of each position (µm), when the frames came with one.
     """
 
     frame: np.ndarray
     track_id: np.ndarray
     row: np.ndarray
     xyz_um: np.ndarray
+    sigma_xyz_um: np.ndarray | None = None
 
     def positions(self, track_id: int) -> tuple[np.ndarray, np.ndarray]:
         """``(frames, xyz_um)`` of one track, in frame order."""
@@ -297,6 +320,7 @@ def link_tracks(
     *,
     mode: str = "incremental",
     positions_um: Sequence[np.ndarray] | None = None,
+    sigmas_um: Sequence[np.ndarray] | None = None,
 ) -> Tracks:
     """Assign track ids from pairwise matches.
 
@@ -310,6 +334,8 @@ def link_tracks(
     mode : {"incremental", "cumulative"}
     positions_um : sequence of (ndarray, shape (N_i, 3)), optional
         Positions of each frame's particles, copied into :attr:`Tracks.xyz_um`.
+    sigmas_um : sequence of (ndarray, shape (N_i, 3)), optional
+        Their standard uncertainties, copied into :attr:`Tracks.sigma_xyz_um`.
 
     Returns
     -------
@@ -347,11 +373,17 @@ def link_tracks(
             raise InputError("positions_um do not have n_particles rows per frame")
     else:
         xyz = np.full((sum(n), 3), np.nan)
+    sig = None
+    if sigmas_um is not None:
+        sig = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 3) for p in sigmas_um])
+        if sig.shape[0] != sum(n):
+            raise InputError("sigmas_um do not have n_particles rows per frame")
     return Tracks(
         frame=np.asarray(frame, dtype=np.int64),
         track_id=np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64),
         row=np.asarray(row, dtype=np.int64),
         xyz_um=xyz,
+        sigma_xyz_um=sig,
     )
 
 
@@ -491,6 +523,45 @@ def _default_linker():
     return link_pair
 
 
+def _sigmas(sigmas, pts) -> list[np.ndarray] | None:
+    """Per-frame (N_i, 3) uncertainties (µm) checked against the clouds, or None."""
+    if sigmas is None:
+        return None
+    if len(sigmas) != len(pts):
+        raise InputError(f"sigmas: {len(sigmas)} arrays for {len(pts)} frames")
+    out = []
+    for i, (sg, p) in enumerate(zip(sigmas, pts, strict=True)):
+        a = np.full(p.shape, np.nan) if sg is None else np.asarray(sg, dtype=float)
+        if a.shape != p.shape or np.any(a < 0):
+            raise InputError(
+                f"frame {i} uncertainties must be an ({p.shape[0]}, 3) array of σ >= 0 µm "
+                f"(NaN: unknown), got shape {a.shape}"
+            )
+        out.append(a)
+    return out
+
+
+def match_sigma(
+    matches: np.ndarray, sigma_ref_um: np.ndarray, sigma_def_um: np.ndarray
+) -> np.ndarray:
+    """Standard uncertainty of matched displacements: ``sqrt(σ_ref² + σ_def²)`` per axis.
+
+    Parameters
+    ----------
+    matches : ndarray of int, shape (K, 2)
+        Rows ``[row_ref, row_def]``.
+    sigma_ref_um, sigma_def_um : ndarray, shape (N_ref, 3), (N_def, 3)
+        Position uncertainties of the two frames (µm, x, y, z).
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        µm; the two localisations are independent (separate images).
+    """
+    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    return np.hypot(sigma_ref_um[m[:, 0]], sigma_def_um[m[:, 1]])
+
+
 def _skipped(ref: int, dfm: int, reason: str) -> PairResult:
     return PairResult(
         ref, dfm, f"skipped: {reason}", np.zeros((0, 2), np.int64), np.zeros((0, 3)), math.nan, 0
@@ -503,6 +574,7 @@ def link_pairs(
     *,
     linker: Callable[..., Any] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
+    sigmas: Sequence[np.ndarray | None] | None = None,
 ) -> list[PairResult]:
     """Link the frames of a series pairwise (``i−1 → i`` or ``0 → i``).
 
@@ -517,9 +589,14 @@ def link_pairs(
         optionally ``.ok``, ``.reason``, ``.displacement_field``). Default
         :func:`track.matching.link_pair`. In cumulative mode the previous pair's
         ``displacement_field`` (frame 0 → i−1) is passed as ``initial_guess`` for 0 → i;
-        incremental pairs start without a guess.
+        in incremental mode (with ``settings.predictor``) the previous increment's field
+        through :func:`track.matching.increment_predictor` (each particle repeats its last
+        step) for ``i−1 → i``, when the previous pair was linked.
     on_pair : callable, optional
         Called with each :class:`PairResult` as it is finished (progress).
+    sigmas : sequence of (ndarray, shape (N_i, 3)), optional
+        Position uncertainties of each frame (µm); gives every pair's
+        :attr:`PairResult.sigma_displacement_um` (:func:`match_sigma`).
 
     Returns
     -------
@@ -533,6 +610,7 @@ def link_pairs(
     pts = [_points(c, f"frame {i} positions") for i, c in enumerate(clouds)]
     if len(pts) < 2:
         raise InputError(f"a series needs at least 2 frames, got {len(pts)}")
+    sig = _sigmas(sigmas, pts)
     linker = linker or _default_linker()
     out: list[PairResult] = []
     prev_field = None
@@ -550,8 +628,11 @@ def link_pairs(
         else:
             try:
                 guess = None
-                if settings.mode == "cumulative" and out and out[-1].ok:
-                    guess = prev_field
+                if out and out[-1].ok and prev_field is not None:
+                    if settings.mode == "cumulative":
+                        guess = prev_field
+                    elif settings.predictor:
+                        guess = _increment_guess(prev_field)
                 lr = linker(pts[r], pts[i], settings.link, initial_guess=guess)
                 if not getattr(lr, "ok", True):
                     raise TrackingError(getattr(lr, "reason", "") or "no consistent matches")
@@ -564,7 +645,14 @@ def link_pairs(
                         f"frames {r} → {i}: {m.shape[0]} matches but {d.shape[0]} displacements"
                     )
                 res = PairResult(
-                    r, i, OK, m, d, float(lr.tracking_ratio), int(getattr(lr, "iterations", 0))
+                    r,
+                    i,
+                    OK,
+                    m,
+                    d,
+                    float(lr.tracking_ratio),
+                    int(getattr(lr, "iterations", 0)),
+                    None if sig is None else match_sigma(m, sig[r], sig[i]),
                 )
                 prev_field = getattr(lr, "displacement_field", None)
             except TrackError as exc:
@@ -577,6 +665,87 @@ def link_pairs(
     return out
 
 
+def _increment_guess(prev_field):
+    from .matching import increment_predictor
+
+    return increment_predictor(prev_field)
+
+
+@dataclass(frozen=True)
+class NoiseFloor:
+    """Zero-displacement noise floor of a series from frames known to be at rest.
+
+    Attributes
+    ----------
+    frames : int
+        Static frames used (the first ``frames`` of the series).
+    n_displacements : int
+        Matched displacements pooled (pairs among the static frames).
+    rms_xyz_um : (float, float, float)
+        RMS of those displacements per axis (µm): the floor, since the truth is zero.
+    std_xyz_um : (float, float, float)
+        Their standard deviation about the mean (µm); a mean much larger than the spread
+        means the "static" frames drifted.
+    mean_xyz_um : (float, float, float)
+    predicted_xyz_um : (float, float, float)
+        RMS of the predicted displacement uncertainties (:attr:`PairResult.sigma_displacement_um`)
+        of the same matches (NaN without uncertainties): close to ``rms_xyz_um`` when the
+        per-particle σ is right.
+    """
+
+    frames: int
+    n_displacements: int
+    rms_xyz_um: tuple[float, float, float]
+    std_xyz_um: tuple[float, float, float]
+    mean_xyz_um: tuple[float, float, float]
+    predicted_xyz_um: tuple[float, float, float]
+
+    def as_dict(self) -> dict:
+        return {
+            "frames": self.frames,
+            "n_displacements": self.n_displacements,
+            "rms_xyz_um": list(self.rms_xyz_um),
+            "std_xyz_um": list(self.std_xyz_um),
+            "mean_xyz_um": list(self.mean_xyz_um),
+            "predicted_xyz_um": list(self.predicted_xyz_um),
+        }
+
+
+def noise_floor(pairs: Sequence[PairResult], static_frames: int) -> NoiseFloor | None:
+    """Per-axis zero-displacement noise floor from the linked pairs among the first
+    ``static_frames`` frames (both frames ``< static_frames``).
+
+    Returns
+    -------
+    NoiseFloor or None
+        None when ``static_frames < 2`` or no such pair was linked.
+    """
+    if static_frames < 2:
+        return None
+    use = [p for p in pairs if p.ok and p.ref_frame < static_frames and p.def_frame < static_frames]
+    d = [p.displacement_um for p in use]
+    if not use or sum(len(x) for x in d) == 0:
+        return None
+    d = np.concatenate(d)
+    s = [p.sigma_displacement_um for p in use]
+    pred = (math.nan,) * 3
+    if all(x is not None for x in s):
+        s = np.concatenate(s)
+        pred = tuple(float(v) for v in np.sqrt(np.nanmean(s**2, axis=0)))
+
+    def trio(a):
+        return tuple(float(v) for v in a)
+
+    return NoiseFloor(
+        frames=int(static_frames),
+        n_displacements=int(d.shape[0]),
+        rms_xyz_um=trio(np.sqrt(np.mean(d**2, axis=0))),
+        std_xyz_um=trio(d.std(axis=0)),
+        mean_xyz_um=trio(d.mean(axis=0)),
+        predicted_xyz_um=pred,
+    )
+
+
 def track_series(
     clouds: Sequence[np.ndarray],
     settings: SeriesSettings | None = None,
@@ -585,6 +754,7 @@ def track_series(
     pairs: Sequence[PairResult] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
     on_field: Callable[[int], None] | None = None,
+    sigmas: Sequence[np.ndarray | None] | None = None,
 ) -> SeriesResult:
     """Link a series of point clouds and compute trajectories and displacement/strain fields.
 
@@ -601,6 +771,9 @@ def track_series(
         Progress callback, see :func:`link_pairs`.
     on_field : callable, optional
         Called with the pair's index ``k`` once its field is done (gridded or skipped).
+    sigmas : sequence of (ndarray, shape (N_i, 3)), optional
+        Position uncertainties of each frame (µm), see :func:`link_pairs`; also copied into
+        the tracks.
 
     Returns
     -------
@@ -610,8 +783,9 @@ def track_series(
     """
     settings = settings or SeriesSettings()
     pts = [_points(c, f"frame {i} positions") for i, c in enumerate(clouds)]
+    sig = _sigmas(sigmas, pts)
     if pairs is None:
-        pairs = link_pairs(pts, settings, linker=linker, on_pair=on_pair)
+        pairs = link_pairs(pts, settings, linker=linker, on_pair=on_pair, sigmas=sig)
     pairs = tuple(pairs)
     if len(pairs) != len(pts) - 1:
         raise InputError(f"expected {len(pts) - 1} pairs for {len(pts)} frames, got {len(pairs)}")
@@ -620,6 +794,7 @@ def track_series(
         [p.matches if p.ok else None for p in pairs],
         mode=settings.mode,
         positions_um=pts,
+        sigmas_um=sig,
     )
     n = len(pairs)
     inc_fields: list[GridField | None] = [None] * n
@@ -659,6 +834,8 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
             f"({pair.matches.shape[0]} matched)"
         )
     ref = pts[pair.ref_frame][pair.matches[:, 0]]
+    # pair.sigma_displacement_um: (K, 3) µm per-match uncertainty (or None), for the
+    # per-node field uncertainties of track.fields
     return fit_displacement(ref, pair.displacement_um, settings.grid)
 
 
@@ -701,6 +878,7 @@ __all__ = [
     "MODES",
     "SPACING_NODES_FACTOR",
     "EulerianCumulation",
+    "NoiseFloor",
     "PairResult",
     "SeriesResult",
     "SeriesSettings",
@@ -712,5 +890,7 @@ __all__ = [
     "lagrangian_displacements",
     "link_pairs",
     "link_tracks",
+    "match_sigma",
+    "noise_floor",
     "track_series",
 ]
