@@ -455,6 +455,7 @@ def _link_and_write(
     frames: Sequence[FrameDetections],
     vti_encoding: str,
     progress: bool,
+    common_sigma_xyz_um=None,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
     clouds = [f.positions_um for f in frames]
     sigmas = None
@@ -478,7 +479,13 @@ def _link_and_write(
     t0 = time.perf_counter()
     n_pairs = len(clouds) - 1
     with _bar(n_pairs, progress, "link", "pair") as bar:
-        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update(), sigmas=sigmas)
+        pairs = link_pairs(
+            clouds,
+            settings,
+            on_pair=lambda _p: bar.update(),
+            sigmas=sigmas,
+            common_sigma_xyz_um=common_sigma_xyz_um,
+        )
     t1 = time.perf_counter()
     floor = noise_floor(pairs, settings.static_frames)
     if floor is not None:
@@ -640,6 +647,10 @@ def results_line(summary: Mapping) -> str:
             parts.append(f"{sum(i['field'] is not None for i in incs)} fields")
         else:
             parts.append("no fields")
+    floor = summary.get("noise_floor")
+    if floor:
+        rms = "/".join(f"{v:.2g}" for v in floor["rms_xyz_um"])
+        parts.append(f"noise floor x/y/z {rms} µm")
     parts.append(f"{summary.get('timings', {}).get('total_s', 0.0):.1f} s")
     status = summary.get("status", "complete")
     return "RESULTS: " + ", ".join(parts) + ("" if status == "complete" else f" ({status.upper()})")
@@ -753,7 +764,10 @@ def track_volumes(
     frames = _detect_all(vols, settings, out, summary, prev, progress)
     if series is None:
         return _finish(out, summary, t0, allow_partial, command, frames)
-    pairs, tracks, grid = _link_and_write(series, out, summary, frames, vti_encoding, progress)
+    common = settings.sigma_systematic_um[::-1]  # shared by a particle's images: cancels
+    pairs, tracks, grid = _link_and_write(
+        series, out, summary, frames, vti_encoding, progress, common
+    )
     return _finish(out, summary, t0, allow_partial, command, frames, pairs, tracks, grid)
 
 

@@ -542,7 +542,10 @@ def _sigmas(sigmas, pts) -> list[np.ndarray] | None:
 
 
 def match_sigma(
-    matches: np.ndarray, sigma_ref_um: np.ndarray, sigma_def_um: np.ndarray
+    matches: np.ndarray,
+    sigma_ref_um: np.ndarray,
+    sigma_def_um: np.ndarray,
+    common_sigma_xyz_um=None,
 ) -> np.ndarray:
     """Standard uncertainty of matched displacements: ``sqrt(σ_ref² + σ_def²)`` per axis.
 
@@ -552,14 +555,21 @@ def match_sigma(
         Rows ``[row_ref, row_def]``.
     sigma_ref_um, sigma_def_um : ndarray, shape (N_ref, 3), (N_def, 3)
         Position uncertainties of the two frames (µm, x, y, z).
+    common_sigma_xyz_um : sequence of 3 float, optional
+        Part ``s`` of every position's σ that both images of a particle share (a
+        per-particle bias, e.g. ``DetectSettings.sigma_systematic_um`` in x, y, z order): it
+        cancels in the displacement, ``sqrt(σ_ref² + σ_def² − 2 s²)``.
 
     Returns
     -------
     ndarray, shape (K, 3)
-        µm; the two localisations are independent (separate images).
+        µm; the random parts of the two localisations are independent (separate images).
     """
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
-    return np.hypot(sigma_ref_um[m[:, 0]], sigma_def_um[m[:, 1]])
+    var = sigma_ref_um[m[:, 0]] ** 2 + sigma_def_um[m[:, 1]] ** 2
+    if common_sigma_xyz_um is not None:
+        var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
+    return np.sqrt(var)
 
 
 def _skipped(ref: int, dfm: int, reason: str) -> PairResult:
@@ -575,6 +585,7 @@ def link_pairs(
     linker: Callable[..., Any] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
     sigmas: Sequence[np.ndarray | None] | None = None,
+    common_sigma_xyz_um=None,
 ) -> list[PairResult]:
     """Link the frames of a series pairwise (``i−1 → i`` or ``0 → i``).
 
@@ -597,6 +608,8 @@ def link_pairs(
     sigmas : sequence of (ndarray, shape (N_i, 3)), optional
         Position uncertainties of each frame (µm); gives every pair's
         :attr:`PairResult.sigma_displacement_um` (:func:`match_sigma`).
+    common_sigma_xyz_um : sequence of 3 float, optional
+        The part of every σ shared by a particle's images, see :func:`match_sigma`.
 
     Returns
     -------
@@ -652,7 +665,7 @@ def link_pairs(
                     d,
                     float(lr.tracking_ratio),
                     int(getattr(lr, "iterations", 0)),
-                    None if sig is None else match_sigma(m, sig[r], sig[i]),
+                    None if sig is None else match_sigma(m, sig[r], sig[i], common_sigma_xyz_um),
                 )
                 prev_field = getattr(lr, "displacement_field", None)
             except TrackError as exc:
