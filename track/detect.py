@@ -376,10 +376,11 @@ def detect_particles(
         loc_vol = work if settings.localize_on == "deconvolved" else vol
         loc = localize(loc_vol, seeds, spacing, half_box_vox=half, method=settings.method)
         keep = loc.ok
+        n_ok = int(keep.sum())
         pos_vox = loc.positions_vox[keep]
         rand_zyx_um = settings.sigma_noise_factor * loc.sigma_vox[keep] * np.asarray(spacing)
         sig_zyx_um = np.hypot(rand_zyx_um, np.asarray(settings.sigma_systematic_um))
-        report["noise_sigma"] = loc.noise_sigma
+        report["noise_sigma_median"] = float(np.nanmedian(loc.noise_sigma)) if n_ok else None
         report["half_box_vox"] = list(half)
         report["localization_fallbacks"] = int(loc.fallback.sum())
         report["localization_failures"] = int((~keep).sum())

@@ -33,9 +33,11 @@ with respect to the gradients (directions ``m_k``, weights ``w_k`` and the weigh
 centroid all vary with them) and the gradient operator's adjoint: it is exact to first order
 (checked against finite differences) and, on simulated Gaussian blobs with known noise, the
 predicted σ matches the RMS error within ≈ 10 % per axis from SNR 50 down to SNR 5
-(``tests/track/test_localize.py``). ``σ_n`` is estimated from the volume
-(:func:`estimate_noise_sigma`). Correlated noise (a reconstruction's) and systematic errors
-are not in this σ: :class:`track.detect.DetectSettings` adds a calibrated term.
+(``tests/track/test_localize.py``). ``σ_n`` is estimated for each particle from the fit's
+residual, the patch's departure from point symmetry (:func:`antisymmetric_noise_sigma`).
+Correlated noise (a reconstruction's) and systematic errors (the radial fit's own axial
+sampling bias, ≈ 0.015 voxel on elongated blobs; a reconstruction's per-particle bias) are
+not in this σ: :class:`track.detect.DetectSettings` scales it and adds a calibrated term.
 
 This module also holds the input checks shared by the detection modules of :mod:`track`.
 """
@@ -395,6 +397,46 @@ def weighted_centroid(patch: np.ndarray, background: float | None = None) -> np.
     return _centroid(p, background)[0]
 
 
+def _shift_noise_gain(offset: float) -> float:
+    """Σ w² of the cubic-spline interpolation weights of a shift by ``offset`` voxels: the
+    variance factor it applies to white noise."""
+    delta = np.zeros(33)
+    delta[16] = 1.0
+    return float(np.sum(ndimage.shift(delta, offset, order=3, mode="constant") ** 2))
+
+
+def antisymmetric_noise_sigma(patch: np.ndarray, centre_vox: np.ndarray) -> float:
+    """Noise standard deviation of a patch from its departure from point symmetry.
+
+    The radial-symmetry model says ``I(c + r) = I(c − r)``; the patch minus its mirror image
+    through the fitted centre ``c`` (cubic-spline resampled) is then noise (and whatever
+    asymmetry the particle image has), with variance ``σ² (1 + g)``, ``g`` the spline's
+    variance factor. Voxels the mirror maps outside the patch are left out.
+
+    Parameters
+    ----------
+    patch : ndarray, shape (nz, ny, nx)
+    centre_vox : ndarray, shape (3,)
+        Centre ``(z, y, x)`` in voxel units of the patch.
+
+    Returns
+    -------
+    float
+        ≥ 0; NaN when no voxel is left.
+    """
+    p = check_volume(patch, "patch").astype(np.float64, copy=False)
+    shape = np.asarray(p.shape)
+    d = (shape - 1) - 2.0 * np.asarray(centre_vox, float)  # mirror(x) = flip(x + d)
+    mirror = ndimage.shift(p[::-1, ::-1, ::-1], -d, order=3, mode="nearest")
+    margin = np.ceil(np.abs(d)).astype(int) + 1
+    if np.any(shape - 2 * margin < 1):
+        return math.nan
+    inner = tuple(slice(m, n - m) for m, n in zip(margin, shape, strict=True))
+    resid = (p - mirror)[inner]
+    gain = math.prod(_shift_noise_gain(-v) for v in d)
+    return float(np.sqrt(np.mean(resid**2) / (1.0 + gain)))
+
+
 def estimate_noise_sigma(volume: np.ndarray) -> float:
     """Robust standard deviation of a volume's voxel noise.
 
@@ -437,15 +479,15 @@ class Localization:
     sigma_vox : ndarray, shape (N, 3), float64
         Standard uncertainty of each position ``(z, y, x)`` (voxel units) from the volume's
         voxel noise (module docstring); NaN where ``ok`` is False.
-    noise_sigma : float
-        The voxel noise standard deviation used (intensity units).
+    noise_sigma : ndarray, shape (N,)
+        The voxel noise standard deviation used for each particle (intensity units).
     """
 
     positions_vox: np.ndarray
     ok: np.ndarray
     fallback: np.ndarray
     sigma_vox: np.ndarray | None = None
-    noise_sigma: float = math.nan
+    noise_sigma: np.ndarray | None = None
 
     def __iter__(self) -> Iterator[np.ndarray]:
         yield self.positions_vox
@@ -478,8 +520,9 @@ def localize(
         ``"radial"``: :func:`radial_symmetry_3d`, falling back to :func:`weighted_centroid`
         where it is not finite or lies outside the patch; ``"centroid"``: the centroid only.
     noise_sigma : float, optional
-        Voxel noise standard deviation (intensity units, ≥ 0) for the uncertainties; default
-        :func:`estimate_noise_sigma` of ``volume``.
+        Voxel noise standard deviation (intensity units, ≥ 0) for the uncertainties; default:
+        each particle's own, :func:`antisymmetric_noise_sigma` of its patch (the departure
+        from the point symmetry the radial fit assumes: the fit's residual).
 
     Returns
     -------
@@ -504,14 +547,14 @@ def localize(
         raise InputError(f"seeds_vox must have shape (N, 3) in (z, y, x), got {seeds.shape}")
     if not np.all(np.isfinite(seeds)):
         raise InputError("seeds_vox holds non-finite positions")
-    if noise_sigma is None:
-        noise_sigma = estimate_noise_sigma(vol)
-    elif not _is_number(noise_sigma) or not math.isfinite(noise_sigma) or noise_sigma < 0:
+    if noise_sigma is not None and (
+        not _is_number(noise_sigma) or not math.isfinite(noise_sigma) or noise_sigma < 0
+    ):
         raise InputError(f"noise_sigma must be a finite number >= 0, got {noise_sigma!r}")
-    noise_sigma = float(noise_sigma)
     n = seeds.shape[0]
     pos = np.full((n, 3), np.nan)
     sig = np.full((n, 3), np.nan)
+    noise = np.full(n, np.nan)
     ok = np.zeros(n, dtype=bool)
     fallback = np.zeros(n, dtype=bool)
     shape = np.asarray(vol.shape)
@@ -523,22 +566,27 @@ def localize(
         patch = vol[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
         est = np.full(3, np.nan)
         if method == "radial" and min(patch.shape) >= 3:
-            est, cov = radial_symmetry_3d_cov(patch, spacing, noise_sigma)
+            est, cov = radial_symmetry_3d_cov(patch, spacing, 1.0)
             var = np.diag(cov)
         inside = np.all(np.isfinite(est)) and np.all(est >= -0.5) and np.all(est <= hi - lo - 0.5)
         if not inside:
             if method == "radial":
                 fallback[i] = True
             est, var = _centroid(patch.astype(np.float64, copy=False), None)
-            var = noise_sigma**2 * var
         if np.all(np.isfinite(est)):
+            sn = noise_sigma
+            if sn is None:
+                sn = antisymmetric_noise_sigma(patch, est)
+                if not math.isfinite(sn):  # patch too small for the mirror test
+                    sn = estimate_noise_sigma(patch)
             pos[i] = est + lo
-            sig[i] = np.sqrt(np.clip(var, 0.0, None))
+            sig[i] = sn * np.sqrt(np.clip(var, 0.0, None))
+            noise[i] = sn
             ok[i] = True
     if fallback.any():
         log.info("localize: %d of %d particles fell back to the centroid", fallback.sum(), n)
     if (~ok).any():
         log.warning("localize: %d of %d seeds could not be localised", (~ok).sum(), n)
     return Localization(
-        positions_vox=pos, ok=ok, fallback=fallback, sigma_vox=sig, noise_sigma=noise_sigma
+        positions_vox=pos, ok=ok, fallback=fallback, sigma_vox=sig, noise_sigma=noise
     )

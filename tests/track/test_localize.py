@@ -7,6 +7,7 @@ import pytest
 
 from track.errors import InputError
 from track.localize import (
+    antisymmetric_noise_sigma,
     estimate_noise_sigma,
     localize,
     radial_symmetry_3d,
@@ -182,7 +183,7 @@ def test_noise_estimate_and_localize_sigmas(rng):
     errs, sigs = [], []
     for _ in range(60):
         res = localize(clean + rng.normal(0, noise, shape), seeds, VOXEL, half_box_vox=(6, 3, 3))
-        assert res.ok.all() and abs(res.noise_sigma / noise - 1) < 0.05
+        assert res.ok.all() and np.all(np.abs(res.noise_sigma / noise - 1) < 0.3)
         errs.append(res.positions_vox - centres)
         sigs.append(res.sigma_vox)
     ratio = np.sqrt(np.mean(np.square(errs), axis=0) / np.mean(np.square(sigs), axis=0))
@@ -192,6 +193,10 @@ def test_noise_estimate_and_localize_sigmas(rng):
     assert np.all(np.isfinite(cen.sigma_vox)) and np.all(cen.sigma_vox > 0)
     with pytest.raises(InputError, match="noise_sigma"):
         localize(clean, seeds, VOXEL, noise_sigma=-1.0)
+    # the fit's residual (departure from point symmetry) measures the noise of one patch
+    patch = clean[4:17, 7:14, 7:14] + rng.normal(0, noise, (13, 7, 7))
+    est = antisymmetric_noise_sigma(patch, centres[0] - [4, 7, 7])
+    assert abs(est / noise - 1) < 0.2, est / noise
     # no noise given, none found: σ = 0, not NaN
     res = localize(clean, seeds, VOXEL, half_box_vox=(6, 3, 3), noise_sigma=0.0)
     assert np.all(res.sigma_vox == 0)
