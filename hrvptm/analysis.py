@@ -188,14 +188,23 @@ def coverage(error: np.ndarray, sigma: np.ndarray, prefix: str = "") -> dict[str
     return out
 
 
-def _displacement_sigma(study, sigma_a: np.ndarray, sigma_b: np.ndarray) -> np.ndarray:
-    """σ (K, 3) of displacements between two images of the same particles: the part of the
-    positions' σ the study's detection calls systematic (shared) cancels."""
+def _displacement_sigma(study, sigma_a, sigma_b, displacement_um) -> np.ndarray:
+    """σ (K, 3) of displacements between two images of the same particles, as ``track``
+    computes it (:func:`track.series.match_sigma` with the study's settings)."""
     from track.series import match_sigma
 
     common = np.asarray(study.track.detect.sigma_systematic_um, float)[::-1]
+    series = study.track.series
     k = np.arange(len(sigma_a))
-    return match_sigma(np.column_stack([k, k]), sigma_a, sigma_b, common)
+    return match_sigma(
+        np.column_stack([k, k]),
+        sigma_a,
+        sigma_b,
+        common,
+        displacement_um=displacement_um,
+        bias_sigma_xyz_um=series.bias_sigma_um[::-1],
+        bias_length_um=series.bias_length_um,
+    )
 
 
 def _uncertainty(errors: list[np.ndarray], sigmas: list[np.ndarray]) -> dict:
@@ -354,7 +363,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
             true_u = np.array([tb[i] - ta[i] for i in ida[mk[:, 0]]])
             err = (cb[mk[:, 1]] - ca[mk[:, 0]]) - true_u
             sa, sb = _frame_sigma(data, a)[mk[:, 0]], _frame_sigma(data, b)[mk[:, 1]]
-            sig = _displacement_sigma(data.study, sa, sb)
+            sig = _displacement_sigma(data.study, sa, sb, cb[mk[:, 1]] - ca[mk[:, 0]])
         correct = int(np.sum(ida[m[:, 0]] == idb[m[:, 1]]) if len(m) else 0)
         correct -= int(np.sum((ida[m[:, 0]] < 0) & (idb[m[:, 1]] < 0)) if len(m) else 0)
         row.update(
@@ -499,7 +508,7 @@ def analyse_series(data: VariantData) -> Analysis:
         meas_u = (xk - x0[i0])[known]
         err = meas_u - true_u
         errs.append(err)
-        sigs.append(_displacement_sigma(st, s0[i0], sxyz[atk][ik])[known])
+        sigs.append(_displacement_sigma(st, s0[i0], sxyz[atk][ik], xk - x0[i0])[known])
         correct = int(np.sum((start == end) & known))
         det_idsk = data.associate(k, data.detections[k])
         trackable = len(np.intersect1d(det_ids0[det_ids0 >= 0], det_idsk[det_idsk >= 0]))

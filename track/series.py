@@ -93,6 +93,15 @@ class SeriesSettings:
         The first ``static_frames`` frames are known to be at rest (0: none): the spread of
         the displacements between them is the series' zero-displacement noise floor
         (:func:`noise_floor`), reported per axis. Needs ≥ 2 to be used.
+    bias_sigma_um : tuple of 3 float
+        Standard deviation ``(z, y, x)`` (µm, ≥ 0) of the per-particle localisation bias
+        that changes as a particle moves (a light-field reconstruction's error depends on
+        where the particle sits under the lenslets): it adds
+        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ = exp(−|u|² / (2 L²))`` with
+        ``L = bias_length_um`` and ``|u|`` the displacement's length (:func:`match_sigma`).
+        Default 0 (no such term).
+    bias_length_um : float
+        ``L`` (µm, > 0).
     predictor : bool
         Incremental mode: link each pair from the previous increment's displacement field
         (:func:`track.matching.increment_predictor`) as the linker's initial guess; the
@@ -105,6 +114,8 @@ class SeriesSettings:
     link: Any = None
     compute_fields: bool = True
     static_frames: int = 0
+    bias_sigma_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    bias_length_um: float = 5.0
     predictor: bool = True
 
     def __post_init__(self) -> None:
@@ -115,6 +126,17 @@ class SeriesSettings:
         sf = self.static_frames
         if isinstance(sf, bool) or not isinstance(sf, int | np.integer) or sf < 0:
             raise InputError(f"static_frames must be an integer >= 0, got {sf!r}")
+        b = self.bias_sigma_um
+        try:
+            b = tuple(float(v) for v in b)
+        except (TypeError, ValueError):
+            b = ()
+        if len(b) != 3 or not all(math.isfinite(v) and v >= 0 for v in b):
+            raise InputError(f"bias_sigma_um must be three numbers >= 0 (z, y, x), got {b!r}")
+        object.__setattr__(self, "bias_sigma_um", b)
+        L = self.bias_length_um
+        if isinstance(L, bool) or not isinstance(L, int | float) or not 0 < L < math.inf:
+            raise InputError(f"bias_length_um must be a finite number > 0, got {L!r}")
         if not isinstance(self.predictor, bool):
             raise InputError(f"predictor must be true or false, got {self.predictor!r}")
         if not isinstance(self.grid, GridSettings):
@@ -546,6 +568,10 @@ def match_sigma(
     sigma_ref_um: np.ndarray,
     sigma_def_um: np.ndarray,
     common_sigma_xyz_um=None,
+    *,
+    displacement_um: np.ndarray | None = None,
+    bias_sigma_xyz_um=None,
+    bias_length_um: float = 5.0,
 ) -> np.ndarray:
     """Standard uncertainty of matched displacements: ``sqrt(σ_ref² + σ_def²)`` per axis.
 
@@ -559,6 +585,13 @@ def match_sigma(
         Part ``s`` of every position's σ that both images of a particle share (a
         per-particle bias, e.g. ``DetectSettings.sigma_systematic_um`` in x, y, z order): it
         cancels in the displacement, ``sqrt(σ_ref² + σ_def² − 2 s²)``.
+    displacement_um : ndarray, shape (K, 3), optional
+        The displacements, for the moving-bias term.
+    bias_sigma_xyz_um : sequence of 3 float, optional
+        ``b`` (x, y, z order) of :attr:`SeriesSettings.bias_sigma_um`: adds
+        ``2 b² (1 − exp(−|u|² / (2 L²)))`` to each displacement's variance.
+    bias_length_um : float
+        ``L`` (µm).
 
     Returns
     -------
@@ -569,6 +602,10 @@ def match_sigma(
     var = sigma_ref_um[m[:, 0]] ** 2 + sigma_def_um[m[:, 1]] ** 2
     if common_sigma_xyz_um is not None:
         var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
+    if bias_sigma_xyz_um is not None and displacement_um is not None:
+        u2 = np.sum(np.square(np.asarray(displacement_um, float).reshape(-1, 3)), axis=1)
+        rho = np.exp(-0.5 * u2 / float(bias_length_um) ** 2)
+        var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * (1 - rho)[:, None]
     return np.sqrt(var)
 
 

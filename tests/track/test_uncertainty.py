@@ -46,6 +46,18 @@ def test_match_sigma_adds_in_quadrature_and_removes_the_shared_part():
     np.testing.assert_allclose(match_sigma(m, sa, sb), [[0.5, 0.5, np.sqrt(2.0)]])
     # a shared (systematic) part s of each σ cancels: sqrt(σa² + σb² − 2 s²)
     np.testing.assert_allclose(match_sigma(m, sa, sb, (0.0, 0.0, 1.0)), [[0.5, 0.5, 0.0]])
+    # a bias that decorrelates as the particle moves: + 2 b² (1 − exp(−|u|²/2L²))
+    b = (0.0, 0.0, 2.0)
+    u = np.array([[3.0, 4.0, 0.0]])
+    rho = np.exp(-0.5 * 25.0 / 5.0**2)
+    got = match_sigma(m, sa, sb, (0.0, 0.0, 1.0), displacement_um=u, bias_sigma_xyz_um=b)
+    np.testing.assert_allclose(got, [[0.5, 0.5, np.sqrt(8.0 * (1 - rho))]])
+    still = match_sigma(m, sa, sb, displacement_um=0 * u, bias_sigma_xyz_um=b)
+    np.testing.assert_allclose(still, match_sigma(m, sa, sb))
+    with pytest.raises(InputError, match="bias_sigma_um"):
+        SeriesSettings(bias_sigma_um=(1.0, -1.0, 0.0))
+    with pytest.raises(InputError, match="bias_length_um"):
+        SeriesSettings(bias_length_um=0.0)
 
 
 def test_track_clouds_writes_match_sigmas_and_the_noise_floor(tmp_path, rng):
