@@ -203,7 +203,7 @@ def _displacement_sigma(study, sigma_a, sigma_b, displacement_um) -> np.ndarray:
         common,
         displacement_um=displacement_um,
         bias_sigma_xyz_um=series.bias_sigma_um[::-1],
-        bias_length_um=series.bias_length_um,
+        bias_length_xyz_um=series.bias_length_um[::-1],
     )
 
 

@@ -97,11 +97,12 @@ class SeriesSettings:
         Standard deviation ``(z, y, x)`` (µm, ≥ 0) of the per-particle localisation bias
         that changes as a particle moves (a light-field reconstruction's error depends on
         where the particle sits under the lenslets): it adds
-        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ = exp(−|u|² / (2 L²))`` with
-        ``L = bias_length_um`` and ``|u|`` the displacement's length (:func:`match_sigma`).
-        Default 0 (no such term).
-    bias_length_um : float
-        ``L`` (µm, > 0).
+        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ = exp(−½ Σ_a (u_a / L_a)²)``
+        over the axes with ``L = bias_length_um`` and ``u`` the displacement
+        (:func:`match_sigma`). Default 0 (no such term).
+    bias_length_um : float or tuple of 3 float
+        ``L`` (µm, > 0): the move ``(z, y, x)`` over which the bias changes (one number:
+        the same along every axis).
     predictor : bool
         Incremental mode: link each pair from the previous increment's displacement field
         (:func:`track.matching.increment_predictor`) as the linker's initial guess; the
@@ -115,7 +116,7 @@ class SeriesSettings:
     compute_fields: bool = True
     static_frames: int = 0
     bias_sigma_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    bias_length_um: float = 5.0
+    bias_length_um: float | tuple[float, float, float] = 5.0
     predictor: bool = True
 
     def __post_init__(self) -> None:
@@ -135,8 +136,15 @@ class SeriesSettings:
             raise InputError(f"bias_sigma_um must be three numbers >= 0 (z, y, x), got {b!r}")
         object.__setattr__(self, "bias_sigma_um", b)
         L = self.bias_length_um
-        if isinstance(L, bool) or not isinstance(L, int | float) or not 0 < L < math.inf:
-            raise InputError(f"bias_length_um must be a finite number > 0, got {L!r}")
+        try:
+            lengths = (float(L),) * 3 if isinstance(L, int | float) else tuple(map(float, L))
+        except (TypeError, ValueError):
+            lengths = ()
+        if isinstance(L, bool) or len(lengths) != 3 or not all(0 < v < math.inf for v in lengths):
+            raise InputError(
+                f"bias_length_um must be one or three finite numbers > 0 (z, y, x), got {L!r}"
+            )
+        object.__setattr__(self, "bias_length_um", lengths)
         if not isinstance(self.predictor, bool):
             raise InputError(f"predictor must be true or false, got {self.predictor!r}")
         if not isinstance(self.grid, GridSettings):
@@ -571,7 +579,7 @@ def match_sigma(
     *,
     displacement_um: np.ndarray | None = None,
     bias_sigma_xyz_um=None,
-    bias_length_um: float = 5.0,
+    bias_length_xyz_um=(5.0, 5.0, 5.0),
 ) -> np.ndarray:
     """Standard uncertainty of matched displacements: ``sqrt(σ_ref² + σ_def²)`` per axis.
 
@@ -589,9 +597,9 @@ def match_sigma(
         The displacements, for the moving-bias term.
     bias_sigma_xyz_um : sequence of 3 float, optional
         ``b`` (x, y, z order) of :attr:`SeriesSettings.bias_sigma_um`: adds
-        ``2 b² (1 − exp(−|u|² / (2 L²)))`` to each displacement's variance.
-    bias_length_um : float
-        ``L`` (µm).
+        ``2 b² (1 − exp(−½ Σ_a (u_a / L_a)²))`` to each displacement's variance.
+    bias_length_xyz_um : sequence of 3 float
+        ``L`` (µm, x, y, z order).
 
     Returns
     -------
@@ -603,8 +611,8 @@ def match_sigma(
     if common_sigma_xyz_um is not None:
         var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
     if bias_sigma_xyz_um is not None and displacement_um is not None:
-        u2 = np.sum(np.square(np.asarray(displacement_um, float).reshape(-1, 3)), axis=1)
-        rho = np.exp(-0.5 * u2 / float(bias_length_um) ** 2)
+        u = np.asarray(displacement_um, float).reshape(-1, 3)
+        rho = np.exp(-0.5 * np.sum(np.square(u / np.asarray(bias_length_xyz_um, float)), axis=1))
         var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * (1 - rho)[:, None]
     return np.sqrt(var)
 

@@ -58,6 +58,13 @@ def test_match_sigma_adds_in_quadrature_and_removes_the_shared_part():
         SeriesSettings(bias_sigma_um=(1.0, -1.0, 0.0))
     with pytest.raises(InputError, match="bias_length_um"):
         SeriesSettings(bias_length_um=0.0)
+    assert SeriesSettings(bias_length_um=2).bias_length_um == (2.0, 2.0, 2.0)
+    # per-axis lengths: a move along z only barely changes a bias with a long z length
+    u = np.array([[0.0, 0.0, 3.0]])
+    got = match_sigma(
+        m, sa, sb, displacement_um=u, bias_sigma_xyz_um=b, bias_length_xyz_um=(1, 1, 30.0)
+    )
+    np.testing.assert_allclose(got[0, 2], np.sqrt(2.0 + 8.0 * (1 - np.exp(-0.5 * 0.01))))
 
 
 def test_track_clouds_writes_match_sigmas_and_the_noise_floor(tmp_path, rng):
