@@ -892,8 +892,6 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
             f"({pair.matches.shape[0]} matched)"
         )
     ref = pts[pair.ref_frame][pair.matches[:, 0]]
-    # pair.sigma_displacement_um: (K, 3) µm per-match uncertainty (or None), for the
-    # per-node field uncertainties of track.fields
     return fit_displacement(ref, pair.displacement_um, settings.grid)
 
 
