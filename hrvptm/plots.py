@@ -90,7 +90,7 @@ def plot_localization(results: dict, path: Path, title: str = "") -> Path:
 def plot_uncertainty(results: dict, path: Path, title: str = "") -> Path:
     """Reported uncertainty next to the actual error, per axis.
 
-    Top: ``|error|`` against the reported σ (log-log) with the lines ``|error| = σ`` and
+    Top: ``|error|`` against the reported σ with the lines ``|error| = σ`` and
     ``2σ``: a right σ leaves 68 % and 95 % of the points below them. Bottom: histogram of
     ``error/σ`` against the standard normal density. Needs
     ``Analysis.arrays["uncertainty"]`` (:mod:`hrvptm.analysis`); variants without σ are
@@ -115,9 +115,9 @@ def plot_uncertainty(results: dict, path: Path, title: str = "") -> Path:
                 continue
             z = e[:, j] / sg[:, j]
             cov1, cov2 = np.mean(np.abs(z) <= 1), np.mean(np.abs(z) <= 2)
-            top.loglog(
+            top.plot(
                 sg[:, j],
-                np.maximum(np.abs(e[:, j]), 1e-4),
+                np.abs(e[:, j]),
                 ".",
                 color=color,
                 ms=3,
@@ -129,10 +129,12 @@ def plot_uncertainty(results: dict, path: Path, title: str = "") -> Path:
                         color=color, label=label)  # fmt: skip
     for j, c in enumerate(AXES):
         top, bottom = axs[0, j], axs[1, j]
-        lo, hi = top.get_xlim() if top.has_data() else (1e-3, 10)
-        xs = np.array([lo, hi])
+        hi = top.get_xlim()[1] if top.has_data() else 1.0
+        xs = np.array([0.0, hi])
         top.plot(xs, xs, "k-", lw=0.8, label="|error| = σ")
         top.plot(xs, 2 * xs, "k--", lw=0.8, label="|error| = 2σ")
+        top.set_xlim(0, hi)
+        top.set_ylim(bottom=0)
         top.set_xlabel(f"reported σ_{c} (µm)")
         top.set_ylabel(f"|{c} error| (µm)")
         top.legend(fontsize=6)
