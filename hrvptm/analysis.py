@@ -24,6 +24,15 @@ then not representative and the study is failed (:mod:`hrvptm.study`: no ✓ in 
 Each row carries a ``failure`` column (empty when the frame is fine), the summary
 ``failed_frames`` (the number of distinct failed frames) and :attr:`Analysis.failures` the
 reasons.
+
+Uncertainty coverage
+--------------------
+``track`` reports a standard uncertainty σ per particle and axis (``sigma_{x,y,z}_um`` of
+its tables) and per displacement (``sqrt(σ_a² + σ_b²)``). :func:`coverage` checks them on
+the truth: the fraction of errors within 1σ and 2σ per axis (68 % and 95 % for a right,
+Gaussian σ) and the RMS of ``error/σ`` (1 when right). Every analysis adds them to its
+summary (``coverage_1sigma_x`` …) and its rows, and the errors with their σ to
+:attr:`Analysis.arrays` (``"uncertainty"``) for :func:`hrvptm.plots.plot_uncertainty`.
 """
 
 from __future__ import annotations
@@ -94,15 +103,16 @@ class VariantData:
     box_lo: np.ndarray
     box_hi: np.ndarray
     noise: list[dict]
+    sigmas: list[np.ndarray] = field(default_factory=list)
 
     @classmethod
     def load(cls, study, paths: VariantPaths) -> VariantData:
         from lfsim.io import read_json
         from lfsim.particles import Particles
-        from track.tables import read_points_csv
+        from track.tables import read_point_sigmas, read_points_csv
 
         n = study.experiment.frames
-        tids, txyz, dets, noise = [], [], [], []
+        tids, txyz, dets, noise, sigmas = [], [], [], [], []
         record = read_json(paths.dataset / "dataset.json")
         recs = {r["frame"]: r for r in record.get("frame_records", [])}
         for k in range(n):
@@ -110,6 +120,7 @@ class VariantData:
             tids.append(np.asarray(truth.ids, dtype=int))
             txyz.append(np.asarray(truth.positions_um, dtype=float))
             dets.append(read_points_csv(paths.track / "particles" / f"{k:06d}.csv"))
+            sigmas.append(read_point_sigmas(paths.track / "particles" / f"{k:06d}.csv"))
             spec = study.experiment.noise_for_frame(k)
             nrec = dict(recs.get(k, {}).get("noise", {}))
             noise.append({"snr": nrec.get("snr", spec.snr), "fps": getattr(spec, "fps", None)})
@@ -118,7 +129,7 @@ class VariantData:
         lo = np.array([g["origin_um"][0], g["origin_um"][1], min(g["depths_um"])], float)
         size = g["lenslet_object_um"] * np.asarray(g["n_lenslets"], float)
         hi = np.array([lo[0] + size[0], lo[1] + size[1], max(g["depths_um"])], float)
-        return cls(study, paths, tids, txyz, dets, lo, hi, noise)
+        return cls(study, paths, tids, txyz, dets, lo, hi, noise, sigmas)
 
     def in_volume(self, xyz: np.ndarray) -> np.ndarray:
         """Mask of points inside the reconstructed volume."""
@@ -136,6 +147,73 @@ class VariantData:
 
     def n_in_volume(self, k: int) -> int:
         return int(self.in_volume(self.truth_xyz[k]).sum())
+
+
+#: Coverage a right standard uncertainty gives within 1σ and 2σ (normal errors).
+COVERAGE_TARGETS = (0.6827, 0.9545)
+
+
+def coverage(error: np.ndarray, sigma: np.ndarray, prefix: str = "") -> dict[str, float]:
+    """How well standard uncertainties describe the actual errors, per axis.
+
+    Parameters
+    ----------
+    error : ndarray, shape (K, 3)
+        Measured − true (µm, x, y, z).
+    sigma : ndarray, shape (K, 3)
+        Their predicted standard uncertainties (µm); rows with a NaN or non-positive σ are
+        left out.
+
+    Returns
+    -------
+    dict
+        ``{prefix}coverage_1sigma_{x,y,z}`` and ``{prefix}coverage_2sigma_{x,y,z}``
+        (fractions of ``|error| ≤ σ``, ``≤ 2σ``), ``{prefix}zscore_rms_{x,y,z}`` (RMS of
+        ``error/σ``), ``{prefix}sigma_rms_{x,y,z}`` (RMS σ, µm) and
+        ``{prefix}coverage_n`` (errors with a σ); NaN without any.
+    """
+    e = np.asarray(error, dtype=float).reshape(-1, 3)
+    sg = np.asarray(sigma, dtype=float).reshape(-1, 3)
+    known = np.all(np.isfinite(sg) & (sg > 0), axis=1) & np.all(np.isfinite(e), axis=1)
+    e, sg = e[known], sg[known]
+    out: dict[str, float] = {f"{prefix}coverage_n": int(known.sum())}
+    for j, ax in enumerate(AXES):
+        if len(e):
+            z = np.abs(e[:, j]) / sg[:, j]
+            out[f"{prefix}coverage_1sigma_{ax}"] = float(np.mean(z <= 1.0))
+            out[f"{prefix}coverage_2sigma_{ax}"] = float(np.mean(z <= 2.0))
+            out[f"{prefix}zscore_rms_{ax}"] = float(np.sqrt(np.mean(z**2)))
+            out[f"{prefix}sigma_rms_{ax}"] = float(np.sqrt(np.mean(sg[:, j] ** 2)))
+        else:
+            for k in ("coverage_1sigma", "coverage_2sigma", "zscore_rms", "sigma_rms"):
+                out[f"{prefix}{k}_{ax}"] = math.nan
+    return out
+
+
+def _displacement_sigma(study, sigma_a, sigma_b, displacement_um) -> np.ndarray:
+    """σ (K, 3) of displacements between two images of the same particles, as ``track``
+    computes it (:func:`track.series.match_sigma` with the study's settings)."""
+    from track.series import match_sigma
+
+    common = np.asarray(study.track.detect.sigma_systematic_um, float)[::-1]
+    series = study.track.series
+    k = np.arange(len(sigma_a))
+    return match_sigma(
+        np.column_stack([k, k]),
+        sigma_a,
+        sigma_b,
+        common,
+        displacement_um=displacement_um,
+        bias_sigma_xyz_um=series.bias_sigma_um[::-1],
+        bias_length_xyz_um=series.bias_length_um[::-1],
+    )
+
+
+def _uncertainty(errors: list[np.ndarray], sigmas: list[np.ndarray]) -> dict:
+    """Pooled errors and σ (K, 3) for the summary and the plots."""
+    e = np.concatenate([x.reshape(-1, 3) for x in errors]) if errors else np.zeros((0, 3))
+    s = np.concatenate([x.reshape(-1, 3) for x in sigmas]) if sigmas else np.zeros((0, 3))
+    return {"error": e, "sigma": s}
 
 
 def _pooled(errors: list[np.ndarray], prefix: str) -> dict:
@@ -199,15 +277,17 @@ def analyse_localization(data: VariantData) -> Analysis:
 
     Row keys: ``frame, snr, fps, n_truth`` (true particles inside the reconstructed volume),
     ``n_detected, n_matched, recall, precision`` and ``mean_/rmsd_/maxabs_{x,y,z}`` of
-    ``detected − true`` (µm). Summary: the same pooled over frames, plus the worst frame's RMSD.
+    ``detected − true`` (µm), with their :func:`coverage` by the particles' σ. Summary: the
+    same pooled over frames, plus the worst frame's RMSD.
     """
-    rows, errs, failures = [], [], []
+    rows, errs, sigs, failures = [], [], [], []
     for k, det in enumerate(data.detections):
         ids = data.associate(k, det)
         truth = data.truth_by_id(k)
         ok = ids >= 0
         err = det[ok] - np.array([truth[i] for i in ids[ok]]).reshape(-1, 3)
         errs.append(err)
+        sigs.append(_frame_sigma(data, k)[ok])
         n_truth = data.n_in_volume(k)
         rows.append(
             {
@@ -219,6 +299,7 @@ def analyse_localization(data: VariantData) -> Analysis:
                 "recall": ok.sum() / n_truth if n_truth else math.nan,
                 "precision": ok.sum() / len(det) if len(det) else math.nan,
                 **vector_stats(err),
+                **coverage(err, sigs[-1]),
                 "failure": _detection_failure(data, k),
             }
         )
@@ -230,7 +311,16 @@ def analyse_localization(data: VariantData) -> Analysis:
         summary[f"worst_maxabs_{ax}"] = float(np.nanmax([r[f"maxabs_{ax}"] for r in rows]))
         summary[f"worst_abs_mean_{ax}"] = float(np.nanmax([abs(r[f"mean_{ax}"]) for r in rows]))
     summary["mean_recall"] = float(np.nanmean([r["recall"] for r in rows]))
-    return _with_failures(Analysis(rows, summary), failures)
+    unc = _uncertainty(errs, sigs)
+    summary.update(coverage(unc["error"], unc["sigma"]))
+    return _with_failures(Analysis(rows, summary, {"uncertainty": unc}), failures)
+
+
+def _frame_sigma(data: VariantData, k: int) -> np.ndarray:
+    """σ (N_k, 3) of frame ``k``'s detections (NaN when its table has none)."""
+    if k < len(data.sigmas):
+        return data.sigmas[k]
+    return np.full(data.detections[k].shape, np.nan)
 
 
 # -- zero-displacement pairs (Figs. 4b, 4c) ------------------------------------------------------
@@ -249,7 +339,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
     """
     from track.matching import LinkSettings, link_pair
 
-    rows, errs, hist, failures = [], [], [], []
+    rows, errs, hist, failures, sigs = [], [], [], [], []
     group = data.study.study.group_size
     for p, (a, b) in enumerate(_pairs(len(data.detections), group)):
         ca, cb = data.detections[a], data.detections[b]
@@ -258,6 +348,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
         row = {"pair": p, "frame_a": a, "frame_b": b, **data.noise[a], "n_a": len(ca)}
         row["n_b"] = len(cb)
         err = np.zeros((0, 3))
+        sig = np.zeros((0, 3))
         found = {f: _detection_failure(data, f) for f in (a, b)}
         fails = [(f, r) for f, r in found.items() if r]
         if min(len(ca), len(cb)) >= MIN_PARTICLES:
@@ -273,6 +364,8 @@ def analyse_pairs(data: VariantData) -> Analysis:
         if len(mk):
             true_u = np.array([tb[i] - ta[i] for i in ida[mk[:, 0]]])
             err = (cb[mk[:, 1]] - ca[mk[:, 0]]) - true_u
+            sa, sb = _frame_sigma(data, a)[mk[:, 0]], _frame_sigma(data, b)[mk[:, 1]]
+            sig = _displacement_sigma(data.study, sa, sb, cb[mk[:, 1]] - ca[mk[:, 0]])
         correct = int(np.sum(ida[m[:, 0]] == idb[m[:, 1]]) if len(m) else 0)
         correct -= int(np.sum((ida[m[:, 0]] < 0) & (idb[m[:, 1]] < 0)) if len(m) else 0)
         row.update(
@@ -282,6 +375,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
                 "n_wrong": len(m) - correct,
                 "tracking_ratio": correct / trackable if trackable else math.nan,
                 **vector_stats(err, "u_"),
+                **coverage(err, sig, "u_"),
             }
         )
         ratio = _ratio_failure(f"frames {a} → {b}", row["tracking_ratio"], fails)
@@ -291,12 +385,16 @@ def analyse_pairs(data: VariantData) -> Analysis:
         rows.append(row)
         errs.append(err)
         hist.append(err)
+        sigs.append(sig)
     summary = _pooled(errs, "pooled_u_")
     for ax in AXES:
         summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_links"] = int(sum(r["n_wrong"] for r in rows))
-    return _with_failures(Analysis(rows, summary, {"errors": hist}), failures)
+    unc = _uncertainty(errs, sigs)
+    summary.update(coverage(unc["error"], unc["sigma"], "u_"))
+    arrays = {"errors": hist, "uncertainty": unc}
+    return _with_failures(Analysis(rows, summary, arrays), failures)
 
 
 # -- tracked series (Figs. 5-7) ------------------------------------------------------------------
@@ -468,6 +566,7 @@ def analyse_series(data: VariantData) -> Analysis:
         raise StageError(f"missing {tr_path}")
     tracks = read_tracks_csv(tr_path)
     xyz = np.column_stack([tracks["x_um"], tracks["y_um"], tracks["z_um"]])
+    sxyz = np.column_stack([tracks["sigma_x_um"], tracks["sigma_y_um"], tracks["sigma_z_um"]])
     fr, tid = tracks["frame"], tracks["track_id"]
     at0 = fr == 0
     ids0 = tid[at0]
@@ -476,6 +575,8 @@ def analyse_series(data: VariantData) -> Analysis:
     tid0_truth = data.associate(0, x0)
     det_ids0 = data.associate(0, data.detections[0])
     rows, errs, strain_err = [], [], {c: [] for c in TENSOR_COMPONENTS}
+    sigs = []
+    s0 = sxyz[at0]
     linked = _track_failures(data.paths)
     failures = []
     if reason := _detection_failure(data, 0):
@@ -501,6 +602,7 @@ def analyse_series(data: VariantData) -> Analysis:
         meas_u = (xk - x0[i0])[known]
         err = meas_u - true_u
         errs.append(err)
+        sigs.append(_displacement_sigma(st, s0[i0], sxyz[atk][ik], xk - x0[i0])[known])
         correct = int(np.sum((start == end) & known))
         det_idsk = data.associate(k, data.detections[k])
         trackable = len(np.intersect1d(det_ids0[det_ids0 >= 0], det_idsk[det_idsk >= 0]))
@@ -520,6 +622,7 @@ def analyse_series(data: VariantData) -> Analysis:
             row[f"u_true_{ax}"] = float(true_u[:, j].mean()) if len(true_u) else math.nan
             row[f"u_meas_{ax}"] = float(meas_u[:, j].mean()) if len(meas_u) else math.nan
         row.update(vector_stats(err, "u_"))
+        row.update(coverage(err, sigs[-1], "u_"))
         fpath = data.paths.track / "fields" / f"{k:06d}.npz"
         if fpath.is_file() and not flat:
             fld = read_field_npz(fpath)
@@ -572,6 +675,9 @@ def analyse_series(data: VariantData) -> Analysis:
     _pool_heterogeneous(rows, summary)
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
+    unc = _uncertainty(errs, sigs)
+    summary.update(coverage(unc["error"], unc["sigma"], "u_"))
+    arrays["uncertainty"] = unc
     return _with_failures(Analysis(rows, summary, arrays), failures)
 
 

@@ -87,6 +87,67 @@ def plot_localization(results: dict, path: Path, title: str = "") -> Path:
     return _save(fig, path)
 
 
+def plot_uncertainty(results: dict, path: Path, title: str = "") -> Path:
+    """Reported uncertainty next to the actual error, per axis.
+
+    Top: ``|error|`` against the reported σ with the lines ``|error| = σ`` and
+    ``2σ``: a right σ leaves 68 % and 95 % of the points below them. Bottom: histogram of
+    ``error/σ`` against the standard normal density. Needs
+    ``Analysis.arrays["uncertainty"]`` (:mod:`hrvptm.analysis`); variants without σ are
+    drawn as a note.
+    """
+    plt = _plt()
+    fig, axs = plt.subplots(2, 3, figsize=(12, 6.5))
+    colors = {"mismatched": "tab:blue", "matched": "tab:orange"}
+    zz = np.linspace(-4, 4, 200)
+    for variant, a in results.items():
+        unc = a.arrays.get("uncertainty") or {}
+        e = np.asarray(unc.get("error", np.zeros((0, 3))), float).reshape(-1, 3)
+        sg = np.asarray(unc.get("sigma", np.zeros((0, 3))), float).reshape(-1, 3)
+        ok = np.all(np.isfinite(sg) & (sg > 0), axis=1) & np.all(np.isfinite(e), axis=1)
+        e, sg = e[ok], sg[ok]
+        color = colors.get(variant, "k")
+        label = LABEL.get(variant, variant)
+        for j in range(3):
+            top, bottom = axs[0, j], axs[1, j]
+            if not len(e):
+                top.text(0.5, 0.5, f"{label}: no σ", ha="center", transform=top.transAxes)
+                continue
+            z = e[:, j] / sg[:, j]
+            cov1, cov2 = np.mean(np.abs(z) <= 1), np.mean(np.abs(z) <= 2)
+            top.plot(
+                sg[:, j],
+                np.abs(e[:, j]),
+                ".",
+                color=color,
+                ms=3,
+                alpha=0.6,
+                label=f"{label}: {100 * cov1:.0f} % ≤ 1σ, {100 * cov2:.0f} % ≤ 2σ",
+            )
+            bins = np.linspace(-4, 4, 33)
+            bottom.hist(np.clip(z, -4, 4), bins=bins, density=True, histtype="step",
+                        color=color, label=label)  # fmt: skip
+    for j, c in enumerate(AXES):
+        top, bottom = axs[0, j], axs[1, j]
+        hi = top.get_xlim()[1] if top.has_data() else 1.0
+        xs = np.array([0.0, hi])
+        top.plot(xs, xs, "k-", lw=0.8, label="|error| = σ")
+        top.plot(xs, 2 * xs, "k--", lw=0.8, label="|error| = 2σ")
+        top.set_xlim(0, hi)
+        top.set_ylim(bottom=0)
+        top.set_xlabel(f"reported σ_{c} (µm)")
+        top.set_ylabel(f"|{c} error| (µm)")
+        top.legend(fontsize=6)
+        bottom.plot(zz, np.exp(-0.5 * zz**2) / math.sqrt(2 * math.pi), "k-", lw=0.8,
+                    label="N(0, 1)")  # fmt: skip
+        bottom.set_xlabel(f"{c} error / σ (clipped at ±4)")
+        bottom.set_ylabel("density")
+        bottom.legend(fontsize=6)
+    fig.suptitle(title or "Reported uncertainty against the actual error")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def plot_pairs(results: dict, path: Path, title: str = "") -> Path:
     """Figs. 4b–c: zero-displacement error (mean ± RMSD) per axis against SNR or frame rate."""
     plt = _plt()

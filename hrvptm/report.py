@@ -190,6 +190,37 @@ def heterogeneous_section(result: dict) -> list[str]:
     return lines
 
 
+def coverage_lines(variant: str, summary: dict) -> list[str]:
+    """Markdown table of a variant's uncertainty coverage (:func:`hrvptm.analysis.coverage`):
+    the fraction of errors within the reported 1σ and 2σ per axis, against 68 % and 95 %;
+    empty when the summary has no coverage (tables without uncertainties)."""
+    prefix = "u_" if "u_coverage_n" in summary else ""
+    n = summary.get(f"{prefix}coverage_n")
+    if not n:
+        return []
+    what = "displacements" if prefix else "positions"
+    lines = [
+        "",
+        f"### {variant}: uncertainty coverage ({n} {what}; a right σ gives 68 % / 95 %)",
+        "",
+        "| axis | within 1σ | within 2σ | RMS(error/σ) | RMS σ (µm) |",
+        "|---|---|---|---|---|",
+    ]
+    for ax in ("x", "y", "z"):
+
+        def pct(key, ax=ax):
+            v = summary.get(f"{prefix}{key}_{ax}")
+            return "–" if v is None or not math.isfinite(v) else f"{100 * v:.0f} %"
+
+        z = summary.get(f"{prefix}zscore_rms_{ax}")
+        sg = summary.get(f"{prefix}sigma_rms_{ax}")
+        lines.append(
+            f"| {ax} | {pct('coverage_1sigma')} | {pct('coverage_2sigma')} | "
+            f"{_num(z, 'ratio')} | {_num(sg)} |"
+        )
+    return lines
+
+
 def markdown(study_dict: dict, result: dict) -> str:
     """``summary.md`` text from the ``summary.json`` content."""
     st = study_dict["study"]
@@ -252,6 +283,7 @@ def markdown(study_dict: dict, result: dict) -> str:
         for k, val in v["summary"].items():
             unit = "strain" if "_E_" in k and "_ratio_" not in k else "um"
             lines.append(f"| {k} | {_num(val, unit)} |")
+        lines += coverage_lines(variant, v["summary"])
         rows = v.get("rows", [])
         cols = [c for c in SHOWN[st["kind"]] if rows and c in rows[0]]
         if rows:

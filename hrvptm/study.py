@@ -113,6 +113,8 @@ def _plots(study: Study, results: dict, report: Path) -> list[str]:
         if has_strain and (study.study.time_step_s or study.study.figure == "7"):
             out.append(plots.plot_strain_history(results, pdir / "strain_history.png"))
             out.append(plots.plot_slices(results, pdir / "slices.png"))
+    if any(a.arrays.get("uncertainty") is not None for a in results.values()):
+        out.append(plots.plot_uncertainty(results, pdir / "uncertainty.png", f"{fig}{name}"))
     for stale in set(pdir.glob("*.png")) - set(out):  # e.g. a strain plot of an earlier run
         stale.unlink()
     return [str(p.relative_to(report)) for p in out]

@@ -183,6 +183,14 @@ SERIES_OPTIONS = (
     SettingOption(
         "mode", ("--mode",), "link each frame to the previous one or to frame 0", choices=MODES
     ),
+    SettingOption(
+        "static_frames",
+        ("--static-frames",),
+        "the first N frames are at rest: report the spread of the displacements between them "
+        "as the zero-displacement noise floor per axis (0: none)",
+        _count,
+        "N",
+    ),
 )
 
 #: Options of the linker (:class:`track.matching.LinkSettings`).
@@ -211,6 +219,12 @@ def _link_options(p: argparse.ArgumentParser) -> None:
     add_setting_options(g, LinkSettings, LINK_OPTIONS, prefix="link_")
     g.add_argument(
         "--no-fields", action="store_true", help="only link; no gridded fields (default: off)"
+    )
+    g.add_argument(
+        "--no-predictor",
+        action="store_true",
+        help="incremental mode: do not start each pair from the previous increment's field "
+        "(default: on)",
     )
     g.add_argument(
         "--vti-encoding",
@@ -288,7 +302,12 @@ def series_settings(args: argparse.Namespace) -> SeriesSettings:
         SeriesSettings,
         args,
         SERIES_OPTIONS,
-        extra={"grid": grid, "link": link, "compute_fields": not args.no_fields},
+        extra={
+            "grid": grid,
+            "link": link,
+            "compute_fields": not args.no_fields,
+            "predictor": not args.no_predictor,
+        },
         prefix="series_",
     )
 

@@ -94,6 +94,19 @@ class DetectSettings:
         median blob half-extent per axis, at least 2.
     localize_on : {"deconvolved", "input"}
         Volume the localisation runs on.
+    sigma_noise_factor : float
+        Factor (> 0) on the voxel-noise σ of :func:`track.localize.localize`, which assumes
+        independent voxel noise: a reconstruction's noise is correlated over several voxels,
+        so the σ it gives is too small by a factor set by the reconstruction. This is the
+        *random* part of a particle's uncertainty, independent between frames. Default 1.
+    sigma_systematic_um : tuple of 3 float
+        Per-particle error ``(z, y, x)`` (µm, ≥ 0) that does not change between frames of a
+        particle that barely moves (the reconstruction's bias at the particle's place),
+        added in quadrature to every particle's σ; it cancels in displacements
+        (:func:`track.series.match_sigma`). Default 0.
+
+    Calibrate both on simulated data of the same setup, with other seeds than the data
+    they are then checked on (``hrvptm`` studies report the coverage of the σ).
     """
 
     deconvolution_iterations: int = 5
@@ -110,6 +123,8 @@ class DetectSettings:
     method: str = "radial"
     half_box_vox: tuple[int, int, int] | None = None
     localize_on: str = "input"
+    sigma_noise_factor: float = 1.0
+    sigma_systematic_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         it = self.deconvolution_iterations
@@ -170,6 +185,13 @@ class DetectSettings:
             object.__setattr__(
                 self, "half_box_vox", check_triple(self.half_box_vox, "half_box_vox", integer=True)
             )
+        sys_um = check_triple(self.sigma_systematic_um, "sigma_systematic_um", positive=False)
+        if min(sys_um) < 0:
+            raise InputError(f"sigma_systematic_um must be >= 0, got {self.sigma_systematic_um!r}")
+        object.__setattr__(self, "sigma_systematic_um", sys_um)
+        f = self.sigma_noise_factor
+        if isinstance(f, bool) or not isinstance(f, int | float) or not (0 < f < math.inf):
+            raise InputError(f"sigma_noise_factor must be a finite number > 0, got {f!r}")
         if self.localize_on not in ("deconvolved", "input"):
             raise InputError(
                 f"localize_on must be 'deconvolved' or 'input', got {self.localize_on!r}"
@@ -188,6 +210,12 @@ class Detection:
         The same in voxel indices ``(z, y, x)`` of the volume.
     intensities : ndarray, shape (N,), float64
         Peak intensity of every particle's blob (in the segmented volume).
+    sigma_um : ndarray, shape (N, 3), float64
+        Standard uncertainty of each centre, columns ``x, y, z`` (µm): :attr:`sigma_random_um`
+        with ``DetectSettings.sigma_systematic_um`` added in quadrature.
+    sigma_random_um : ndarray, shape (N, 3), float64
+        Its random part (independent between frames): the localiser's voxel-noise σ times
+        ``DetectSettings.sigma_noise_factor``.
     sizes_vox : ndarray, shape (N,), int64
         Blob voxel counts.
     report : dict
@@ -208,6 +236,8 @@ class Detection:
     report: dict = field(default_factory=dict)
     voxel_size_um: tuple[float, float, float] = (1.0, 1.0, 1.0)
     origin_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sigma_um: np.ndarray | None = None
+    sigma_random_um: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -346,7 +376,11 @@ def detect_particles(
         loc_vol = work if settings.localize_on == "deconvolved" else vol
         loc = localize(loc_vol, seeds, spacing, half_box_vox=half, method=settings.method)
         keep = loc.ok
+        n_ok = int(keep.sum())
         pos_vox = loc.positions_vox[keep]
+        rand_zyx_um = settings.sigma_noise_factor * loc.sigma_vox[keep] * np.asarray(spacing)
+        sig_zyx_um = np.hypot(rand_zyx_um, np.asarray(settings.sigma_systematic_um))
+        report["noise_sigma_median"] = float(np.nanmedian(loc.noise_sigma)) if n_ok else None
         report["half_box_vox"] = list(half)
         report["localization_fallbacks"] = int(loc.fallback.sum())
         report["localization_failures"] = int((~keep).sum())
@@ -354,6 +388,7 @@ def detect_particles(
         sizes = np.array([b.n_vox for b in accepted], dtype=np.int64)[keep]
     else:
         pos_vox = np.zeros((0, 3))
+        sig_zyx_um = rand_zyx_um = np.zeros((0, 3))
         intens = np.zeros(0)
         sizes = np.zeros(0, dtype=np.int64)
         report["localization_fallbacks"] = 0
@@ -376,4 +411,6 @@ def detect_particles(
         report=report,
         voxel_size_um=spacing,
         origin_xyz_um=origin,
+        sigma_um=sig_zyx_um[:, ::-1].copy(),
+        sigma_random_um=rand_zyx_um[:, ::-1].copy(),
     )

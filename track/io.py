@@ -5,9 +5,13 @@ from __future__ import annotations
 from .field_files import read_field_npz, vti_arrays, write_field_npz, write_field_vti
 from .tables import (
     MATCH_COLUMNS,
+    MATCH_SIGMA_COLUMNS,
     POINT_COLUMNS,
+    SIGMA_COLUMNS,
     TRACK_COLUMNS,
+    read_match_sigmas,
     read_matches_csv,
+    read_point_sigmas,
     read_points_csv,
     read_tracks_csv,
     write_matches_csv,
@@ -18,12 +22,16 @@ from .volumes import VolumeInfo, numbered, read_volume, scan_volumes
 
 __all__ = [
     "MATCH_COLUMNS",
+    "MATCH_SIGMA_COLUMNS",
     "POINT_COLUMNS",
+    "SIGMA_COLUMNS",
     "TRACK_COLUMNS",
     "VolumeInfo",
     "numbered",
     "read_field_npz",
+    "read_match_sigmas",
     "read_matches_csv",
+    "read_point_sigmas",
     "read_points_csv",
     "read_tracks_csv",
     "read_volume",

@@ -8,13 +8,16 @@ over them, :mod:`track.cli`) and return a :class:`TrackResult` with the same dat
 
 Results folder ``out_dir``::
 
-    particles/NNNNNN.csv      x_um, y_um, z_um, intensity of each frame's particles
-    matches_NNNNNN.csv        one per linked pair (NNNNNN = deformed frame)
-    tracks.csv                frame, track_id, x_um, y_um, z_um
+    particles/NNNNNN.csv      x_um, y_um, z_um, intensity, sigma_{x,y,z}_um of each frame's
+                              particles (standard uncertainties, µm)
+    matches_NNNNNN.csv        one per linked pair (NNNNNN = deformed frame), with the
+                              displacements' uncertainties sigma_d{x,y,z}_um
+    tracks.csv                frame, track_id, x_um, y_um, z_um, sigma_{x,y,z}_um
     fields/NNNNNN.npz, .vti   total field from frame 0 to frame NNNNNN (reference grid)
     fields/increment_NNNNNN.npz   incremental mode: the increment's field
     summary.json              parameters, input checksums, counts, tracking ratio and
-                              status of every pair, failures, timings
+                              status of every pair, the zero-displacement noise floor
+                              (``SeriesSettings.static_frames``), failures, timings
 
 Every file is written atomically. The volumes may be detected on Dask workers (``parallel``,
 :mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
@@ -59,8 +62,14 @@ from hrvbase.io import file_record, read_json, sha256_file, verify_record, write
 from .errors import FailedFramesError, InputError, TrackingError
 from .field_files import write_field_npz, write_field_vti
 from .fields import GridAxes, GridField
-from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, track_series
-from .tables import read_points_csv, write_matches_csv, write_points_csv, write_tracks_csv
+from .series import OK, SeriesSettings, Tracks, check_grid, link_pairs, noise_floor, track_series
+from .tables import (
+    read_point_sigmas,
+    read_points_csv,
+    write_matches_csv,
+    write_points_csv,
+    write_tracks_csv,
+)
 from .volumes import VolumeInfo, numbered, read_volume, scan_volumes, volume_checksum
 
 log = logging.getLogger(__name__)
@@ -91,6 +100,9 @@ class FrameDetections:
     report : dict
         Detection report (counts per stage, threshold, ...; see
         :attr:`track.detect.Detection.report`); empty when reused or for point clouds.
+    sigma_um : ndarray, shape (N, 3), or None
+        Standard uncertainty of each centre (µm, x, y, z); NaN where unknown (tables written
+        without uncertainties), None for point clouds given without them.
     """
 
     index: int
@@ -99,6 +111,7 @@ class FrameDetections:
     particles: Path
     reused: bool = False
     report: dict = field(default_factory=dict)
+    sigma_um: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -122,6 +135,8 @@ class PairOutcome:
         Rows ``[row_ref, row_def]`` into the two frames' particle tables.
     displacement_um : ndarray, shape (K, 3)
         Displacement of each matched particle (µm, x, y, z).
+    sigma_displacement_um : ndarray, shape (K, 3), or None
+        Its standard uncertainty (µm, x, y, z); None when the particles came without.
     tracking_ratio : float
         Fraction of reference particles matched (NaN when not linked).
     field : GridField or None
@@ -145,6 +160,7 @@ class PairOutcome:
     increment_field: GridField | None = None
     smoothing_xyz: tuple[float, float, float] | None = None
     failure: str = ""
+    sigma_displacement_um: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -339,11 +355,17 @@ def _first_psf(vol, info, settings):
     return psf, f"estimated from {info.name}, shape {list(psf.shape)}"
 
 
+def _known_sigmas(sigma_um: np.ndarray) -> np.ndarray | None:
+    """A table's uncertainties, or None when it has none (all NaN: an older table)."""
+    return None if sigma_um.size == 0 or np.all(np.isnan(sigma_um)) else sigma_um
+
+
 def _detect_frame(job, ctx) -> dict:
     """Detect the particles of one volume and write its table (atomically); any process.
 
     ``job`` is ``(i, VolumeInfo)``, ``ctx`` ``(DetectSettings, psf or None, results folder)``.
-    Returns the positions ``(N, 3)``, the detection report and the frame's summary entries.
+    Returns the positions ``(N, 3)``, their uncertainties ``(N, 3)`` (µm), the detection
+    report and the frame's summary entries.
     """
     from .detect import detect_particles
 
@@ -353,8 +375,13 @@ def _detect_frame(job, ctx) -> dict:
     vol = read_volume(v)
     det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um)
     part = numbered(out / "particles", v.index, ".csv")
-    write_points_csv(part, det.positions_um, det.intensities, overwrite=True)
+    write_points_csv(
+        part, det.positions_um, det.intensities, sigma_xyz_um=det.sigma_um, overwrite=True
+    )
     positions = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
+    sigma = None
+    if det.sigma_um is not None:
+        sigma = np.asarray(det.sigma_um, dtype=float).reshape(-1, 3)
     entry = {
         "particles": str(part.relative_to(out)),
         "n_particles": int(positions.shape[0]),
@@ -364,7 +391,7 @@ def _detect_frame(job, ctx) -> dict:
         "report": det.report,
         "particles_file": file_record(part),
     }
-    return {"positions": positions, "report": det.report, "entry": entry}
+    return {"positions": positions, "sigma": sigma, "report": det.report, "entry": entry}
 
 
 def _psf_context(settings, psf, out):
@@ -392,6 +419,7 @@ class _Detections:
         summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
         self.frames = frames
         self.clouds: list[np.ndarray | None] = [None] * len(vols)
+        self._sigmas: list[np.ndarray | None] = [None] * len(vols)
         self.reports: list[dict] = [{} for _ in vols]
         for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
             old = prev_frames.get(v.index)
@@ -399,6 +427,7 @@ class _Detections:
             if old and old.get("input_sha256") == f["input_sha256"]:
                 if verify_record(part, old.get("particles_file")):
                     self.clouds[i] = read_points_csv(part)
+                    self._sigmas[i] = _known_sigmas(read_point_sigmas(part))
                     frames[i] = {**old, **f, "reused": True}
                 elif part.is_file():
                     log.warning(
@@ -433,6 +462,7 @@ class _Detections:
     def _take(self, job, result) -> None:
         i, v = job
         self.clouds[i] = result["positions"]
+        self._sigmas[i] = result["sigma"]
         self.reports[i] = result["report"]
         self.frames[i].update(result["entry"])
         if self.clouds[i].shape[0] == 0:
@@ -447,6 +477,11 @@ class _Detections:
         while self.clouds[i] is None:
             self._take(*next(self._results))
         return self.clouds[i]
+
+    @property
+    def sigmas(self) -> _SigmaView:
+        """The frames' position uncertainties ``(N, 3)`` (µm; None: unknown), as they arrive."""
+        return _SigmaView(self)
 
     def close(self) -> None:
         if self._map is not None:
@@ -471,9 +506,26 @@ class _Detections:
                 self.out / "particles" / f"{v.index:06d}.csv",
                 bool(f.get("reused", False)),
                 r,
+                sg,
             )
-            for v, c, f, r in zip(self.vols, self.clouds, self.frames, self.reports, strict=True)
+            for v, c, f, r, sg in zip(
+                self.vols, self.clouds, self.frames, self.reports, self._sigmas, strict=True
+            )
         ]
+
+
+class _SigmaView:
+    """``detections.sigmas[i]``: frame ``i``'s uncertainties, waiting for its detection."""
+
+    def __init__(self, detections: _Detections) -> None:
+        self._d = detections
+
+    def __len__(self) -> int:
+        return len(self._d)
+
+    def __getitem__(self, i: int) -> np.ndarray | None:
+        self._d[i]  # waits until frame i is detected
+        return self._d._sigmas[i]
 
 
 # -- linking and outputs ---------------------------------------------------------------------
@@ -485,12 +537,20 @@ def _link_and_write(
     frame_ids: Sequence[int],
     vti_encoding: str,
     progress: bool,
+    sigmas: Sequence[np.ndarray | None] | None = None,
+    common_sigma_xyz_um=None,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
-    """Link ``clouds`` (a list, or :class:`_Detections` arriving), grid and write the fields."""
+    """Link ``clouds`` (a list, or :class:`_Detections` arriving), grid and write the fields.
+
+    ``sigmas``: the frames' position uncertainties ``(N_i, 3)`` (µm; None items: unknown),
+    a list or ``_Detections.sigmas``; None: the clouds came without.
+    """
     summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
         "mode": settings.mode,
         "min_particles": settings.min_particles,
+        "static_frames": settings.static_frames,
+        "predictor": settings.predictor,
         "grid": _settings_dict(settings.grid),
         "link": _settings_dict(settings.link),
     }
@@ -502,16 +562,46 @@ def _link_and_write(
     t0 = time.perf_counter()
     n_pairs = len(clouds) - 1
     with _bar(n_pairs, progress, "link", "pair") as bar:
-        pairs = link_pairs(clouds, settings, on_pair=lambda _p: bar.update())
+        pairs = link_pairs(
+            clouds,
+            settings,
+            on_pair=lambda _p: bar.update(),
+            sigmas=sigmas,
+            common_sigma_xyz_um=common_sigma_xyz_um,
+        )
     t1 = time.perf_counter()
+    floor = noise_floor(pairs, settings.static_frames)
+    if floor is not None:
+        summary["noise_floor"] = floor.as_dict()
+        log.info(
+            "zero-displacement noise floor over the first %d (static) frames, %d displacements: "
+            "RMS x/y/z = %s µm (predicted σ %s µm)",
+            floor.frames,
+            floor.n_displacements,
+            "/".join(f"{v:.3g}" for v in floor.rms_xyz_um),
+            "/".join(f"{v:.3g}" for v in floor.predicted_xyz_um),
+        )
+    elif settings.static_frames >= 2:
+        log.warning(
+            "no noise floor: no pair among the first %d (static) frames was linked",
+            settings.static_frames,
+        )
     with _bar(n_pairs if settings.compute_fields else 0, progress, "fields", "field") as bar:
-        res = track_series(clouds, settings, pairs=pairs, on_field=lambda _k: bar.update())
+        res = track_series(
+            clouds, settings, pairs=pairs, on_field=lambda _k: bar.update(), sigmas=sigmas
+        )
     t2 = time.perf_counter()
     increments, outcomes = [], []
     for k, pair in enumerate(res.pairs):
         ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
         mfile = out / f"matches_{def_id:06d}.csv"
-        write_matches_csv(mfile, pair.matches, pair.displacement_um, overwrite=True)
+        write_matches_csv(
+            mfile,
+            pair.matches,
+            pair.displacement_um,
+            sigma_um=pair.sigma_displacement_um,
+            overwrite=True,
+        )
         lam = None if res.smoothing[k] is None else tuple(res.smoothing[k])
         entry = {
             "ref_frame": ref_id,
@@ -555,6 +645,7 @@ def _link_and_write(
                 inc,
                 lam,
                 _pair_failure(entry, settings.compute_fields),
+                pair.sigma_displacement_um,
             )
         )
     ids = np.asarray(frame_ids, dtype=np.int64)
@@ -639,6 +730,10 @@ def results_line(summary: Mapping) -> str:
             parts.append(f"{sum(i['field'] is not None for i in incs)} fields")
         else:
             parts.append("no fields")
+    floor = summary.get("noise_floor")
+    if floor:
+        rms = "/".join(f"{v:.2g}" for v in floor["rms_xyz_um"])
+        parts.append(f"noise floor x/y/z {rms} µm")
     parts.append(f"{summary.get('timings', {}).get('total_s', 0.0):.1f} s")
     status = summary.get("status", "complete")
     return "RESULTS: " + ", ".join(parts) + ("" if status == "complete" else f" ({status.upper()})")
@@ -757,10 +852,19 @@ def track_volumes(
     detections = _Detections(vols, settings, out, summary, prev, progress, parallel)
     if series is None:
         return _finish(out, summary, t0, allow_partial, command, detections.finish())
+    common = settings.sigma_systematic_um[::-1]  # shared by a particle's images: cancels
     try:  # linking starts on the first frames while the others are being detected
         ids = [v.index for v in vols]
         pairs, tracks, grid = _link_and_write(
-            series, out, summary, detections, ids, vti_encoding, progress
+            series,
+            out,
+            summary,
+            detections,
+            ids,
+            vti_encoding,
+            progress,
+            sigmas=detections.sigmas,
+            common_sigma_xyz_um=common,
         )
     finally:
         detections.close()
@@ -812,10 +916,11 @@ def track_clouds(
         raise InputError(f"link needs at least 2 point clouds, got {len(clouds)}")
     series = _series(series)
     _check_vti(vti_encoding)
-    points, sources, checks, names = [], [], [], []
+    points, sources, checks, names, sigmas = [], [], [], [], []
     for i, c in enumerate(clouds):
         if isinstance(c, str | os.PathLike):
             points.append(read_points_csv(c))
+            sigmas.append(_known_sigmas(read_point_sigmas(c)))
             checks.append(sha256_file(c))
             sources.append(str(Path(c).resolve()))
             names.append(str(c))
@@ -827,6 +932,7 @@ def track_clouds(
                     f"shape {a.shape}"
                 )
             points.append(np.ascontiguousarray(a))
+            sigmas.append(None)
             checks.append(hashlib.sha256(points[-1].tobytes()).hexdigest())
             sources.append(f"array {i}")
             names.append(f"array {i}")
@@ -839,9 +945,9 @@ def track_clouds(
     summary["inputs"] = [{"path": p, "sha256": s} for p, s in zip(names, checks, strict=True)]
     out.mkdir(parents=True, exist_ok=True)
     entries, frames = [], []
-    for i, (name, c) in enumerate(zip(names, points, strict=True)):
+    for i, (name, c, sg) in enumerate(zip(names, points, sigmas, strict=True)):
         part = numbered(out / "particles", i, ".csv")
-        write_points_csv(part, c, overwrite=True)
+        write_points_csv(part, c, sigma_xyz_um=sg, overwrite=True)
         entries.append(
             {
                 "index": i,
@@ -850,11 +956,18 @@ def track_clouds(
                 "n_particles": int(c.shape[0]),
             }
         )
-        frames.append(FrameDetections(i, name, c, part))
+        frames.append(FrameDetections(i, name, c, part, sigma_um=sg))
     summary["frames"] = entries
     write_json(out / SUMMARY, summary, overwrite=True)
     pairs, tracks, grid = _link_and_write(
-        series, out, summary, points, list(range(len(points))), vti_encoding, progress
+        series,
+        out,
+        summary,
+        points,
+        list(range(len(points))),
+        vti_encoding,
+        progress,
+        sigmas=sigmas if any(sg is not None for sg in sigmas) else None,
     )
     return _finish(out, summary, t0, allow_partial, "link", frames, pairs, tracks, grid)
 

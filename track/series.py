@@ -89,6 +89,24 @@ class SeriesSettings:
         Settings passed to the linker (:class:`track.matching.LinkSettings`).
     compute_fields : bool
         Grid displacements and strains (default) or only link.
+    static_frames : int
+        The first ``static_frames`` frames are known to be at rest (0: none): the spread of
+        the displacements between them is the series' zero-displacement noise floor
+        (:func:`noise_floor`), reported per axis. Needs ≥ 2 to be used.
+    bias_sigma_um : tuple of 3 float
+        Standard deviation ``(z, y, x)`` (µm, ≥ 0) of the per-particle localisation bias
+        that changes as a particle moves (a light-field reconstruction's error depends on
+        where the particle sits under the lenslets): it adds
+        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ = exp(−½ Σ_a (u_a / L_a)²)``
+        over the axes with ``L = bias_length_um`` and ``u`` the displacement
+        (:func:`match_sigma`). Default 0 (no such term).
+    bias_length_um : float or tuple of 3 float
+        ``L`` (µm, > 0): the move ``(z, y, x)`` over which the bias changes (one number:
+        the same along every axis).
+    predictor : bool
+        Incremental mode: link each pair from the previous increment's displacement field
+        (:func:`track.matching.increment_predictor`) as the linker's initial guess; the
+        linker checks the guess and falls back to its global bootstrap when it fails.
     """
 
     mode: str = "incremental"
@@ -96,12 +114,39 @@ class SeriesSettings:
     grid: GridSettings = field(default_factory=GridSettings)
     link: Any = None
     compute_fields: bool = True
+    static_frames: int = 0
+    bias_sigma_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    bias_length_um: float | tuple[float, float, float] = 5.0
+    predictor: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise InputError(f"mode must be one of {MODES}, got {self.mode!r}")
         if isinstance(self.min_particles, bool) or int(self.min_particles) < 4:
             raise InputError(f"min_particles must be an integer >= 4, got {self.min_particles!r}")
+        sf = self.static_frames
+        if isinstance(sf, bool) or not isinstance(sf, int | np.integer) or sf < 0:
+            raise InputError(f"static_frames must be an integer >= 0, got {sf!r}")
+        b = self.bias_sigma_um
+        try:
+            b = tuple(float(v) for v in b)
+        except (TypeError, ValueError):
+            b = ()
+        if len(b) != 3 or not all(math.isfinite(v) and v >= 0 for v in b):
+            raise InputError(f"bias_sigma_um must be three numbers >= 0 (z, y, x), got {b!r}")
+        object.__setattr__(self, "bias_sigma_um", b)
+        L = self.bias_length_um
+        try:
+            lengths = (float(L),) * 3 if isinstance(L, int | float) else tuple(map(float, L))
+        except (TypeError, ValueError):
+            lengths = ()
+        if isinstance(L, bool) or len(lengths) != 3 or not all(0 < v < math.inf for v in lengths):
+            raise InputError(
+                f"bias_length_um must be one or three finite numbers > 0 (z, y, x), got {L!r}"
+            )
+        object.__setattr__(self, "bias_length_um", lengths)
+        if not isinstance(self.predictor, bool):
+            raise InputError(f"predictor must be true or false, got {self.predictor!r}")
         if not isinstance(self.grid, GridSettings):
             raise InputError(f"grid must be a GridSettings, got {type(self.grid).__name__}")
         if int(self.grid.target_nodes) > MAX_GRID_NODES:
@@ -198,6 +243,10 @@ class PairResult:
         Fraction of reference particles matched (NaN when skipped).
     iterations : int
         Linker iterations (0 when skipped).
+    sigma_displacement_um : ndarray, shape (K, 3), or None
+        Standard uncertainty of each displacement (µm, x, y, z):
+        ``sqrt(σ_ref² + σ_def²)`` per axis from the two particles' uncertainties; None when
+        the clouds came without uncertainties (NaN where a particle's is unknown).
     """
 
     ref_frame: int
@@ -207,6 +256,7 @@ class PairResult:
     displacement_um: np.ndarray
     tracking_ratio: float = math.nan
     iterations: int = 0
+    sigma_displacement_um: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -224,12 +274,15 @@ class Tracks:
         Frame index, track id, and row of the particle in its frame's point table.
     xyz_um : ndarray, shape (M, 3)
         Position (µm).
+    sigma_xyz_um : ndarray, shape (M, 3), or None
+        Standard uncertainty of each position (µm), when the frames came with one.
     """
 
     frame: np.ndarray
     track_id: np.ndarray
     row: np.ndarray
     xyz_um: np.ndarray
+    sigma_xyz_um: np.ndarray | None = None
 
     def positions(self, track_id: int) -> tuple[np.ndarray, np.ndarray]:
         """``(frames, xyz_um)`` of one track, in frame order."""
@@ -297,6 +350,7 @@ def link_tracks(
     *,
     mode: str = "incremental",
     positions_um: Sequence[np.ndarray] | None = None,
+    sigmas_um: Sequence[np.ndarray] | None = None,
 ) -> Tracks:
     """Assign track ids from pairwise matches.
 
@@ -310,6 +364,8 @@ def link_tracks(
     mode : {"incremental", "cumulative"}
     positions_um : sequence of (ndarray, shape (N_i, 3)), optional
         Positions of each frame's particles, copied into :attr:`Tracks.xyz_um`.
+    sigmas_um : sequence of (ndarray, shape (N_i, 3)), optional
+        Their standard uncertainties, copied into :attr:`Tracks.sigma_xyz_um`.
 
     Returns
     -------
@@ -347,11 +403,17 @@ def link_tracks(
             raise InputError("positions_um do not have n_particles rows per frame")
     else:
         xyz = np.full((sum(n), 3), np.nan)
+    sig = None
+    if sigmas_um is not None:
+        sig = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 3) for p in sigmas_um])
+        if sig.shape[0] != sum(n):
+            raise InputError("sigmas_um do not have n_particles rows per frame")
     return Tracks(
         frame=np.asarray(frame, dtype=np.int64),
         track_id=np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64),
         row=np.asarray(row, dtype=np.int64),
         xyz_um=xyz,
+        sigma_xyz_um=sig,
     )
 
 
@@ -491,6 +553,85 @@ def _default_linker():
     return link_pair
 
 
+class _CheckedSigmas:
+    """Per-frame ``(N_i, 3)`` uncertainties (µm) checked against the clouds one by one as
+    they are first used (like :class:`_Checked`: a frame may still be being detected)."""
+
+    def __init__(self, sigmas, pts) -> None:
+        if len(sigmas) != len(pts):
+            raise InputError(f"sigmas: {len(sigmas)} arrays for {len(pts)} frames")
+        self._sigmas, self._pts = sigmas, pts
+        self._checked: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self._pts)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        if i not in self._checked:
+            p, sg = self._pts[i], self._sigmas[i]
+            a = np.full(p.shape, np.nan) if sg is None else np.asarray(sg, dtype=float)
+            if a.shape != p.shape or np.any(a < 0):
+                raise InputError(
+                    f"frame {i} uncertainties must be an ({p.shape[0]}, 3) array of σ >= 0 µm "
+                    f"(NaN: unknown), got shape {a.shape}"
+                )
+            self._checked[i] = a
+        return self._checked[i]
+
+
+def _sigmas(sigmas, pts) -> _CheckedSigmas | None:
+    """Per-frame (N_i, 3) uncertainties (µm) checked against the clouds as used, or None."""
+    return None if sigmas is None else _CheckedSigmas(sigmas, pts)
+
+
+def match_sigma(
+    matches: np.ndarray,
+    sigma_ref_um: np.ndarray,
+    sigma_def_um: np.ndarray,
+    common_sigma_xyz_um=None,
+    *,
+    displacement_um: np.ndarray | None = None,
+    bias_sigma_xyz_um=None,
+    bias_length_xyz_um=(5.0, 5.0, 5.0),
+) -> np.ndarray:
+    """Standard uncertainty of matched displacements: ``sqrt(σ_ref² + σ_def²)`` per axis.
+
+    Parameters
+    ----------
+    matches : ndarray of int, shape (K, 2)
+        Rows ``[row_ref, row_def]``.
+    sigma_ref_um, sigma_def_um : ndarray, shape (N_ref, 3), (N_def, 3)
+        Position uncertainties of the two frames (µm, x, y, z).
+    common_sigma_xyz_um : sequence of 3 float, optional
+        Part ``s`` of every position's σ that both images of a particle share (a
+        per-particle bias, e.g. ``DetectSettings.sigma_systematic_um`` in x, y, z order): it
+        cancels in the displacement, ``sqrt(σ_ref² + σ_def² − 2 s²)``.
+    displacement_um : ndarray, shape (K, 3), optional
+        The displacements, for the moving-bias term.
+    bias_sigma_xyz_um : sequence of 3 float, optional
+        ``b`` (x, y, z order) of :attr:`SeriesSettings.bias_sigma_um`: adds
+        ``2 b² (1 − exp(−½ Σ_a (u_a / L_a)²))`` to each displacement's variance.
+    bias_length_xyz_um : sequence of 3 float
+        ``L`` (µm, x, y, z order).
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        µm; the random parts of the two localisations are independent (separate images).
+    """
+    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    var = sigma_ref_um[m[:, 0]] ** 2 + sigma_def_um[m[:, 1]] ** 2
+    if common_sigma_xyz_um is not None:
+        var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
+    if bias_sigma_xyz_um is not None and displacement_um is not None:
+        u = np.asarray(displacement_um, float).reshape(-1, 3)
+        rho = np.exp(-0.5 * np.sum(np.square(u / np.asarray(bias_length_xyz_um, float)), axis=1))
+        var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * (1 - rho)[:, None]
+    return np.sqrt(var)
+
+
 def _skipped(ref: int, dfm: int, reason: str) -> PairResult:
     return PairResult(
         ref, dfm, f"skipped: {reason}", np.zeros((0, 2), np.int64), np.zeros((0, 3)), math.nan, 0
@@ -520,6 +661,8 @@ def link_pairs(
     *,
     linker: Callable[..., Any] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
+    sigmas: Sequence[np.ndarray | None] | None = None,
+    common_sigma_xyz_um=None,
 ) -> list[PairResult]:
     """Link the frames of a series pairwise (``i−1 → i`` or ``0 → i``).
 
@@ -535,9 +678,16 @@ def link_pairs(
         optionally ``.ok``, ``.reason``, ``.displacement_field``). Default
         :func:`track.matching.link_pair`. In cumulative mode the previous pair's
         ``displacement_field`` (frame 0 → i−1) is passed as ``initial_guess`` for 0 → i;
-        incremental pairs start without a guess.
+        in incremental mode (with ``settings.predictor``) the previous increment's field
+        through :func:`track.matching.increment_predictor` (each particle repeats its last
+        step) for ``i−1 → i``, when the previous pair was linked.
     on_pair : callable, optional
         Called with each :class:`PairResult` as it is finished (progress).
+    sigmas : sequence of (ndarray, shape (N_i, 3)), optional
+        Position uncertainties of each frame (µm); gives every pair's
+        :attr:`PairResult.sigma_displacement_um` (:func:`match_sigma`).
+    common_sigma_xyz_um : sequence of 3 float, optional
+        The part of every σ shared by a particle's images, see :func:`match_sigma`.
 
     Returns
     -------
@@ -551,6 +701,7 @@ def link_pairs(
     pts = _Checked(clouds)  # each cloud is read when its first pair is linked
     if len(pts) < 2:
         raise InputError(f"a series needs at least 2 frames, got {len(pts)}")
+    sig = _sigmas(sigmas, pts)
     linker = linker or _default_linker()
     out: list[PairResult] = []
     prev_field = None
@@ -568,8 +719,11 @@ def link_pairs(
         else:
             try:
                 guess = None
-                if settings.mode == "cumulative" and out and out[-1].ok:
-                    guess = prev_field
+                if out and out[-1].ok and prev_field is not None:
+                    if settings.mode == "cumulative":
+                        guess = prev_field
+                    elif settings.predictor:
+                        guess = _increment_guess(prev_field)
                 lr = linker(pts[r], pts[i], settings.link, initial_guess=guess)
                 if not getattr(lr, "ok", True):
                     raise TrackingError(getattr(lr, "reason", "") or "no consistent matches")
@@ -582,7 +736,14 @@ def link_pairs(
                         f"frames {r} → {i}: {m.shape[0]} matches but {d.shape[0]} displacements"
                     )
                 res = PairResult(
-                    r, i, OK, m, d, float(lr.tracking_ratio), int(getattr(lr, "iterations", 0))
+                    r,
+                    i,
+                    OK,
+                    m,
+                    d,
+                    float(lr.tracking_ratio),
+                    int(getattr(lr, "iterations", 0)),
+                    None if sig is None else match_sigma(m, sig[r], sig[i], common_sigma_xyz_um),
                 )
                 prev_field = getattr(lr, "displacement_field", None)
             except TrackError as exc:
@@ -595,6 +756,87 @@ def link_pairs(
     return out
 
 
+def _increment_guess(prev_field):
+    from .matching import increment_predictor
+
+    return increment_predictor(prev_field)
+
+
+@dataclass(frozen=True)
+class NoiseFloor:
+    """Zero-displacement noise floor of a series from frames known to be at rest.
+
+    Attributes
+    ----------
+    frames : int
+        Static frames used (the first ``frames`` of the series).
+    n_displacements : int
+        Matched displacements pooled (pairs among the static frames).
+    rms_xyz_um : (float, float, float)
+        RMS of those displacements per axis (µm): the floor, since the truth is zero.
+    std_xyz_um : (float, float, float)
+        Their standard deviation about the mean (µm); a mean much larger than the spread
+        means the "static" frames drifted.
+    mean_xyz_um : (float, float, float)
+    predicted_xyz_um : (float, float, float)
+        RMS of the predicted displacement uncertainties (:attr:`PairResult.sigma_displacement_um`)
+        of the same matches (NaN without uncertainties): close to ``rms_xyz_um`` when the
+        per-particle σ is right.
+    """
+
+    frames: int
+    n_displacements: int
+    rms_xyz_um: tuple[float, float, float]
+    std_xyz_um: tuple[float, float, float]
+    mean_xyz_um: tuple[float, float, float]
+    predicted_xyz_um: tuple[float, float, float]
+
+    def as_dict(self) -> dict:
+        return {
+            "frames": self.frames,
+            "n_displacements": self.n_displacements,
+            "rms_xyz_um": list(self.rms_xyz_um),
+            "std_xyz_um": list(self.std_xyz_um),
+            "mean_xyz_um": list(self.mean_xyz_um),
+            "predicted_xyz_um": list(self.predicted_xyz_um),
+        }
+
+
+def noise_floor(pairs: Sequence[PairResult], static_frames: int) -> NoiseFloor | None:
+    """Per-axis zero-displacement noise floor from the linked pairs among the first
+    ``static_frames`` frames (both frames ``< static_frames``).
+
+    Returns
+    -------
+    NoiseFloor or None
+        None when ``static_frames < 2`` or no such pair was linked.
+    """
+    if static_frames < 2:
+        return None
+    use = [p for p in pairs if p.ok and p.ref_frame < static_frames and p.def_frame < static_frames]
+    d = [p.displacement_um for p in use]
+    if not use or sum(len(x) for x in d) == 0:
+        return None
+    d = np.concatenate(d)
+    s = [p.sigma_displacement_um for p in use]
+    pred = (math.nan,) * 3
+    if all(x is not None for x in s):
+        s = np.concatenate(s)
+        pred = tuple(float(v) for v in np.sqrt(np.nanmean(s**2, axis=0)))
+
+    def trio(a):
+        return tuple(float(v) for v in a)
+
+    return NoiseFloor(
+        frames=int(static_frames),
+        n_displacements=int(d.shape[0]),
+        rms_xyz_um=trio(np.sqrt(np.mean(d**2, axis=0))),
+        std_xyz_um=trio(d.std(axis=0)),
+        mean_xyz_um=trio(d.mean(axis=0)),
+        predicted_xyz_um=pred,
+    )
+
+
 def track_series(
     clouds: Sequence[np.ndarray],
     settings: SeriesSettings | None = None,
@@ -603,6 +845,7 @@ def track_series(
     pairs: Sequence[PairResult] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
     on_field: Callable[[int], None] | None = None,
+    sigmas: Sequence[np.ndarray | None] | None = None,
 ) -> SeriesResult:
     """Link a series of point clouds and compute trajectories and displacement/strain fields.
 
@@ -619,6 +862,9 @@ def track_series(
         Progress callback, see :func:`link_pairs`.
     on_field : callable, optional
         Called with the pair's index ``k`` once its field is done (gridded or skipped).
+    sigmas : sequence of (ndarray, shape (N_i, 3)), optional
+        Position uncertainties of each frame (µm), see :func:`link_pairs`; also copied into
+        the tracks.
 
     Returns
     -------
@@ -628,8 +874,10 @@ def track_series(
     """
     settings = settings or SeriesSettings()
     pts = [_points(c, f"frame {i} positions") for i, c in enumerate(clouds)]
+    checked = _sigmas(sigmas, pts)
+    sig = None if checked is None else [checked[i] for i in range(len(pts))]
     if pairs is None:
-        pairs = link_pairs(pts, settings, linker=linker, on_pair=on_pair)
+        pairs = link_pairs(pts, settings, linker=linker, on_pair=on_pair, sigmas=sig)
     pairs = tuple(pairs)
     if len(pairs) != len(pts) - 1:
         raise InputError(f"expected {len(pts) - 1} pairs for {len(pts)} frames, got {len(pairs)}")
@@ -638,6 +886,7 @@ def track_series(
         [p.matches if p.ok else None for p in pairs],
         mode=settings.mode,
         positions_um=pts,
+        sigmas_um=sig,
     )
     n = len(pairs)
     inc_fields: list[GridField | None] = [None] * n
@@ -719,6 +968,7 @@ __all__ = [
     "MODES",
     "SPACING_NODES_FACTOR",
     "EulerianCumulation",
+    "NoiseFloor",
     "PairResult",
     "SeriesResult",
     "SeriesSettings",
@@ -730,5 +980,7 @@ __all__ = [
     "lagrangian_displacements",
     "link_pairs",
     "link_tracks",
+    "match_sigma",
+    "noise_floor",
     "track_series",
 ]

@@ -305,3 +305,58 @@ def test_run_study_reports_a_failed_study_then_raises(tmp_path, monkeypatch):
     assert "✓" not in md.split("✓/✗")[0]
     result = hs.run_study(study, report, allow_partial=True)
     assert result["status"] == "failed" and result["allow_partial"] is True
+
+
+def _with_sigma(paths, frames: int, sigma_xyz_um) -> None:
+    """Add ``sigma_{x,y,z}_um`` columns (the same σ for every particle) to the tables."""
+    from track.tables import read_points_csv, write_points_csv
+
+    for k in range(frames):
+        p = paths.track / "particles" / f"{k:06d}.csv"
+        xyz = read_points_csv(p)
+        sig = np.broadcast_to(np.asarray(sigma_xyz_um, float), xyz.shape)
+        write_points_csv(p, xyz, sigma_xyz_um=sig, overwrite=True)
+
+
+def test_coverage_of_right_and_wrong_uncertainties(tmp_path):
+    """Detections = truth + N(0, σ): the reported σ covers 68 % / 95 % of the errors (± the
+    sampling spread of 6 × 60 errors); half the σ covers far less; no σ gives NaN."""
+    from hrvptm import plots
+    from hrvptm.analysis import coverage
+    from hrvptm.report import coverage_lines
+
+    study = _study(6, None, "localization")
+    noise = (0.3, 0.3, 2.0)
+    paths = _fake_variant(tmp_path, study, bias=(0, 0, 0), noise_um=noise)
+    a = analyse_localization(VariantData.load(study, paths))
+    assert a.summary["coverage_n"] == 0 and np.isnan(a.summary["coverage_1sigma_x"])
+    assert coverage_lines("v", a.summary) == []
+    _with_sigma(paths, 6, noise)
+    a = analyse_localization(VariantData.load(study, paths))
+    s = a.summary
+    assert s["coverage_n"] == 360
+    for ax in "xyz":
+        assert s[f"coverage_1sigma_{ax}"] == pytest.approx(0.6827, abs=0.06)
+        assert s[f"coverage_2sigma_{ax}"] == pytest.approx(0.9545, abs=0.03)
+        assert s[f"zscore_rms_{ax}"] == pytest.approx(1.0, abs=0.1)
+    assert a.rows[0]["coverage_n"] == 60
+    lines = "\n".join(coverage_lines("v", s))
+    assert "uncertainty coverage (360 positions" in lines and "| z |" in lines
+    png = plots.plot_uncertainty({"mismatched": a}, tmp_path / "u.png")
+    assert png.stat().st_size > 10_000
+    e, sg = a.arrays["uncertainty"]["error"], a.arrays["uncertainty"]["sigma"]
+    half = coverage(e, sg / 2)
+    assert half["coverage_1sigma_x"] < 0.5 and half["zscore_rms_x"] == pytest.approx(2, rel=0.1)
+
+
+def test_pairs_coverage_uses_the_displacement_sigma(tmp_path):
+    """Two images of static particles with σ = noise: the displacement σ is σ√2, and a
+    systematic part declared in the study's detection settings cancels."""
+    study = _study(4, None, "pairs")
+    noise = (0.2, 0.2, 1.0)
+    paths = _fake_variant(tmp_path, study, bias=(2.0, 2.0, 5.0), noise_um=noise)
+    _with_sigma(paths, 4, noise)
+    a = analyse_pairs(VariantData.load(study, paths))
+    assert a.summary["u_coverage_n"] == 120
+    assert a.summary["u_sigma_rms_z"] == pytest.approx(np.sqrt(2.0))
+    assert a.summary["u_coverage_2sigma_z"] == pytest.approx(0.9545, abs=0.05)

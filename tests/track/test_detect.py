@@ -174,6 +174,12 @@ def test_detect_particles_end_to_end(scene, method):
     assert np.all(rms < (0.2 if method == "radial" else 0.3))
     if method == "radial":
         assert np.all(rms[1:] < 0.05)
+    # the reported σ (x, y, z µm) is of the size of the actual error (white noise here)
+    sig_zyx_vox = det.sigma_um[:, ::-1] / np.array([5.0, 1.64, 1.64])
+    ratio = rms / np.sqrt(np.mean(sig_zyx_vox**2, axis=0))
+    print(f"{method}: RMS error / RMS σ (z, y, x) = {ratio.round(2)}")
+    assert np.all((ratio > 0.5) & (ratio < 2.0))
+    np.testing.assert_array_equal(det.sigma_random_um, det.sigma_um)  # no systematic part
     # (z, y, x) voxels -> (x, y, z) µm with anisotropic voxels and the origin
     p = det.positions_vox
     expected_um = np.column_stack(
@@ -244,6 +250,8 @@ def test_detect_rejects_bad_input(volume, voxel, kwargs, name):
         ({"localize_on": "raw"}, "localize_on"),
         ({"auto_size_factors": (2.0, 3.0)}, "auto_size_factors"),
         ({"psf_box_um": (10.0, -1.0, 1.0)}, "psf_box_um"),
+        ({"sigma_noise_factor": 0.0}, "sigma_noise_factor"),
+        ({"sigma_systematic_um": (1.0, -0.1, 0.0)}, "sigma_systematic_um"),
     ],
 )
 def test_detect_settings_validation(kwargs, name):
