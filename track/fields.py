@@ -340,8 +340,6 @@ def gcv_smoothing(
     InputError
         Bad shapes, non-finite values or fewer than :data:`GCV_MIN_POINTS` particles.
     """
-    from scipy.spatial.distance import cdist
-
     X = _points(positions_um, "positions_um")
     Y = np.asarray(values, dtype=float)
     if Y.ndim == 1:
@@ -360,22 +358,194 @@ def gcv_smoothing(
         keep = np.random.default_rng(seed).choice(n, size=int(max_points), replace=False)
         X, Y = X[keep], Y[keep]
         scale = n / float(max_points)
-    m = X.shape[0]
-    P = np.c_[np.ones(m), X - X.mean(axis=0)]
-    Q, _ = np.linalg.qr(P, mode="complete")
-    Q2 = Q[:, P.shape[1] :]
-    K = _tps_kernel(cdist(X, X))
-    gam, V = np.linalg.eigh(Q2.T @ K @ Q2)
-    gam = np.maximum(gam, 0.0)
-    z2 = (V.T @ (Q2.T @ Y)) ** 2  # (m - 4, C)
-    top = max(float(gam.max()), np.finfo(float).tiny)
+    basis = _ThinPlateBasis(X)
+    return _gcv_choose(basis.gam, basis.B.T @ Y) * scale
+
+
+def _gcv_choose(gam: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """GCV's λ for each column of ``z = Bᵀ y`` (shape (m − 4, C)), eigenvalues ``gam``."""
+    m = gam.size + 4
+    z2 = z * z
+    top = max(float(gam.max(initial=0.0)), np.finfo(float).tiny)
     lams = top * np.logspace(-12.0, 4.0, 161)
     f = lams[None, :] / (gam[:, None] + lams[None, :])  # (m - 4, L)
     rss = (f * f).T @ z2  # (L, C)
     tr = f.sum(axis=0)  # (L,)
     score = m * rss / (tr * tr)[:, None]
     best = np.argmin(score, axis=0)
-    return lams[best] * scale
+    return lams[best]
+
+
+class _ThinPlateBasis:
+    """The eigen-basis of a thin-plate spline with a degree-1 polynomial on ``N`` centres.
+
+    ``P = [1, X − X̄] = Q₁ R₁`` (thin QR), ``Q₂`` an orthonormal basis of the null space of
+    ``Pᵀ``, ``Q₂ᵀ K Q₂ = V diag(γ) Vᵀ`` and ``B = Q₂ V`` (N × (N − 4), orthonormal columns,
+    orthogonal to ``Q₁``). Every smoothing parameter λ reuses it (:func:`gcv_smoothing`,
+    :class:`_ThinPlateFit`).
+    """
+
+    def __init__(self, X: np.ndarray) -> None:
+        from scipy.spatial.distance import cdist
+
+        self.centre = X.mean(axis=0)
+        self.Xc = X - self.centre
+        m = X.shape[0]
+        P = np.c_[np.ones(m), self.Xc]
+        Q, R = np.linalg.qr(P, mode="complete")
+        self.Q1, self.R1 = Q[:, :4], R[:4, :4]
+        self.K = _tps_kernel(cdist(self.Xc, self.Xc))
+        Q2 = Q[:, 4:]
+        gam, V = np.linalg.eigh(Q2.T @ self.K @ Q2)
+        self.gam = np.maximum(gam, 0.0)
+        self.B = Q2 @ V
+
+
+#: Modes of the spline whose filter factor γ/(γ + λ) is below this are left out of the
+#: standard uncertainties (their share of a node's variance is below its square, 1e-6 σ²).
+STD_MODE_CUTOFF = 1e-3
+#: Rows of query points evaluated at once (a block of ``rows × N`` kernel values).
+_BLOCK_ROWS = 2048
+
+
+class _ThinPlateFit:
+    """Smoothing thin-plate splines (degree-1 polynomial) of the columns of ``Y``, each with
+    its λ, from one :class:`_ThinPlateBasis`; values, analytic gradients and the standard
+    uncertainties of both, with ``u(q) = k(q)ᵀ c + p(q)ᵀ d`` and ``p(q) = [1, q − X̄]``.
+
+    For data ``y`` the fit is linear, ``u(q) = w(q)ᵀ y``, with
+    ``w(q) = B diag(1/(γ + λ)) a(q) + Q₁ R₁⁻ᵀ p(q)`` and
+    ``a(q) = Bᵀ k(q) − Bᵀ K Q₁ R₁⁻ᵀ p(q)``. ``[B, Q₁]`` is orthogonal, so with independent
+    data errors of standard deviation ``σ_j``,
+    ``var u(q) = Σ_j w_j(q)² σ_j² = fᵀ [B, Q₁]ᵀ diag(σ²) [B, Q₁] f`` with
+    ``f = [a / (γ + λ), R₁⁻ᵀ p]``, and the same with ``∂/∂q`` for the gradient.
+    """
+
+    def __init__(
+        self,
+        basis: _ThinPlateBasis,
+        Y: np.ndarray,
+        lam: np.ndarray,
+        sigma: np.ndarray | None = None,
+    ) -> None:
+        b = basis
+        self.basis = b
+        self.lam = np.asarray(lam, dtype=float)
+        scale = max(float(b.gam.max(initial=0.0)), 1.0)
+        den = b.gam[:, None] + self.lam[None, :]  # (N - 4, C)
+        rdiag = np.abs(np.diag(b.R1))
+        if rdiag.min() <= 1e-10 * rdiag.max() or den.min() <= 1e-14 * scale:
+            raise InputError(
+                f"cannot fit a displacement field to {Y.shape[0]} particles: they are coplanar "
+                "or repeated"
+            )
+        self.den = den
+        self.z = b.B.T @ Y  # (N - 4, C)
+        C = b.B @ (self.z / den)
+        D = np.linalg.solve(b.R1, b.Q1.T @ (Y - b.K @ C - C * self.lam[None, :]))
+        self.C, self.D = C, D
+        nc = Y.shape[1]
+        Xc = b.Xc
+        # M @ [C, C_i X_j]: the gradient of Σ_k c_k φ(|q − x_k|) with φ'(r)/r = 2 log r + 1
+        self._Cg = np.concatenate(
+            [C] + [C[:, [i]] * Xc[:, [j]] for i in range(nc) for j in range(3)], axis=1
+        )
+        self._xsq = np.einsum("ij,ij->i", Xc, Xc)
+        self.sigma = self._noise(sigma)
+
+    # -- noise -------------------------------------------------------------------------------
+    def _noise(self, sigma):
+        """Per-datum, per-column σ (N, C): given, or the GCV estimate ``RSS / tr(I − A)``."""
+        n, nc = self.C.shape
+        if sigma is not None:
+            return np.broadcast_to(np.asarray(sigma, dtype=float), (n, nc))
+        f = self.lam[None, :] / self.den  # (N - 4, C): filter of the residuals
+        rss = np.sum((f * self.z) ** 2, axis=0)
+        tr = f.sum(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            var = np.where(tr > 1e-9, rss / tr, np.nan)
+        return np.broadcast_to(np.sqrt(var)[None, :], (n, nc))
+
+    # -- evaluation --------------------------------------------------------------------------
+    def _kernels(self, q: np.ndarray):
+        b = self.basis
+        dq = q - b.centre
+        r2 = np.einsum("ij,ij->i", dq, dq)[:, None] + self._xsq[None, :] - 2.0 * (dq @ b.Xc.T)
+        np.maximum(r2, 0.0, out=r2)
+        logr = np.zeros_like(r2)
+        np.log(r2, out=logr, where=r2 > 0)
+        logr *= 0.5
+        return dq, r2 * logr, logr
+
+    def evaluate(self, q: np.ndarray, gradient: bool = False):
+        """Values (P, C) and, with ``gradient``, ``∂u_i/∂x_j`` (P, C, 3) at ``q`` (P, 3)."""
+        q = np.asarray(q, dtype=float).reshape(-1, 3)
+        nc = self.C.shape[1]
+        u = np.empty((q.shape[0], nc))
+        G = np.empty((q.shape[0], nc, 3)) if gradient else None
+        for s in range(0, q.shape[0], _BLOCK_ROWS):
+            dq, Kq, logr = self._kernels(q[s : s + _BLOCK_ROWS])
+            u[s : s + _BLOCK_ROWS] = Kq @ self.C + self.D[0] + dq @ self.D[1:]
+            if gradient:
+                logr *= 2.0
+                logr += 1.0  # φ'(r)/r
+                MC = logr @ self._Cg
+                g = dq[:, None, :] * MC[:, :nc, None] - MC[:, nc:].reshape(-1, nc, 3)
+                G[s : s + _BLOCK_ROWS] = g + self.D[1:].T[None, :, :]
+        return u, G
+
+    def _modes(self) -> np.ndarray:
+        """Indices of the modes kept for the uncertainties (STD_MODE_CUTOFF)."""
+        lam = float(self.lam.min())
+        g = self.basis.gam
+        with np.errstate(invalid="ignore", divide="ignore"):
+            keep = g >= STD_MODE_CUTOFF * (g + lam)
+        return np.flatnonzero(keep)
+
+    def std(self, q: np.ndarray, gradient: bool = False):
+        """Standard uncertainties of :meth:`evaluate`: (P, C) and (P, C, 3) or None."""
+        q = np.asarray(q, dtype=float).reshape(-1, 3)
+        b = self.basis
+        nc = self.C.shape[1]
+        keep = self._modes()
+        Bk = b.B[:, keep]
+        R1inv = np.linalg.inv(b.R1)  # (4, 4)
+        H = (Bk.T @ (b.K @ b.Q1)) @ R1inv.T  # (r, 4): a(q) = Bₖᵀ k(q) − H p(q)
+        Xc = b.Xc
+        cols = (
+            np.concatenate([Bk] + [Xc[:, [j]] * Bk for j in range(3)], axis=1) if gradient else Bk
+        )
+        r = keep.size
+        Ob = np.concatenate([Bk, b.Q1], axis=1)  # (N, r + 4), orthonormal columns
+        S = [Ob.T @ (Ob * (self.sigma[:, [c]] ** 2)) for c in range(nc)]  # (r + 4)²
+        homo = [bool(np.all(self.sigma[:, c] == self.sigma[0, c])) for c in range(nc)]
+        u_sd = np.empty((q.shape[0], nc))
+        G_sd = np.empty((q.shape[0], nc, 3)) if gradient else None
+
+        def quad(f, c):  # f (P, r + 4) → fᵀ S_c f
+            if homo[c]:
+                return self.sigma[0, c] ** 2 * np.einsum("ij,ij->i", f, f)
+            return np.einsum("ij,ij->i", f @ S[c], f)
+
+        for s in range(0, q.shape[0], _BLOCK_ROWS):
+            dq, Kq, logr = self._kernels(q[s : s + _BLOCK_ROWS])
+            p = np.c_[np.ones(dq.shape[0]), dq]
+            a = Kq @ Bk - p @ H.T  # (P, r)
+            pt = p @ R1inv  # R₁⁻ᵀ p, as rows
+            for c in range(nc):
+                f = np.concatenate([a / self.den[keep, c], pt], axis=1)
+                u_sd[s : s + _BLOCK_ROWS, c] = np.sqrt(quad(f, c))
+            if gradient:
+                logr *= 2.0
+                logr += 1.0
+                MB = logr @ cols  # (P, 4r)
+                for j in range(3):
+                    da = dq[:, [j]] * MB[:, :r] - MB[:, (j + 1) * r : (j + 2) * r] - H[:, 1 + j]
+                    dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
+                    for c in range(nc):
+                        f = np.concatenate([da / self.den[keep, c], dpt], axis=1)
+                        G_sd[s : s + _BLOCK_ROWS, c, j] = np.sqrt(quad(f, c))
+        return u_sd, G_sd
 
 
 @dataclass(frozen=True)
@@ -383,9 +553,11 @@ class DisplacementInterpolant:
     """Continuous displacement field fitted to scattered particle displacements.
 
     Call it with positions ``(P, 3)`` (µm) to get displacements ``(P, 3)`` (µm);
-    :meth:`gradient` gives ``∂u_i/∂x_j`` by central differences and :meth:`supported` tells
-    which positions are backed by data. Build it with :func:`fit_displacement`.
-    ``smoothing`` holds the λ used for ``u_x``, ``u_y``, ``u_z`` (chosen by GCV or given).
+    :meth:`gradient` gives ``∂u_i/∂x_j`` by central differences, :meth:`value_and_gradient`
+    both at once (analytic for the global thin-plate spline), :meth:`std` their standard
+    uncertainties and :meth:`supported` tells which positions are backed by data. Build it with
+    :func:`fit_displacement`. ``smoothing`` holds the λ used for ``u_x``, ``u_y``, ``u_z``
+    (chosen by GCV or given).
     """
 
     positions_um: np.ndarray
@@ -396,14 +568,64 @@ class DisplacementInterpolant:
     _fn: object = field(repr=False, default=None)
     _hull: object = field(repr=False, default=None)
     _tree: object = field(repr=False, default=None)
+    _tps: object = field(repr=False, default=None)
 
     def __call__(self, xyz_um: np.ndarray) -> np.ndarray:
         q = np.asarray(xyz_um, dtype=float).reshape(-1, 3)
+        if self._tps is not None:
+            return self._tps.evaluate(q)[0]
         out = np.empty((q.shape[0], 3))
         chunk = 20_000
         for s in range(0, q.shape[0], chunk):
             out[s : s + chunk] = self._fn(q[s : s + chunk])
         return out
+
+    @property
+    def has_uncertainty(self) -> bool:
+        """Whether :meth:`std` is available (the global thin-plate spline)."""
+        return self._tps is not None
+
+    def value_and_gradient(
+        self, xyz_um: np.ndarray, step_um: float | tuple = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Displacement (P, 3) and ``∂u_i/∂x_j`` (P, 3, 3) at ``xyz_um`` (P, 3).
+
+        Exact derivatives of the global thin-plate spline (one kernel evaluation for both);
+        for the local RBF and ``method="linear"``, central differences with half-width
+        ``step_um`` (as :meth:`gradient`).
+        """
+        q = np.asarray(xyz_um, dtype=float).reshape(-1, 3)
+        if self._tps is not None:
+            return self._tps.evaluate(q, gradient=True)
+        return self(q), self.gradient(q, step_um)
+
+    def std(self, xyz_um: np.ndarray, gradient: bool = True):
+        """Standard uncertainties of the displacement and its gradient at ``xyz_um`` (P, 3).
+
+        The fit is linear in the particle displacements ``d`` for its λ, ``u(q) = W(q) d``
+        per axis, so ``var u_i(q) = Σ_j W_ij(q)² σ_ij²`` with the particles' σ
+        (``sigma_um`` of :func:`fit_displacement`, else the noise level GCV's residuals
+        imply, ``RSS / tr(I − A)``, per axis); the same through ``∂/∂x_j`` for the gradient.
+        Axes and particles are taken as independent.
+
+        Returns
+        -------
+        u_std : ndarray, shape (P, 3)
+            µm. NaN where the noise is unknown (``smoothing=0`` without ``sigma_um``).
+        G_std : ndarray, shape (P, 3, 3) or None
+            Of ``∂u_i/∂x_j``; None unless ``gradient``.
+
+        Raises
+        ------
+        InputError
+            The interpolant has no uncertainty model (local RBF or ``method="linear"``).
+        """
+        if self._tps is None:
+            raise InputError(
+                "standard uncertainties need the global thin-plate spline (method='rbf' with "
+                "at most rbf_max_points particles)"
+            )
+        return self._tps.std(np.asarray(xyz_um, dtype=float).reshape(-1, 3), gradient=gradient)
 
     def gradient(self, xyz_um: np.ndarray, step_um: float | tuple) -> np.ndarray:
         """Displacement gradient ``G[..., i, j] = ∂u_i/∂x_j`` by central differences.
@@ -446,6 +668,8 @@ def fit_displacement(
     positions_um: np.ndarray,
     displacement_um: np.ndarray,
     settings: GridSettings | None = None,
+    *,
+    sigma_um: np.ndarray | None = None,
 ) -> DisplacementInterpolant:
     """Fit a continuous displacement field to scattered particle displacements.
 
@@ -456,6 +680,10 @@ def fit_displacement(
     displacement_um : ndarray, shape (N, 3)
         Their displacements (µm).
     settings : GridSettings, optional
+    sigma_um : ndarray, shape (N, 3), optional
+        Standard uncertainty of each displacement (µm, x, y, z), e.g. a link table's
+        per-match uncertainty; default: estimated per axis from the smoothing residuals
+        (:meth:`DisplacementInterpolant.std`). Only the uncertainties use it.
 
     Returns
     -------
@@ -465,6 +693,14 @@ def fit_displacement(
     ------
     InputError
         Bad shapes, non-finite values, or fewer than 4 particles.
+
+    Notes
+    -----
+    Up to ``rbf_max_points`` particles the global thin-plate spline is solved from one
+    eigen-decomposition (:class:`_ThinPlateBasis`) that also gives GCV's λ when there are at
+    most ``gcv_max_points`` particles; it equals :class:`scipy.interpolate.RBFInterpolator`
+    (``kernel="thin_plate_spline"``, ``degree=1``, ``smoothing=λ``) to round-off and is
+    evaluated with one kernel block for all three components and their gradients.
     """
     from scipy.interpolate import RBFInterpolator
     from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
@@ -476,6 +712,14 @@ def fit_displacement(
         raise InputError(f"displacement_um has shape {U.shape}, positions_um has {X.shape}")
     if X.shape[0] < 4:
         raise InputError(f"a displacement field needs at least 4 particles, got {X.shape[0]}")
+    sig = None
+    if sigma_um is not None:
+        sig = np.asarray(sigma_um, dtype=float)
+        if sig.shape != X.shape or not np.all(np.isfinite(sig)) or np.any(sig < 0):
+            raise InputError(
+                f"sigma_um must be finite, >= 0 and of shape {X.shape} (x, y, z µm per "
+                f"particle), got shape {sig.shape}"
+            )
     tree = cKDTree(X)
     if settings.method == "linear":
         radius = 0.0
@@ -490,37 +734,32 @@ def fit_displacement(
         hull = None
         log.warning("particles are (nearly) coplanar; no convex hull for the support mask")
     lam = np.zeros(3)
+    tps = None
+    fn = None
     if settings.method == "rbf":
-        kw = {}
-        if X.shape[0] > settings.rbf_max_points:
-            kw["neighbors"] = settings.rbf_neighbours
+        n = X.shape[0]
+        basis = None
+        if n <= settings.rbf_max_points:
+            try:
+                basis = _ThinPlateBasis(X)
+            except np.linalg.LinAlgError as exc:
+                raise InputError(
+                    f"cannot fit a displacement field to {n} particles: {exc}"
+                ) from exc
         if settings.smoothing != "gcv":
             lam[:] = float(settings.smoothing)
-        elif X.shape[0] >= GCV_MIN_POINTS:
-            lam = gcv_smoothing(X, U, max_points=settings.gcv_max_points)
+        elif n >= GCV_MIN_POINTS:
+            if basis is not None and n <= settings.gcv_max_points:
+                lam = _gcv_choose(basis.gam, basis.B.T @ U)
+            else:
+                lam = gcv_smoothing(X, U, max_points=settings.gcv_max_points)
             log.debug("GCV smoothing of u_x, u_y, u_z: %.3g, %.3g, %.3g", *lam)
         else:
-            log.info("only %d particles: too few to choose the smoothing; interpolating", len(X))
-        try:
-            if np.all(lam == lam[0]):
-                fn = RBFInterpolator(
-                    X, U, kernel="thin_plate_spline", degree=1, smoothing=lam[0], **kw
-                )
-            else:
-                parts = [
-                    RBFInterpolator(
-                        X, U[:, c], kernel="thin_plate_spline", degree=1, smoothing=lam[c], **kw
-                    )
-                    for c in range(3)
-                ]
-
-                def fn(q):
-                    return np.stack([p(q) for p in parts], axis=1)
-
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            raise InputError(
-                f"cannot fit a displacement field to {X.shape[0]} particles: {exc}"
-            ) from exc
+            log.info("only %d particles: too few to choose the smoothing; interpolating", n)
+        if basis is not None:
+            tps = _ThinPlateFit(basis, U, lam, sig)
+        else:
+            fn = _local_rbf(X, U, lam, settings, RBFInterpolator)
     else:
         if hull is None:
             raise InputError("method='linear' needs particles that span 3-D space")
@@ -555,7 +794,29 @@ def fit_displacement(
         _fn=fn,
         _hull=hull,
         _tree=tree,
+        _tps=tps,
     )
+
+
+def _local_rbf(X, U, lam, settings, rbf_class):
+    """scipy's RBF on the ``rbf_neighbours`` nearest particles (above ``rbf_max_points``)."""
+    kw = {"neighbors": settings.rbf_neighbours}
+    try:
+        if np.all(lam == lam[0]):
+            return rbf_class(X, U, kernel="thin_plate_spline", degree=1, smoothing=lam[0], **kw)
+        parts = [
+            rbf_class(X, U[:, c], kernel="thin_plate_spline", degree=1, smoothing=lam[c], **kw)
+            for c in range(3)
+        ]
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise InputError(
+            f"cannot fit a displacement field to {X.shape[0]} particles: {exc}"
+        ) from exc
+
+    def fn(q):
+        return np.stack([p(q) for p in parts], axis=1)
+
+    return fn
 
 
 def strain_from_displacement(axes: GridAxes, u: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -28,10 +28,12 @@ point ``X`` sits at ``x(X) = X + u_prev(X)`` in frame ``i−1``, so
     F_total(X) = F_inc(x(X)) · F_prev(X)
 
 ``u_inc`` and ``F_inc`` are evaluated **at the displaced positions** ``x(X)`` from the
-increment's continuous interpolant (:func:`track.fields.fit_displacement`); ``∂u_inc/∂x`` by
-central differences with the grid spacing as step (the same stencil :func:`numpy.gradient`
-uses on the grid). By the chain rule ``F_total = I + ∂u_total/∂X``, and the node is supported
-(:attr:`GridField.mask`) only while every increment was supported at ``x(X)``.
+increment's continuous interpolant (:func:`track.fields.fit_displacement`); ``∂u_inc/∂x``
+exactly for the global thin-plate spline (one kernel evaluation gives values and gradients),
+otherwise by central differences with the grid spacing as step (the same stencil
+:func:`numpy.gradient` uses on the grid). By the chain rule ``F_total = I + ∂u_total/∂X``,
+and the node is supported (:attr:`GridField.mask`) only while every increment was supported
+at ``x(X)``.
 """
 
 from __future__ import annotations
@@ -402,7 +404,8 @@ def compose_step(
     increment : DisplacementInterpolant
         Increment field over the previous frame's configuration.
     step_um : float or (hx, hy, hz)
-        Central-difference step for ``∂u_inc/∂x``.
+        Central-difference step for ``∂u_inc/∂x`` where the interpolant has no exact
+        gradient (:meth:`~track.fields.DisplacementInterpolant.value_and_gradient`).
 
     Returns
     -------
@@ -414,8 +417,8 @@ def compose_step(
         Whether the increment is supported by data at ``X + u_prev(X)``.
     """
     x = np.asarray(reference_um, float) + np.asarray(u_prev_um, float)
-    u_inc = increment(x)
-    F_inc = np.eye(3) + increment.gradient(x, step_um)
+    u_inc, G_inc = increment.value_and_gradient(x, step_um)
+    F_inc = np.eye(3) + G_inc
     F_total = np.einsum("pij,pjk->pik", F_inc, np.asarray(F_prev, float))
     return np.asarray(u_prev_um, float) + u_inc, F_total, increment.supported(x)
 
