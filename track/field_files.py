@@ -29,9 +29,13 @@ _FIELD_ARRAYS = ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask")
 
 
 def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool = False) -> Path:
-    """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``)."""
+    """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``).
+
+    Stored without compression: deflate saves about a quarter of the size of these float64
+    arrays but took 25× as long (3.2 s instead of 0.13 s for a 50 000-node field, issue 13).
+    """
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **{k: getattr(fld, k) for k in _FIELD_ARRAYS})
+        np.savez(fh, **{k: getattr(fld, k) for k in _FIELD_ARRAYS})
     return Path(path)
 
 
