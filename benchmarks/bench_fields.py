@@ -4,14 +4,14 @@ A synthetic series from :func:`track.synthetic.make_series`: ``--frames`` frames
 of about ``--n`` particles (default 550 seeded, ≈ 500 in the box per frame after the 5 %
 drop-outs), every step the same known heterogeneous field (default ``stiff_inclusion``,
 ``--step`` = 0.03 mean spacings per frame), localisation noise σ = 0.25 µm laterally and
-2.5 µm axially. It goes through :func:`track.pipeline.track_clouds` (what ``track link``
-runs: link, grid the fields, write ``.npz``/``.vti``) in incremental mode, into a temporary
-folder, and prints:
+2.5 µm axially. It goes through the stages of :func:`track.pipeline.track_clouds` (what
+``track link`` runs) in incremental mode: link the pairs, grid the fields, write the field
+files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, and prints:
 
-* ``link_s``, ``fields_s``, ``write_s``: the timings of ``summary.json``, and
-  ``(fields+write)/link``, the figure issue 13 asks to bring to ≤ 2;
-* ``cpu_s``: CPU seconds of the whole call (all threads), ``load``: the 1-min load average
-  before it (on a shared machine wall times grow with the other load);
+* ``link_s``, ``fields_s``, ``write_s``: wall / CPU seconds (all threads) of each stage, and
+  ``(f+w)/link`` = (fields + write) / link, the figure issue 13 asks to bring to ≤ 2;
+  ``load``: the 1-min load average before the case (on a shared machine the wall times grow
+  with the other load, the CPU seconds much less);
 * ``E_rmse``: RMSE of the six Green–Lagrange strain components of the total fields against
   the truth, over the supported nodes (mask) of every frame (``all``) and of the last frame
   (``last``); ``u_rmse``: the same for the total displacement (µm);
@@ -20,9 +20,10 @@ folder, and prints:
 
 ``--baseline REV`` also runs ``track`` of git revision ``REV`` (extracted with ``git archive``
 to a temporary folder, today's ``synthetic.py`` copied in, run in a subprocess) on the same
-series, side by side. ``--grid`` chooses the grid of the new code (``default``: the
-``GridSettings`` defaults, 50 000 nodes; ``particles``: the node spacing follows the particle
-spacing, see ``GridSettings.nodes_per_spacing``); the baseline always uses its defaults.
+series, side by side. ``--grid`` chooses the grids of the new code (``default``: the
+``GridSettings`` defaults, 50 000 nodes; ``particles``: ``nodes_per_spacing=2``, the node
+spacing follows the particle spacing; ``particles-nostd``: the same without uncertainties);
+the baseline always uses its defaults.
 
 Usage::
 
@@ -49,11 +50,22 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _timed(fn):
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - t0, time.process_time() - c0
+
+
 def run_case(frames, n, field, step, seed, grid):
-    """Link and grid one series with the importable ``track``; a dict of results."""
+    """Link and grid one series with the importable ``track``; a dict of results.
+
+    The stages of :func:`track.pipeline.track_clouds` (``track link``), each timed (wall and
+    CPU seconds): :func:`track.series.link_pairs`, :func:`track.series.track_series` on the
+    pairs, and the field files it writes (total ``.npz`` + ``.vti``, increment ``.npz``).
+    """
+    from track.field_files import write_field_npz, write_field_vti
     from track.fields import GridSettings
-    from track.pipeline import track_clouds
-    from track.series import SeriesSettings
+    from track.series import SeriesSettings, link_pairs, track_series
     from track.strain import green_lagrange
     from track.synthetic import make_series
 
@@ -61,21 +73,32 @@ def run_case(frames, n, field, step, seed, grid):
     settings = SeriesSettings()
     if grid == "particles":
         settings = SeriesSettings(grid=dataclasses.replace(GridSettings(), nodes_per_spacing=2.0))
+    elif grid == "particles-nostd":
+        g = dataclasses.replace(GridSettings(), nodes_per_spacing=2.0, uncertainty=False)
+        settings = SeriesSettings(grid=g)
+    clouds = list(s.frames_xyz_um)
     load = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory(prefix="bench-fields-") as tmp:
-        c0 = time.process_time()
-        res = track_clouds(list(s.frames_xyz_um), Path(tmp) / "out", series=settings)
-        cpu = time.process_time() - c0
-        t = res.timings
-        shape = res.grid.shape
+    pairs, link_s, link_cpu = _timed(lambda: link_pairs(clouds, settings))
+    res, fields_s, fields_cpu = _timed(lambda: track_series(clouds, settings, pairs=pairs))
+
+    def write():
+        with tempfile.TemporaryDirectory(prefix="bench-fields-") as tmp:
+            for k, (tot, inc) in enumerate(
+                zip(res.total_fields, res.increment_fields, strict=True)
+            ):
+                if tot is not None:
+                    write_field_npz(Path(tmp) / f"{k + 1:06d}.npz", tot)
+                    write_field_vti(Path(tmp) / f"{k + 1:06d}.vti", tot)
+                if inc is not None:
+                    write_field_npz(Path(tmp) / f"increment_{k + 1:06d}.npz", inc)
+
+    _, write_s, write_cpu = _timed(write)
     sq_e, sq_u, last_e, inside, hits1, hits2, n_std = 0.0, 0.0, 0.0, 0, 0, 0, 0
     iu = np.triu_indices(3)
-    for p in res.pairs:
-        g = p.field
+    for k, g in enumerate(res.total_fields, start=1):
         if g is None:
             continue
         X = g.axes.points()[g.mask.ravel()]
-        k = p.def_frame
         u_true = k * s.field(X)
         F_true = np.eye(3) + k * s.field.gradient(X)
         E_true = green_lagrange(F_true)
@@ -92,17 +115,19 @@ def run_case(frames, n, field, step, seed, grid):
             hits1 += int(np.sum(np.abs(du[ok]) <= sd[ok]))
             hits2 += int(np.sum(np.abs(du[ok]) <= 2 * sd[ok]))
             n_std += int(ok.sum())
-    link = t["link_s"]
     return {
         "frames": frames,
         "particles_per_frame": float(np.mean([len(f) for f in s.frames_xyz_um])),
         "grid": grid,
-        "grid_shape": list(shape),
-        "link_s": link,
-        "fields_s": t["fields_s"],
-        "write_s": t["write_s"],
-        "ratio": (t["fields_s"] + t["write_s"]) / link,
-        "cpu_s": cpu,
+        "grid_shape": list(res.axes.shape),
+        "link_s": link_s,
+        "fields_s": fields_s,
+        "write_s": write_s,
+        "link_cpu": link_cpu,
+        "fields_cpu": fields_cpu,
+        "write_cpu": write_cpu,
+        "ratio": (fields_s + write_s) / link_s,
+        "ratio_cpu": (fields_cpu + write_cpu) / link_cpu,
         "load": load,
         "E_rmse_all": float(np.sqrt(sq_e / max(6 * inside, 1))),
         "E_rmse_last": last_e,
@@ -137,11 +162,10 @@ def _fmt(r, label):
         str(r["frames"]),
         f"{r['particles_per_frame']:.0f}",
         "×".join(map(str, r["grid_shape"])),
-        f"{r['link_s']:.2f}",
-        f"{r['fields_s']:.2f}",
-        f"{r['write_s']:.2f}",
-        f"{r['ratio']:.2f}",
-        f"{r['cpu_s']:.1f}",
+        f"{r['link_s']:.2f}/{r['link_cpu']:.2f}",
+        f"{r['fields_s']:.2f}/{r['fields_cpu']:.2f}",
+        f"{r['write_s']:.2f}/{r['write_cpu']:.2f}",
+        f"{r['ratio']:.2f}/{r['ratio_cpu']:.2f}",
         f"{r['load']:.1f}",
         f"{r['E_rmse_all']:.2e}",
         f"{r['E_rmse_last']:.2e}",
@@ -157,7 +181,12 @@ def main(argv=None) -> None:
     ap.add_argument("--field", default="stiff_inclusion")
     ap.add_argument("--step", type=float, default=0.03, help="amplitude per frame (spacings)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--grid", nargs="+", default=["default"], choices=["default", "particles"])
+    ap.add_argument(
+        "--grid",
+        nargs="+",
+        default=["default", "particles"],
+        choices=["default", "particles", "particles-nostd"],
+    )
     ap.add_argument("--baseline", metavar="REV", help="also run track of this git revision")
     ap.add_argument(
         "--baseline-frames", type=int, help="frames of the baseline run (default --frames)"
@@ -178,14 +207,16 @@ def main(argv=None) -> None:
     for grid in args.grid:
         rows.append((f"new ({grid} grid)", run_case(*_case(args), grid)))
     head = ["code", "frames", "N/frame", "grid", "link_s", "fields_s", "write_s"]
-    head += ["(f+w)/link", "cpu_s", "load", "E_rmse_all", "E_rmse_last", "u_rmse", "cover1/2"]
+    head += ["(f+w)/link", "load", "E_rmse_all", "E_rmse_last", "u_rmse", "cover1/2"]
     table = [_fmt(r, label) for label, r in rows]
     widths = [max(len(x[i]) for x in [head, *table]) for i in range(len(head))]
     for x in [head, *table]:
         print("  ".join(v.ljust(w) for v, w in zip(x, widths, strict=True)))
+    print("times: wall/CPU seconds; (f+w)/link: (fields + write) / link, wall/CPU")
     for label, r in rows:
-        per = (r["fields_s"] + r["write_s"]) / max(r["frames"] - 1, 1)
-        print(f"{label}: {per:.3f} s of fields + writing per increment")
+        per = (r["fields_cpu"] + r["write_cpu"]) / max(r["frames"] - 1, 1)
+        link = r["link_cpu"] / max(r["frames"] - 1, 1)
+        print(f"{label}: {per:.3f} CPU s of fields + writing per increment, {link:.3f} of linking")
     print(
         f"field {args.field}, step {args.step} spacings/frame, seed {args.seed}; "
         f"machine: {os.cpu_count()} cores, load average now {os.getloadavg()[0]:.1f}"

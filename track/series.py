@@ -57,6 +57,8 @@ from .fields import (
     field_on_grid,
     fit_displacement,
     grid_axes,
+    grid_spacing_um,
+    strain_std,
 )
 from .strain import green_lagrange, infinitesimal
 
@@ -438,16 +440,45 @@ class EulerianCumulation:
         self._u = np.zeros_like(self._X)
         self._F = np.broadcast_to(np.eye(3), (self._X.shape[0], 3, 3)).copy()
         self._mask = np.ones(self._X.shape[0], dtype=bool)
+        self._var = None  # accumulated variances of u and ∂u/∂X (STD_MODE "sum")
+        self._with_std = True
 
-    def add(self, increment: DisplacementInterpolant) -> GridField:
+    STD_MODE = "last"
+
+    def add(
+        self, increment: DisplacementInterpolant, increment_field: GridField | None = None
+    ) -> GridField:
         """Compose the next increment (a field over the previous frame's configuration);
-        the total field from frame 0 to the increment's deformed frame."""
+        the total field from frame 0 to the increment's deformed frame.
+
+        ``increment_field``, the increment gridded on the same grid (:func:`field_on_grid`),
+        lends its standard uncertainties, interpolated (trilinear) at the displaced
+        positions; without it they are computed there (:meth:`DisplacementInterpolant.std`).
+        """
+        x = self._X + self._u
         self._u, self._F, sup = compose_step(
             self._X, self._u, self._F, increment, self.axes.spacing_xyz_um
         )
         self._mask &= sup
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
+        stds = {}
+        self._with_std &= increment.has_uncertainty and increment.settings.uncertainty
+        if self._with_std:
+            if increment_field is not None and increment_field.u_std is not None:
+                u_sd, G_sd = _grid_lookup(increment_field, x)
+            else:
+                u_sd, G_sd = increment.std(x)
+            var = (u_sd**2, G_sd**2)
+            if self.STD_MODE == "sum" and self._var is not None:
+                var = (self._var[0] + var[0], self._var[1] + var[1])
+            self._var = var
+            G_sd = np.sqrt(var[1]).reshape(*shape, 3, 3)
+            stds = {
+                "u_std": np.sqrt(var[0]).reshape(*shape, 3),
+                "F_std": G_sd,
+                "e_std": strain_std(G_sd),
+            }
         return GridField(
             self.axes.x_um,
             self.axes.y_um,
@@ -457,7 +488,25 @@ class EulerianCumulation:
             green_lagrange(Fg),
             infinitesimal(Fg),
             self._mask.reshape(shape),
+            **stds,
         )
+
+
+def _grid_lookup(fld: GridField, xyz_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``u_std`` (P, 3) and ``F_std`` (P, 3, 3) of ``fld`` at ``xyz_um`` (P, 3): trilinear,
+    the nearest border value outside the grid."""
+    from scipy.ndimage import map_coordinates
+
+    h = np.asarray(fld.spacing_xyz_um)
+    idx = ((np.asarray(xyz_um, float) - np.asarray(fld.origin_xyz_um)) / h)[:, ::-1].T  # z,y,x
+    n = idx.shape[1]
+    vals = np.concatenate(
+        [fld.u_std.reshape(*fld.shape, 3), fld.F_std.reshape(*fld.shape, 9)], axis=-1
+    )
+    out = np.empty((n, 12))
+    for c in range(12):
+        out[:, c] = map_coordinates(vals[..., c], idx, order=1, mode="nearest")
+    return out[:, :3], out[:, 3:].reshape(n, 3, 3)
 
 
 def cumulate_eulerian(
@@ -636,7 +685,7 @@ def track_series(
                 raise InputError(f"fewer than {settings.min_particles} particles in frame 0")
             g = settings.grid
             check_grid(np.ptp(pts[0], axis=0), g, where="frame 0's particles")
-            axes = grid_axes(pts[0], g.spacing_um, target_nodes=g.target_nodes)
+            axes = grid_axes(pts[0], grid_spacing_um(pts[0], g), target_nodes=g.target_nodes)
         except InputError as exc:
             status = [f"skipped: no reference grid ({exc})"] * n
         if axes is not None:
@@ -662,7 +711,11 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
             f"({pair.matches.shape[0]} matched)"
         )
     ref = pts[pair.ref_frame][pair.matches[:, 0]]
-    return fit_displacement(ref, pair.displacement_um, settings.grid)
+    # per-match uncertainty (K, 3) µm when the linker gives it (else estimated by the fit)
+    sigma = getattr(pair, "sigma_displacement_um", None)
+    if sigma is not None and not np.all(np.isfinite(sigma)):
+        sigma = None
+    return fit_displacement(ref, pair.displacement_um, settings.grid, sigma_um=sigma)
 
 
 def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field) -> None:
@@ -694,7 +747,7 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_fie
             status[k] = broken
             done(k)
             continue
-        totals[k] = cumulation.add(interp)
+        totals[k] = cumulation.add(interp, inc_fields[k])
         status[k] = OK
         done(k)
 
