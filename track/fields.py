@@ -477,7 +477,7 @@ STD_MODE_CUTOFF = 1e-4
 #: σ within 2.5 % of the value with every mode).
 STD_GRID_MODE_CUTOFF = 3e-2
 #: Rows of query points evaluated at once (a block of ``rows × N`` kernel values).
-_BLOCK_ROWS = 2048
+_BLOCK_ROWS = 256
 
 
 class _ThinPlateFit:
@@ -583,15 +583,32 @@ class _ThinPlateFit:
         R1inv = np.linalg.inv(b.R1)  # (4, 4)
         H = (Bk.T @ (b.K @ b.Q1)) @ R1inv.T  # (r, 4): a(q) = Bₖᵀ k(q) − H p(q)
         Ob = np.concatenate([Bk, b.Q1], axis=1)  # (N, r + 4), orthonormal columns
-        quads = []
+        quads = []  # None: one σ for the column ([B, Q₁] orthogonal: fᵀ Obᵀ σ² Ob f = σ² |f|²)
         for c in range(self.C.shape[1]):
             sc = self.sigma[:, c]
-            if np.all(sc == sc[0]):  # [B, Q₁] orthogonal: fᵀ Obᵀ σ² Ob f = σ² |f|²
-                quads.append(lambda f, v=float(sc[0]) ** 2: v * np.einsum("ij,ij->i", f, f))
+            if np.all(sc == sc[0]):
+                quads.append(None)
             else:
                 S = Ob.T @ (Ob * (sc**2)[:, None])
                 quads.append(lambda f, S=S: np.einsum("ij,ij->i", f @ S, f))
         return keep, Bk, H, R1inv, quads
+
+    def _var(self, a, pt, keep, quads) -> np.ndarray:
+        """``var`` (P, C) of ``w = [B, Q₁] [a / (γ + λ_c), pt]`` for features ``a`` (P, r) and
+        ``pt`` (P, 4)."""
+        nc = self.C.shape[1]
+        out = np.empty((a.shape[0], nc))
+        den = self.den[keep]  # (r, C)
+        homo = [c for c in range(nc) if quads[c] is None]
+        if homo:
+            s2 = self.sigma[0, homo] ** 2
+            out[:, homo] = (
+                (a * a) @ (den[:, homo] ** -2.0) + np.sum(pt * pt, axis=1)[:, None]
+            ) * s2
+        for c in range(nc):
+            if quads[c] is not None:
+                out[:, c] = quads[c](np.concatenate([a / den[:, c], pt], axis=1))
+        return out
 
     def std(self, q: np.ndarray, gradient: bool = False):
         """Standard uncertainties of :meth:`evaluate`: (P, C) and (P, C, 3) or None."""
@@ -608,9 +625,7 @@ class _ThinPlateFit:
             p = np.c_[np.ones(dq.shape[0]), dq]
             a = Kq @ Bk - p @ H.T  # (P, r)
             pt = p @ R1inv  # R₁⁻ᵀ p, as rows
-            for c in range(nc):
-                f = np.concatenate([a / self.den[keep, c], pt], axis=1)
-                u_sd[s : s + _BLOCK_ROWS, c] = np.sqrt(quad[c](f))
+            u_sd[s : s + _BLOCK_ROWS] = np.sqrt(self._var(a, pt, keep, quad))
             if gradient:
                 logr *= 2.0
                 logr += 1.0
@@ -619,9 +634,7 @@ class _ThinPlateFit:
                 for j in range(3):
                     da = dq[:, [j]] * MB0 - MB[:, j * r : (j + 1) * r] - H[:, 1 + j]
                     dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
-                    for c in range(nc):
-                        f = np.concatenate([da / self.den[keep, c], dpt], axis=1)
-                        G_sd[s : s + _BLOCK_ROWS, c, j] = np.sqrt(quad[c](f))
+                    G_sd[s : s + _BLOCK_ROWS, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
         return u_sd, G_sd
 
     def on_grid(self, axes: GridAxes, with_std: bool):
@@ -648,7 +661,6 @@ class _ThinPlateFit:
             cols = np.concatenate([self._Cg, Bk] + [Xc[:, [j]] * Bk for j in range(3)], axis=1)
             u_sd = np.empty((pts.shape[0], nc))
             G_sd = np.empty((pts.shape[0], nc, 3))
-            den = [self.den[keep, c] for c in range(nc)]
         else:
             cols = self._Cg
         ng = self._Cg.shape[1]
@@ -659,9 +671,7 @@ class _ThinPlateFit:
             if with_std:
                 p = np.c_[np.ones(dq.shape[0]), dq]
                 a = Kq @ Bk - p @ H.T  # (P, r)
-                pt = p @ R1inv
-                for c in range(nc):
-                    u_sd[sl, c] = np.sqrt(quad[c](np.concatenate([a / den[c], pt], axis=1)))
+                u_sd[sl] = np.sqrt(self._var(a, p @ R1inv, keep, quad))
             logr *= 2.0
             logr += 1.0  # φ'(r)/r
             MC = logr @ cols
@@ -673,9 +683,7 @@ class _ThinPlateFit:
                     MBj = MC[:, ng + (j + 1) * r : ng + (j + 2) * r]
                     da = dq[:, [j]] * MB0 - MBj - H[:, 1 + j]
                     dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
-                    for c in range(nc):
-                        f = np.concatenate([da / den[c], dpt], axis=1)
-                        G_sd[sl, c, j] = np.sqrt(quad[c](f))
+                    G_sd[sl, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
         if with_std:
             u_sd, G_sd = u_sd.reshape(*shape, nc), G_sd.reshape(*shape, nc, 3)
