@@ -21,15 +21,15 @@ files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, a
 ``--baseline REV`` also runs ``track`` of git revision ``REV`` (extracted with ``git archive``
 to a temporary folder, today's ``synthetic.py`` copied in, run in a subprocess) on the same
 series, side by side. ``--grid`` chooses the grids of the new code (``default``: the
-``GridSettings`` defaults, 50 000 nodes; ``particles``: ``nodes_per_spacing=2``, the node
-spacing follows the particle spacing; ``particles-nostd``: the same without uncertainties);
-the baseline always uses its defaults.
+``GridSettings`` defaults, 50 000 nodes; ``particles``: ``nodes_per_spacing`` (option
+``--nodes-per-spacing``, default 2), the node spacing follows the particle spacing;
+``particles-nostd``: the same without uncertainties); the baseline always uses its defaults.
 
 Usage::
 
     python benchmarks/bench_fields.py                               # new code only
     python benchmarks/bench_fields.py --baseline bf4f1fb --baseline-frames 6
-    python benchmarks/bench_fields.py --frames 11 --grid default particles
+    python benchmarks/bench_fields.py --frames 11 --grid particles particles-nostd
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _timed(fn):
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
-def run_case(frames, n, field, step, seed, grid):
+def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0):
     """Link and grid one series with the importable ``track``; a dict of results.
 
     The stages of :func:`track.pipeline.track_clouds` (``track link``), each timed (wall and
@@ -72,9 +72,12 @@ def run_case(frames, n, field, step, seed, grid):
     s = make_series(field, n, step, frames, seed=seed)
     settings = SeriesSettings()
     if grid == "particles":
-        settings = SeriesSettings(grid=dataclasses.replace(GridSettings(), nodes_per_spacing=2.0))
+        g = dataclasses.replace(GridSettings(), nodes_per_spacing=nodes_per_spacing)
+        settings = SeriesSettings(grid=g)
     elif grid == "particles-nostd":
-        g = dataclasses.replace(GridSettings(), nodes_per_spacing=2.0, uncertainty=False)
+        g = dataclasses.replace(
+            GridSettings(), nodes_per_spacing=nodes_per_spacing, uncertainty=False
+        )
         settings = SeriesSettings(grid=g)
     clouds = list(s.frames_xyz_um)
     load = os.getloadavg()[0]
@@ -187,6 +190,7 @@ def main(argv=None) -> None:
         default=["default", "particles"],
         choices=["default", "particles", "particles-nostd"],
     )
+    ap.add_argument("--nodes-per-spacing", type=float, default=2.0, help="of the 'particles' grids")
     ap.add_argument("--baseline", metavar="REV", help="also run track of this git revision")
     ap.add_argument(
         "--baseline-frames", type=int, help="frames of the baseline run (default --frames)"
@@ -205,7 +209,7 @@ def main(argv=None) -> None:
         b = run_baseline(args.baseline, nb, args.n, args.field, args.step, args.seed)
         rows.append((f"baseline {args.baseline}", b))
     for grid in args.grid:
-        rows.append((f"new ({grid} grid)", run_case(*_case(args), grid)))
+        rows.append((f"new ({grid} grid)", run_case(*_case(args), grid, args.nodes_per_spacing)))
     head = ["code", "frames", "N/frame", "grid", "link_s", "fields_s", "write_s"]
     head += ["(f+w)/link", "load", "E_rmse_all", "E_rmse_last", "u_rmse", "cover1/2"]
     table = [_fmt(r, label) for label, r in rows]
