@@ -724,8 +724,14 @@ class DisplacementInterpolant:
 
     @property
     def has_uncertainty(self) -> bool:
-        """Whether :meth:`std` is available (the global thin-plate spline)."""
-        return self._tps is not None
+        """Whether the fields get standard uncertainties: the global thin-plate spline,
+        ``settings.uncertainty``, and a known noise level (given, or estimated from the
+        residuals: not with ``smoothing=0``)."""
+        return (
+            self._tps is not None
+            and bool(self.settings.uncertainty)
+            and bool(np.all(np.isfinite(self._tps.sigma)))
+        )
 
     def value_and_gradient(
         self, xyz_um: np.ndarray, step_um: float | tuple = 1.0
@@ -753,7 +759,8 @@ class DisplacementInterpolant:
         Returns
         -------
         u_std : ndarray, shape (P, 3)
-            µm. NaN where the noise is unknown (``smoothing=0`` without ``sigma_um``).
+            µm. NaN for an axis whose noise is unknown (``smoothing=0`` without
+            ``sigma_um``).
         G_std : ndarray, shape (P, 3, 3) or None
             Of ``∂u_i/∂x_j``; None unless ``gradient``.
 
@@ -1005,15 +1012,16 @@ def field_on_grid(
 ) -> GridField:
     """Evaluate an interpolant on a grid and differentiate it (see module docstring).
 
-    The global thin-plate spline gives its exact gradient at the nodes (and, with
-    ``settings.uncertainty``, the standard uncertainties ``u_std``, ``F_std``, ``e_std``);
+    The global thin-plate spline gives its exact gradient at the nodes (and, when
+    :attr:`DisplacementInterpolant.has_uncertainty`, the standard uncertainties ``u_std``,
+    ``F_std``, ``e_std``; otherwise they are None);
     the other interpolants are differentiated on the grid by :func:`numpy.gradient`.
     """
     pts = axes.points()
     shape = axes.shape
     stds = {}
-    if interpolant.has_uncertainty:
-        with_std = bool(interpolant.settings.uncertainty)
+    if interpolant._tps is not None:
+        with_std = interpolant.has_uncertainty
         u, G, u_sd, G_sd = interpolant._tps.on_grid(axes, with_std)
         F = np.eye(3) + G
         E, e = green_lagrange(F), infinitesimal(F)

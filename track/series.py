@@ -469,7 +469,7 @@ class EulerianCumulation:
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
         stds = {}
-        self._with_std &= increment.has_uncertainty and increment.settings.uncertainty
+        self._with_std &= increment.has_uncertainty
         if self._with_std:
             if increment_field is not None and increment_field.u_std is not None:
                 u_sd, G_sd = _grid_lookup(increment_field, x)
