@@ -25,7 +25,8 @@ series, side by side. ``--grid`` chooses the grids of the new code (``default``:
 ``--nodes-per-spacing``, default 2), the node spacing follows the particle spacing;
 ``particles-nostd``: the same without uncertainties); the baseline always uses its defaults.
 
-Usage::
+Usage (from the repository root; ``PYTHONPATH=.`` makes this checkout's ``track`` the one
+imported, ``OPENBLAS_NUM_THREADS=1`` keeps BLAS threads from fighting on a shared machine)::
 
     python benchmarks/bench_fields.py                               # new code only
     python benchmarks/bench_fields.py --baseline bf4f1fb --baseline-frames 6
