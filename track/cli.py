@@ -167,6 +167,14 @@ GRID_OPTIONS = (
         _int_in(8, MAX_GRID_NODES),
         "N",
     ),
+    SettingOption(
+        "nodes_per_spacing",
+        ("--nodes-per-spacing",),
+        "grid that follows the particles: node spacing = their median nearest-neighbour "
+        "distance / this (e.g. 2; at most 10 × --target-nodes nodes)",
+        _positive_float,
+        "K",
+    ),
     SettingOption("method", ("--interpolation",), "gridding method", choices=("rbf", "linear")),
     SettingOption(
         "smoothing",

@@ -4,12 +4,15 @@ Every writer is **atomic** and refuses to replace an existing file unless ``over
 (:mod:`hrvbase.io`). Lengths in µm (docs/conventions.md §6.4):
 
 - ``fields/NNNNNN.npz``: arrays ``x_um, y_um, z_um, u, F, E, e, mask`` of a
-  :class:`~track.fields.GridField`;
+  :class:`~track.fields.GridField`, and its standard uncertainties ``u_std`` (nz, ny, nx, 3),
+  ``F_std``, ``e_std`` (nz, ny, nx, 3, 3) when it has them;
 - ``fields/NNNNNN.vti``: VTK XML ImageData (our own writer, no vtk dependency), origin and
   spacing in µm, point data ``displacement`` (3 components), ``F``, ``E``, ``e`` (9
   components, row-major: ParaView shows them as tensors), scalars ``E_xx … e_yz``,
-  ``gamma_xz`` (= 2 e_xz) and ``mask``; inline ``ascii`` or ``binary`` (base64 of a UInt64
-  byte count followed by the little-endian values, one base64 stream).
+  ``gamma_xz`` (= 2 e_xz) and ``mask``; with uncertainties also ``displacement_std``
+  (3 components), ``F_std``, ``e_std`` (9) and scalars ``e_std_xx … e_std_yz``; inline
+  ``ascii`` or ``binary`` (base64 of a UInt64 byte count followed by the little-endian
+  values, one base64 stream).
 """
 
 from __future__ import annotations
@@ -26,12 +29,20 @@ from .errors import InputError
 from .fields import GridField
 
 _FIELD_ARRAYS = ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask")
+_STD_ARRAYS = ("u_std", "F_std", "e_std")
 
 
 def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool = False) -> Path:
-    """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``)."""
+    """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``
+    and, when the field has them, ``u_std, F_std, e_std``).
+
+    Stored without compression: deflate saves about a quarter of the size of these float64
+    arrays but took 25× as long (3.2 s instead of 0.13 s for a 50 000-node field, issue 13).
+    """
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **{k: getattr(fld, k) for k in _FIELD_ARRAYS})
+        arrays = {k: getattr(fld, k) for k in _FIELD_ARRAYS}
+        arrays.update({k: getattr(fld, k) for k in _STD_ARRAYS if getattr(fld, k) is not None})
+        np.savez(fh, **arrays)
     return Path(path)
 
 
@@ -41,6 +52,7 @@ def read_field_npz(path: str | os.PathLike) -> GridField:
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in _FIELD_ARRAYS}
+            arrays.update({k: z[k] for k in _STD_ARRAYS if k in z.files})
     except FileNotFoundError:
         raise InputError(f"{path} does not exist") from None
     except (OSError, KeyError, ValueError) as exc:
@@ -65,6 +77,16 @@ def vti_arrays(fld: GridField) -> dict[str, np.ndarray]:
             arrays[f"{name}_{c}"] = t[:, i, j].reshape(n, 1)
     arrays["gamma_xz"] = 2.0 * fld.e.reshape(n, 3, 3)[:, 0, 2].reshape(n, 1)
     arrays["mask"] = fld.mask.reshape(n, 1).astype(np.uint8)
+    if fld.u_std is not None:
+        arrays["displacement_std"] = fld.u_std.reshape(n, 3)
+    for name in ("F_std", "e_std"):
+        if getattr(fld, name) is not None:
+            arrays[name] = getattr(fld, name).reshape(n, 9)
+    if fld.e_std is not None:
+        t = fld.e_std.reshape(n, 3, 3)
+        for c in _SCALARS:
+            i, j = _IJ[c]
+            arrays[f"e_std_{c}"] = t[:, i, j].reshape(n, 1)
     return arrays
 
 

@@ -28,10 +28,12 @@ point ``X`` sits at ``x(X) = X + u_prev(X)`` in frame ``i−1``, so
     F_total(X) = F_inc(x(X)) · F_prev(X)
 
 ``u_inc`` and ``F_inc`` are evaluated **at the displaced positions** ``x(X)`` from the
-increment's continuous interpolant (:func:`track.fields.fit_displacement`); ``∂u_inc/∂x`` by
-central differences with the grid spacing as step (the same stencil :func:`numpy.gradient`
-uses on the grid). By the chain rule ``F_total = I + ∂u_total/∂X``, and the node is supported
-(:attr:`GridField.mask`) only while every increment was supported at ``x(X)``.
+increment's continuous interpolant (:func:`track.fields.fit_displacement`); ``∂u_inc/∂x``
+exactly for the global thin-plate spline (one kernel evaluation gives values and gradients),
+otherwise by central differences with the grid spacing as step (the same stencil
+:func:`numpy.gradient` uses on the grid). By the chain rule ``F_total = I + ∂u_total/∂X``,
+and the node is supported (:attr:`GridField.mask`) only while every increment was supported
+at ``x(X)``.
 """
 
 from __future__ import annotations
@@ -55,6 +57,8 @@ from .fields import (
     field_on_grid,
     fit_displacement,
     grid_axes,
+    grid_spacing_um,
+    strain_std,
 )
 from .strain import green_lagrange, infinitesimal
 
@@ -464,7 +468,8 @@ def compose_step(
     increment : DisplacementInterpolant
         Increment field over the previous frame's configuration.
     step_um : float or (hx, hy, hz)
-        Central-difference step for ``∂u_inc/∂x``.
+        Central-difference step for ``∂u_inc/∂x`` where the interpolant has no exact
+        gradient (:meth:`~track.fields.DisplacementInterpolant.value_and_gradient`).
 
     Returns
     -------
@@ -476,8 +481,8 @@ def compose_step(
         Whether the increment is supported by data at ``X + u_prev(X)``.
     """
     x = np.asarray(reference_um, float) + np.asarray(u_prev_um, float)
-    u_inc = increment(x)
-    F_inc = np.eye(3) + increment.gradient(x, step_um)
+    u_inc, G_inc = increment.value_and_gradient(x, step_um)
+    F_inc = np.eye(3) + G_inc
     F_total = np.einsum("pij,pjk->pik", F_inc, np.asarray(F_prev, float))
     return np.asarray(u_prev_um, float) + u_inc, F_total, increment.supported(x)
 
@@ -497,16 +502,51 @@ class EulerianCumulation:
         self._u = np.zeros_like(self._X)
         self._F = np.broadcast_to(np.eye(3), (self._X.shape[0], 3, 3)).copy()
         self._mask = np.ones(self._X.shape[0], dtype=bool)
+        self._var = None  # accumulated variances of u and ∂u/∂X
+        self._with_std = True
 
-    def add(self, increment: DisplacementInterpolant) -> GridField:
+    def add(
+        self, increment: DisplacementInterpolant, increment_field: GridField | None = None
+    ) -> GridField:
         """Compose the next increment (a field over the previous frame's configuration);
-        the total field from frame 0 to the increment's deformed frame."""
+        the total field from frame 0 to the increment's deformed frame.
+
+        Standard uncertainties (when the increments have them): the variances of the
+        increments at the displaced positions add up, as for independent increments
+        (``u_std² = Σ_k u_std,k²``, the same for ``F_std``; the first-order product rule is
+        left out). Consecutive increments share a frame's localisation noise, with opposite
+        signs, but drop-outs and each increment's own smoothing keep most of it from
+        cancelling: on bench_fields' 11-frame series 61 % / 85 % of the total displacement
+        errors fall within 1σ / 2σ (smoothing bias included), against 32 % / 56 % with the
+        last increment's σ alone. ``increment_field``, the increment gridded on the same grid
+        (:func:`field_on_grid`), lends its uncertainties, interpolated (trilinear) at the
+        displaced positions; without it they are computed there
+        (:meth:`DisplacementInterpolant.std`).
+        """
+        x = self._X + self._u
         self._u, self._F, sup = compose_step(
             self._X, self._u, self._F, increment, self.axes.spacing_xyz_um
         )
         self._mask &= sup
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
+        stds = {}
+        self._with_std &= increment.has_uncertainty
+        if self._with_std:
+            if increment_field is not None and increment_field.u_std is not None:
+                u_sd, G_sd = _grid_lookup(increment_field, x)
+            else:
+                u_sd, G_sd = increment.std(x)
+            var = (u_sd**2, G_sd**2)
+            if self._var is not None:
+                var = (self._var[0] + var[0], self._var[1] + var[1])
+            self._var = var
+            G_sd = np.sqrt(var[1]).reshape(*shape, 3, 3)
+            stds = {
+                "u_std": np.sqrt(var[0]).reshape(*shape, 3),
+                "F_std": G_sd,
+                "e_std": strain_std(G_sd),
+            }
         return GridField(
             self.axes.x_um,
             self.axes.y_um,
@@ -516,7 +556,30 @@ class EulerianCumulation:
             green_lagrange(Fg),
             infinitesimal(Fg),
             self._mask.reshape(shape),
+            **stds,
         )
+
+
+def _grid_lookup(fld: GridField, xyz_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``u_std`` (P, 3) and ``F_std`` (P, 3, 3) of ``fld`` at ``xyz_um`` (P, 3): trilinear,
+    the nearest border value outside the grid."""
+    shape = np.asarray(fld.shape)
+    vals = np.concatenate(
+        [fld.u_std.reshape(-1, 3), fld.F_std.reshape(-1, 9)], axis=1
+    )  # (nodes, 12)
+    h = np.asarray(fld.spacing_xyz_um)[::-1]
+    t = (np.asarray(xyz_um, float)[:, ::-1] - np.asarray(fld.origin_xyz_um)[::-1]) / h  # z,y,x
+    t = np.clip(t, 0.0, shape - 1.0)
+    i0 = np.minimum(np.floor(t).astype(np.int64), shape - 2)
+    w = t - i0
+    n = t.shape[0]
+    out = np.zeros((n, 12))
+    for corner in range(8):
+        d = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
+        wc = np.prod(np.where(d, w, 1.0 - w), axis=1)
+        idx = np.ravel_multi_index((i0 + d).T, tuple(shape))
+        out += wc[:, None] * vals[idx]
+    return out[:, :3], out[:, 3:].reshape(n, 3, 3)
 
 
 def cumulate_eulerian(
@@ -900,7 +963,7 @@ def track_series(
                 raise InputError(f"fewer than {settings.min_particles} particles in frame 0")
             g = settings.grid
             check_grid(np.ptp(pts[0], axis=0), g, where="frame 0's particles")
-            axes = grid_axes(pts[0], g.spacing_um, target_nodes=g.target_nodes)
+            axes = grid_axes(pts[0], grid_spacing_um(pts[0], g), target_nodes=g.target_nodes)
         except InputError as exc:
             status = [f"skipped: no reference grid ({exc})"] * n
         if axes is not None:
@@ -926,7 +989,11 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
             f"({pair.matches.shape[0]} matched)"
         )
     ref = pts[pair.ref_frame][pair.matches[:, 0]]
-    return fit_displacement(ref, pair.displacement_um, settings.grid)
+    # per-match uncertainty (K, 3) µm when the linker gives it (else estimated by the fit)
+    sigma = getattr(pair, "sigma_displacement_um", None)
+    if sigma is not None and not np.all(np.isfinite(sigma)):
+        sigma = None
+    return fit_displacement(ref, pair.displacement_um, settings.grid, sigma_um=sigma)
 
 
 def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field) -> None:
@@ -958,7 +1025,7 @@ def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_fie
             status[k] = broken
             done(k)
             continue
-        totals[k] = cumulation.add(interp)
+        totals[k] = cumulation.add(interp, inc_fields[k])
         status[k] = OK
         done(k)
 

@@ -243,3 +243,55 @@ def test_io_facade_re_exports_the_three_modules():
         assert getattr(io, name) is getattr(homes[0], name)
     assert {*tables.__all__, *field_files.__all__} <= set(io.__all__)
     assert {"VolumeInfo", "numbered", "read_volume", "scan_volumes"} <= set(io.__all__)
+
+
+def _field_with_std():
+    X = np.random.default_rng(0).uniform([0, 10, -5], [100, 80, 60], (80, 3))
+    sigma = np.broadcast_to([0.2, 0.3, 2.0], X.shape)
+    return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0), sigma_um=sigma)
+
+
+def test_field_npz_round_trip_with_uncertainties(tmp_path):
+    g = _field_with_std()
+    assert g.u_std is not None and g.F_std is not None and g.e_std is not None
+    p = field_files.write_field_npz(tmp_path / "000001.npz", g)
+    with np.load(p) as z:
+        assert {"u_std", "F_std", "e_std"} <= set(z.files)
+        assert z["u_std"].shape == (*g.shape, 3) and z["e_std"].shape == (*g.shape, 3, 3)
+    g2 = field_files.read_field_npz(p)
+    for k in ("u", "u_std", "F_std", "e_std"):
+        assert np.array_equal(getattr(g2, k), getattr(g, k))
+    plain = gridded_field(
+        np.random.default_rng(0).uniform(0, 100, (80, 3)),
+        np.zeros((80, 3)),
+        GridSettings(spacing_um=12.0, uncertainty=False),
+    )
+    assert plain.u_std is None
+    g0 = field_files.read_field_npz(field_files.write_field_npz(tmp_path / "0.npz", plain))
+    assert g0.u_std is None and g0.e_std is None  # a field without uncertainties stays so
+
+
+@pytest.mark.parametrize("encoding", ["binary", "ascii"])
+def test_vti_uncertainties_read_in_vtk(tmp_path, encoding):
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
+
+    g = _field_with_std()
+    p = field_files.write_field_vti(tmp_path / "f.vti", g, encoding=encoding)
+    reader = vtkXMLImageDataReader()
+    reader.SetFileName(str(p))
+    reader.Update()
+    pd = reader.GetOutput().GetPointData()
+    arrays = {}
+    for i in range(pd.GetNumberOfArrays()):
+        a = vtk_to_numpy(pd.GetArray(i))
+        arrays[pd.GetArrayName(i)] = a.reshape(a.shape[0], -1)
+    n = int(np.prod(g.shape))
+    assert np.allclose(arrays["displacement_std"], g.u_std.reshape(n, 3), rtol=1e-6, atol=0)
+    assert np.allclose(arrays["e_std"], g.e_std.reshape(n, 9), rtol=1e-6, atol=0)
+    assert np.allclose(arrays["F_std"], g.F_std.reshape(n, 9), rtol=1e-6, atol=0)
+    assert np.allclose(arrays["e_std_xz"][:, 0], g.e_std[..., 0, 2].ravel(), rtol=1e-6, atol=0)
+    # the σ of u_z (2 µm per particle) shows: 2 / 0.3 × that of u_y, σ/√N < u_std < σ
+    u_sd = arrays["displacement_std"]
+    assert np.all(u_sd[:, 2] > 2.0 / np.sqrt(80)) and np.all(u_sd[:, 2] < 2.0)
+    assert np.median(u_sd[:, 2] / u_sd[:, 1]) > 3.0
