@@ -19,7 +19,8 @@ Components
     :func:`scipy.ndimage.label` with face connectivity (6 neighbours), which merges fewer
     touching particles than 26-connectivity.
 Edges
-    Blobs whose bounding box comes within ``edge_margin_vox`` voxels of a face (touching it
+    Blobs whose core (the voxels above half the blob's height over the threshold) comes
+    within ``edge_margin_vox`` voxels of a face (touching it
     when the margin is 0) are rejected: their centroid is biased.
 Size
     ``blob_min_vox``/``blob_max_vox`` when given; otherwise ``auto_size_factors`` × the
@@ -150,6 +151,30 @@ class Segmentation:
     def rejected(self) -> tuple[Blob, ...]:
         """Blobs rejected by some filter (with :attr:`Blob.reason`)."""
         return tuple(b for b in self.blobs if not b.accepted)
+
+    @property
+    def rejections(self) -> dict[str, int]:
+        """Rejected blobs counted by filter: ``edge``, ``too_small`` (noise specks under
+        :data:`MIN_AUTO_VOX` voxels apart, in ``specks``), ``too_large``, ``elongated``,
+        ``clump``."""
+        out = dict.fromkeys(REJECTION_KINDS, 0)
+        for b in self.rejected:
+            kind = next(k for k, prefix in _REASON_PREFIX.items() if b.reason.startswith(prefix))
+            if kind == "too_small" and b.n_vox < MIN_AUTO_VOX:
+                kind = "specks"
+            out[kind] += 1
+        return out
+
+
+#: Keys of :attr:`Segmentation.rejections`.
+REJECTION_KINDS = ("edge", "too_small", "specks", "too_large", "elongated", "clump")
+_REASON_PREFIX = {
+    "edge": "touches",
+    "too_small": "too small",
+    "too_large": "too large",
+    "elongated": "elongated",
+    "clump": "clump",
+}
 
 
 #: Voxels of each face left out of the intensity range: light-field reconstructions pile
@@ -296,9 +321,12 @@ def segment(
     edge_lo = np.maximum(np.asarray(margin), 1)
     shape = np.asarray(vol.shape)
     for rec, sl in zip(info, slices, strict=True):
-        lo = np.array([s.start for s in sl])
-        hi = np.array([s.stop for s in sl])
         rec["bbox"] = (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop, sl[2].start, sl[2].stop)
+        # the blob's core (above half its height over the threshold) must keep off the faces
+        core = (labels[sl] == rec["label"]) & (vol[sl] >= 0.5 * (thr + rec["peak"]))
+        idx = np.nonzero(core)
+        lo = np.array([s.start + int(i.min()) for s, i in zip(sl, idx, strict=True)])
+        hi = np.array([s.start + int(i.max()) + 1 for s, i in zip(sl, idx, strict=True)])
         rec["edge"] = bool(np.any(lo < edge_lo) or np.any(hi > shape - edge_lo))
     info = [
         (r["label"], r["n_vox"], r["bbox"], r["cen"], r["peak"], r["cov"], r["edge"]) for r in info
@@ -340,7 +368,7 @@ def segment(
             "peak": peak,
         }
         if edge:
-            blobs.append(Blob(**common, reason="touches the volume edge (within edge margin)"))
+            blobs.append(Blob(**common, reason="touches the volume edge (core within edge margin)"))
             continue
         if nv < bmin:
             blobs.append(Blob(**common, reason=f"too small ({nv} < blob_min_vox {bmin})"))
