@@ -28,8 +28,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -195,6 +197,12 @@ def run_case(m: Microscope, setting, seed: int, n_particles: int = 6, settings=N
     }
 
 
+def setting_id(setting) -> str:
+    """Short name of a grid setting (test ids)."""
+    it, s, dz, filt, snr = setting
+    return f"it{it}-s{s}-dz{dz:g}-{'filt' if filt else 'nofilt'}-snr{snr:g}"
+
+
 def format_row(r: dict) -> str:
     rej = ", ".join(f"{k} {v}" for k, v in sorted(r["rejected"].items()) if v) or "-"
     return (
@@ -211,6 +219,8 @@ HEADER = (
 
 
 def main(argv=None) -> int:
+    # this checkout's packages, not an installed copy
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--microscope", nargs="+", default=["paper", "10x"])
     ap.add_argument(

@@ -19,9 +19,13 @@ Components
     :func:`scipy.ndimage.label` with face connectivity (6 neighbours), which merges fewer
     touching particles than 26-connectivity.
 Edges
-    Blobs whose core (the voxels above half the blob's height over the threshold) comes
-    within ``edge_margin_vox`` voxels of a face (touching it
-    when the margin is 0) are rejected: their centroid is biased.
+    Blobs whose maximum lies within ``edge_margin_vox`` voxels of a face (on it when the
+    margin is 0), or whose core (the voxels above half the blob's height over the threshold)
+    comes that close to one face of an axis, are rejected: their centre is cut off or biased
+    (and reconstructions pile light from outside the field onto their faces). Along an axis
+    where the core is longer than half the volume, as the axial images of few
+    Richardson–Lucy iterations can be (their length depends on the iterations, not on the
+    particle), only the maximum is tested: the blob is kept when its maximum is inside.
 Size
     ``blob_min_vox``/``blob_max_vox`` when given; otherwise ``auto_size_factors`` × the
     *voxel-weighted* median blob size (the size of the blob holding the median segmented
@@ -322,12 +326,17 @@ def segment(
     shape = np.asarray(vol.shape)
     for rec, sl in zip(info, slices, strict=True):
         rec["bbox"] = (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop, sl[2].start, sl[2].stop)
-        # the blob's core (above half its height over the threshold) must keep off the faces
-        core = (labels[sl] == rec["label"]) & (vol[sl] >= 0.5 * (thr + rec["peak"]))
-        idx = np.nonzero(core)
+        # the blob's maximum must keep off the faces, and its core (above half its height over
+        # the threshold) must not be cut by a face; a core longer than half the volume along
+        # an axis (the axial image after few iterations) is judged by its maximum alone there
+        own = labels[sl] == rec["label"]
+        top = np.array(np.unravel_index(np.argmax(np.where(own, vol[sl], -np.inf)), own.shape))
+        top += [s.start for s in sl]
+        idx = np.nonzero(own & (vol[sl] >= 0.5 * (thr + rec["peak"])))
         lo = np.array([s.start + int(i.min()) for s, i in zip(sl, idx, strict=True)])
         hi = np.array([s.start + int(i.max()) + 1 for s, i in zip(sl, idx, strict=True)])
-        rec["edge"] = bool(np.any(lo < edge_lo) or np.any(hi > shape - edge_lo))
+        cut = ((lo < edge_lo) | (hi > shape - edge_lo)) & (hi - lo < 0.5 * shape)
+        rec["edge"] = bool(np.any(top < edge_lo) or np.any(top >= shape - edge_lo) or cut.any())
     info = [
         (r["label"], r["n_vox"], r["bbox"], r["cen"], r["peak"], r["cov"], r["edge"]) for r in info
     ]
@@ -368,7 +377,9 @@ def segment(
             "peak": peak,
         }
         if edge:
-            blobs.append(Blob(**common, reason="touches the volume edge (core within edge margin)"))
+            blobs.append(
+                Blob(**common, reason="touches the volume edge (maximum within edge margin)")
+            )
             continue
         if nv < bmin:
             blobs.append(Blob(**common, reason=f"too small ({nv} < blob_min_vox {bmin})"))
