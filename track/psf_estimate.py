@@ -58,6 +58,7 @@ PAPER_BOX_UM = (200.0, 60.0, 60.0)
 #: FWHM holds > 99 % of a Gaussian profile).
 BOX_FWHM = 3.0
 _SMOOTH_VOX = 0.7  # Gaussian smoothing (voxels) before the search for maxima
+_FACE_VOX = 2  # outer voxels whose maxima are not particles (track.segment.FACE_VOX)
 
 
 def box_shape_vox(box_um: Sequence[float], voxel_size_um: Sequence[float]) -> tuple[int, ...]:
@@ -148,10 +149,11 @@ def _separate(smooth: np.ndarray, p: np.ndarray, q: np.ndarray, h: float) -> boo
 def particle_fwhm_vox(volume: np.ndarray, n_peaks: int = 20) -> np.ndarray | None:
     """Median full width at half maximum ``(z, y, x)`` (voxels) of the particles of a volume.
 
-    The ``n_peaks`` brightest local maxima of the volume smoothed with a 0.7-voxel Gaussian
-    that stand at least 5 robust noise levels and a quarter of the brightest above the median
-    are measured along each axis, from the peak outwards to where the intensity falls below
-    half its height above the background (the volume's median). The widths are measured on
+    The ``n_peaks`` brightest local maxima of the volume smoothed with a 0.7-voxel Gaussian,
+    away from its two outer voxels on every face (boundary artefacts), that stand at least 5
+    robust noise levels and a quarter of the brightest of them above the median are measured
+    along each axis, from the peak outwards to where the intensity falls below half its
+    height above the background (the volume's median). The widths are measured on
     the volume itself, so they follow the microscope, the voxel size and the reconstruction
     settings (iterations, filter): nothing about the optics is assumed.
 
@@ -170,6 +172,11 @@ def particle_fwhm_vox(volume: np.ndarray, n_peaks: int = 20) -> np.ndarray | Non
     bg = float(np.median(vol))
     sm = ndimage.gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX)
     peaks = np.argwhere((sm == ndimage.maximum_filter(sm, size=3)) & (sm > bg))
+    # reconstructions pile light from outside the field onto their outer voxels: maxima there
+    # are artefacts (and cut), and must not set the reference height of the particles
+    shape = np.asarray(vol.shape)
+    face = np.where(shape > 4 * _FACE_VOX, _FACE_VOX, 0)
+    peaks = peaks[np.all((peaks >= face) & (peaks < shape - face), axis=1)]
     if not peaks.size:
         return None
     heights = sm[tuple(peaks.T)] - bg
