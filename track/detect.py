@@ -5,9 +5,15 @@ The pipeline of the paper's §3.2 (settings of Table 1):
 1. **secondary deconvolution** (:mod:`track.deconvolve`): ``deconvolution_iterations``
    Richardson–Lucy updates (paper: 5) with a particle PSF, given or estimated from this volume
    (:mod:`track.psf_estimate`; skipped with a note in the report when no isolated particle is
-   found);
-2. **segmentation** (:mod:`track.segment`): threshold, connected components, edge, size,
-   shape and clump filters;
+   found, or when the particles are narrower than :data:`PSF_MIN_FWHM_VOX` voxels along some
+   axis, as many reconstruction iterations make them);
+2. **segmentation** (:mod:`track.segment`) of a band-passed copy of the volume at the scale
+   of its particles (the FWHM measured on it, :func:`track.psf_estimate.particle_fwhm_vox`,
+   see ``smooth_fwhm``/``background_fwhm``): threshold, connected components, edge, size,
+   shape and clump filters, each blob's rejection counted by filter in ``report
+   ["rejections"]``. Every scale follows the volume (reconstruction iterations,
+   super-resolution, depth step, depth filter, noise, optics): nothing is tuned to one
+   reconstruction setting (``benchmarks/detect_sweep.py`` measures it over a grid of them);
 3. **sub-voxel localisation** (:mod:`track.localize`): 3-D radial symmetry (Liu et al. 2013)
    or weighted centroid in a box around every accepted blob's centroid, on the input volume
    (``localize_on="input"``, default) or the deconvolved one. Deconvolution serves the
@@ -37,10 +43,18 @@ from .deconvolve import deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
 from .psf_estimate import check_psf, estimate_psf, particle_fwhm_vox
-from .segment import MIN_AUTO_VOX, segment
+from .segment import FACE_VOX, MIN_AUTO_VOX, segment
 
 log = logging.getLogger(__name__)
 
+
+#: Smallest particle FWHM (voxels, every axis) for an automatic PSF: a narrower image is not
+#: resolved on the voxel grid (Nyquist: two samples per width).
+PSF_MIN_FWHM_VOX = 2.0
+#: Smallest smoothing σ (voxels) of the band-pass: a Gaussian of this σ has a FWHM of
+#: :data:`PSF_MIN_FWHM_VOX`, so that segmented particles are resolved along every axis
+#: (a narrower image's shape is sampling noise, which the shape test would read as shape).
+SMOOTH_MIN_VOX = PSF_MIN_FWHM_VOX / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 
 #: :class:`DetectSettings` fields passed on to :func:`track.segment.segment` as they are.
 SEGMENT_SETTINGS = (
@@ -279,11 +293,28 @@ def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.nd
         return work
     report["particle_fwhm_vox"] = [float(v) for v in fwhm]
     img = work.astype(np.float32)
-    out = ndimage.gaussian_filter(img, settings.smooth_fwhm * fwhm, mode="nearest")
+    sigma = settings.smooth_fwhm * fwhm
+    if settings.smooth_fwhm > 0:
+        sigma = np.maximum(sigma, SMOOTH_MIN_VOX)
+    out = ndimage.gaussian_filter(img, sigma, mode="nearest").copy()
     if settings.background_fwhm > 0:
         out = out - ndimage.gaussian_filter(img, settings.background_fwhm * fwhm, mode="nearest")
         # below the local background is background: the threshold fraction is of [0, max]
         out = np.clip(out, 0.0, None)
+    # reconstructions pile light from outside the field onto their outer voxels
+    # (segment.FACE_VOX); smoothing spreads it 2 σ further in: that band is background, so
+    # that it neither sets the threshold nor forms blobs
+    band = [FACE_VOX + math.ceil(2.0 * s) for s in sigma]
+    for axis, (b, n) in enumerate(zip(band, out.shape, strict=True)):
+        if n > 4 * b:
+            sl = [slice(None)] * 3
+            sl[axis] = slice(0, b)
+            out[tuple(sl)] = 0.0
+            sl[axis] = slice(n - b, n)
+            out[tuple(sl)] = 0.0
+    report["face_band_vox"] = [
+        int(b) if n > 4 * b else 0 for b, n in zip(band, out.shape, strict=True)
+    ]
     log.info(
         "detect_particles: band-pass at %s × particle FWHM %s voxels",
         (settings.smooth_fwhm, settings.background_fwhm),
@@ -343,7 +374,16 @@ def detect_particles(
     work = vol.astype(np.float32)
     if settings.deconvolution_iterations > 0:
         t = time.perf_counter()
-        if psf is None:
+        fwhm_in = particle_fwhm_vox(vol) if psf is None else None
+        if fwhm_in is not None and fwhm_in.min() < PSF_MIN_FWHM_VOX:
+            # an image this sharp (many RL iterations) is not resolved on the voxel grid: a
+            # PSF made of it is sampling noise, and deconvolving with it only sharpens noise
+            report["psf"] = (
+                f"not estimated: the particles are {[float(v) for v in fwhm_in]} voxels wide "
+                f"(FWHM), under {PSF_MIN_FWHM_VOX} along some axis (unresolved)"
+            )
+            log.info("detect_particles: no deconvolution: %s", report["psf"])
+        elif psf is None:
             try:
                 psf = estimate_psf(
                     vol,

@@ -433,7 +433,8 @@ def _blob_stats(vol, labels, n, thr, spacing) -> list[dict]:
 
     :func:`skimage.measure.regionprops` with ``spacing`` (voxel sizes ``(dz, dy, dx)`` µm):
     the weighted central moments ``μ_pqr`` give the covariance ``C_ij = μ_(e_i+e_j) / μ_000``
-    in µm²; the weighted centroid is returned in voxels.
+    in µm², to which each voxel's own extent adds ``d_i² / 12`` on the diagonal; the weighted
+    centroid is returned in voxels.
     """
     from skimage.measure import regionprops
 
@@ -451,7 +452,10 @@ def _blob_stats(vol, labels, n, thr, spacing) -> list[dict]:
                 "n_vox": int(p.num_pixels),
                 "cen": np.asarray(p.centroid_weighted, dtype=np.float64) / spacing,
                 "peak": float(p.intensity_max) + thr,
-                "cov": cov / m[0, 0, 0],
+                # plus the variance of a voxel's own extent (a uniform box, d² / 12): a blob
+                # one voxel wide (a particle image sharpened by many iterations) has a finite
+                # width, not a degenerate tensor
+                "cov": cov / m[0, 0, 0] + np.diag(spacing**2 / 12.0),
             }
         )
     return out
