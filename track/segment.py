@@ -38,7 +38,11 @@ Shape
     ``sqrt(μmax / μmin)``, with ``μ`` the eigenvalues of ``C₀^{-1/2} C C₀^{-1/2}``, is 1 for a
     particle of the median shape whatever its brightness (a brighter particle has a larger but
     similar ellipsoid at a fixed threshold), and large for streaks and merged pairs even though
-    every particle image is elongated along z. Blobs above ``max_rel_aspect`` are rejected.
+    every particle image is elongated along z. Blobs above the limit are rejected: the limit
+    is ``max_rel_aspect`` or, where the size-accepted blobs scatter more (sharp, noisy or
+    sub-voxel images, as many Richardson–Lucy iterations make them), the upper Tukey fence
+    ``exp(Q3 + 1.5 IQR)`` of their log aspects (at least 4 blobs), so that the test follows the
+    reconstruction and still finds the outliers (streaks, merged pairs).
 Clumps
     Blobs with two or more regional maxima of prominence ≥ ``clump_prominence`` × (peak −
     threshold) (h-maxima transform, Soille 2003, of the blob smoothed with a 0.5-voxel
@@ -271,7 +275,8 @@ def segment(
     auto_size_factors : tuple of 2 float
         Automatic limits as factors of the voxel-weighted median blob size.
     max_rel_aspect : float
-        Largest accepted relative aspect ratio (≥ 1) against the median blob.
+        Largest accepted relative aspect ratio (≥ 1) against the median blob, unless the
+        blobs' own scatter is wider (module docstring).
     clump_prominence : float
         Prominence, as a fraction of ``peak − threshold``, that makes a second maximum count;
         0 disables the clump test.
@@ -366,6 +371,20 @@ def segment(
         ref_cov = np.full((3, 3), np.nan)
         whiten = None
 
+    def rel_aspect(cov) -> float:
+        mu = np.linalg.eigvalsh(whiten @ cov @ whiten)
+        return float(np.sqrt(mu.max() / mu.min())) if mu.min() > 0 else float("inf")
+
+    # the aspect limit: max_rel_aspect, or the upper Tukey fence of the size-accepted blobs'
+    # log aspects where their own scatter is wider (sharp, noisy or sub-voxel images scatter
+    # more; streaks and merged pairs stay outliers)
+    aspect_limit = float(max_rel_aspect)
+    if len(sized) >= 4:
+        logs = np.log([rel_aspect(x[5]) for x in sized])
+        logs = logs[np.isfinite(logs)]
+        if logs.size >= 4:
+            q1, q3 = np.percentile(logs, [25, 75])
+            aspect_limit = max(aspect_limit, float(np.exp(q3 + 1.5 * (q3 - q1))))
     blobs = []
     n_shape = n_clump = 0
     for lab, nv, bbox, cen, peak, cov, edge in info:
@@ -387,15 +406,13 @@ def segment(
         if nv > bmax:
             blobs.append(Blob(**common, reason=f"too large ({nv} > blob_max_vox {bmax})"))
             continue
-        mu = np.linalg.eigvalsh(whiten @ cov @ whiten)
-        rel = float(np.sqrt(mu.max() / mu.min())) if mu.min() > 0 else float("inf")
-        if rel > max_rel_aspect:
+        rel = rel_aspect(cov)
+        if rel > aspect_limit:
             blobs.append(
                 Blob(
                     **common,
                     rel_aspect=rel,
-                    reason=f"elongated (relative aspect {rel:.2f} > max_rel_aspect "
-                    f"{max_rel_aspect})",
+                    reason=f"elongated (relative aspect {rel:.2f} > limit {aspect_limit:.2f})",
                 )
             )
             continue
