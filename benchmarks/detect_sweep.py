@@ -171,7 +171,8 @@ def score(truth_um, found_um, lateral_tol_um, axial_tol_um) -> tuple[int, int]:
 
 def run_case(m: Microscope, setting, seed: int, n_particles: int = 6, settings=None) -> dict:
     """One row of the table: ``n_true, n_detected, n_matched, spurious, rejected`` (by
-    reason), and the seconds spent."""
+    reason), and the seconds spent (``recon_s``: PSF bank, rendering and reconstruction;
+    ``detect_s``)."""
     from track.detect import detect_particles
 
     iterations, s, z_step, filt, snr = setting
@@ -210,13 +211,15 @@ def format_row(r: dict) -> str:
     return (
         f"{r['microscope']:>6s} {r['iterations']:>4d} {r['s']:>3d} {r['z_step_um']:>5.0f} "
         f"{'on' if r['filter'] else 'off':>6s} {r['snr']:>4.0f} | {r['n_true']:>4d} "
-        f"{r['n_detected']:>5d} {r['n_matched']:>5d} {r['spurious']:>5d} | {rej}"
+        f"{r['n_detected']:>5d} {r['n_matched']:>5d} {r['spurious']:>5d} | "
+        f"{r['recon_s']:>5.1f} {r['detect_s']:>5.1f} | {rej}"
     )
 
 
 HEADER = (
     f"{'optics':>6s} {'iter':>4s} {'s':>3s} {'dz':>5s} {'filter':>6s} {'SNR':>4s} | "
-    f"{'true':>4s} {'found':>5s} {'match':>5s} {'spur':>5s} | rejected (reason count)"
+    f"{'true':>4s} {'found':>5s} {'match':>5s} {'spur':>5s} | {'rec s':>5s} {'det s':>5s} | "
+    "rejected (reason count)"
 )
 
 
