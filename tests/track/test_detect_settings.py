@@ -15,6 +15,7 @@ one (``GRID``).
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,7 @@ SEED = 2
 def _module():
     spec = importlib.util.spec_from_file_location("detect_sweep", PATH)
     mod = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("detect_sweep", mod)  # its dataclass looks its module up
     spec.loader.exec_module(mod)
     return mod
 
