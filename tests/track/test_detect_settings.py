@@ -62,7 +62,6 @@ def _check(name: str, setting) -> None:
     assert set(r["rejected"]) >= {"edge", "too_small", "too_large", "elongated", "clump"}, row
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(MICROSCOPES))
 @pytest.mark.parametrize("setting", SWEEP.QUICK, ids=SWEEP.setting_id)
 def test_detection_across_settings(backend, name, setting):
