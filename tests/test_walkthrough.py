@@ -156,18 +156,24 @@ def test_camera_files_to_tracks(camera_export, tmp_path, capsys):
     truth0 = np.loadtxt(dataset / "truth" / "000000.csv", delimiter=",", skiprows=1)[:, 1:4]
     ids, counts = np.unique(tracks["track_id"], return_counts=True)
     full = ids[counts == 4]
-    # Detection finds 10 of the 18 particles on this small field (the detector's robustness
-    # across settings is an open issue); every track found must be right.
-    assert len(full) >= 8
+    # Detection finds all 18 particles in every frame (it found 10 before its scales followed
+    # the volume, issue 12 §2); every track found must be right. The particles it once
+    # rejected as elongated include ones whose long axial images (FWHM ≈ 100 µm) overlap a
+    # neighbour's (one 42 µm off laterally, 84 µm axially) steps 7.65 µm instead of 6 once;
+    # all others stay within 0.8 µm.
+    assert len(full) >= 16
     xyz = np.stack([tracks["x_um"], tracks["y_um"], tracks["z_um"]], axis=1)
+    within = 0
     for tid in full:
         sel = tracks["track_id"] == tid
         path = xyz[sel][np.argsort(tracks["frame"][sel])]
         step = np.diff(path, axis=0)
-        np.testing.assert_allclose(step[:, :2], np.tile(STEP_UM[:2], (3, 1)), atol=1.0)
+        np.testing.assert_allclose(step[:, :2], np.tile(STEP_UM[:2], (3, 1)), atol=2.0)
+        within += bool(np.all(np.abs(step[:, :2] - STEP_UM[:2]) <= 1.0))
         np.testing.assert_allclose(step[:, 2], STEP_UM[2], atol=12.0)  # σ_z ≈ 3.5 µm a frame
         # at the right lateral place: the measured magnification (the nominal one would put a
         # particle 100–200 µm from the axis 5–10 µm off)
         d = np.linalg.norm(truth0[:, :2] - path[0, :2], axis=1)
         assert d.min() < 2.0, (path[0], truth0[np.argmin(d)])
+    assert within >= len(full) - 1
     assert _hashes(exp) == before  # nothing the user gave changed

@@ -5,9 +5,15 @@ The pipeline of the paper's §3.2 (settings of Table 1):
 1. **secondary deconvolution** (:mod:`track.deconvolve`): ``deconvolution_iterations``
    Richardson–Lucy updates (paper: 5) with a particle PSF, given or estimated from this volume
    (:mod:`track.psf_estimate`; skipped with a note in the report when no isolated particle is
-   found);
-2. **segmentation** (:mod:`track.segment`): threshold, connected components, edge, size,
-   shape and clump filters;
+   found, or when the particles are narrower than :data:`PSF_MIN_FWHM_VOX` voxels along some
+   axis, as many reconstruction iterations make them);
+2. **segmentation** (:mod:`track.segment`) of a band-passed copy of the volume at the scale
+   of its particles (the FWHM measured on it, :func:`track.psf_estimate.particle_fwhm_vox`,
+   see ``smooth_fwhm``/``background_fwhm``): threshold, connected components, edge, size,
+   shape and clump filters, each blob's rejection counted by filter in ``report
+   ["rejections"]``. Every scale follows the volume (reconstruction iterations,
+   super-resolution, depth step, depth filter, noise, optics): nothing is tuned to one
+   reconstruction setting (``benchmarks/detect_sweep.py`` measures it over a grid of them);
 3. **sub-voxel localisation** (:mod:`track.localize`): 3-D radial symmetry (Liu et al. 2013)
    or weighted centroid in a box around every accepted blob's centroid, on the input volume
    (``localize_on="input"``, default) or the deconvolved one. Deconvolution serves the
@@ -31,15 +37,24 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from .deconvolve import deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
-from .psf_estimate import check_psf, estimate_psf
-from .segment import MIN_AUTO_VOX, segment
+from .psf_estimate import check_psf, estimate_psf, particle_fwhm_vox
+from .segment import FACE_VOX, MIN_AUTO_VOX, segment
 
 log = logging.getLogger(__name__)
 
+
+#: Smallest particle FWHM (voxels, every axis) for an automatic PSF: a narrower image is not
+#: resolved on the voxel grid (Nyquist: two samples per width).
+PSF_MIN_FWHM_VOX = 2.0
+#: Smallest smoothing σ (voxels) of the band-pass: a Gaussian of this σ has a FWHM of
+#: :data:`PSF_MIN_FWHM_VOX`, so that segmented particles are resolved along every axis
+#: (a narrower image's shape is sampling noise, which the shape test would read as shape).
+SMOOTH_MIN_VOX = PSF_MIN_FWHM_VOX / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 
 #: :class:`DetectSettings` fields passed on to :func:`track.segment.segment` as they are.
 SEGMENT_SETTINGS = (
@@ -79,7 +94,10 @@ class DetectSettings:
         Blob size limits in voxels (paper: 1000–5000 at 1.64 × 1.64 × 5 µm); None = automatic
         (``auto_size_factors`` × the voxel-weighted median blob size).
     auto_size_factors : tuple of 2 float
-        Factors of the automatic size limits.
+        Factors of the automatic size limits. The low one is small (0.1) because the size of
+        a blob at a fixed threshold follows its brightness (∝ ``ln(peak / threshold)^1.5``
+        for a Gaussian image: a particle at 1.3 × the threshold fills 0.08 × the volume of one
+        at 4 ×), while the band-pass (``smooth_fwhm``) already leaves no noise specks.
     max_rel_aspect : float
         Largest aspect ratio relative to the median blob's second-moment tensor (≥ 1).
     clump_prominence : float
@@ -94,6 +112,17 @@ class DetectSettings:
         median blob half-extent per axis, at least 2.
     localize_on : {"deconvolved", "input"}
         Volume the localisation runs on.
+    smooth_fwhm : float
+        Segmentation runs on a band-passed copy of the (deconvolved) volume: Gaussian
+        smoothing of σ = ``smooth_fwhm`` × the particles' FWHM measured along each axis on the
+        volume itself (:func:`track.psf_estimate.particle_fwhm_vox`), minus a local background
+        (below). The scale follows the reconstruction (iterations, s, z step, filter) and the
+        optics: it joins the fragments and axial ripples that many Richardson–Lucy iterations
+        break a particle image into, and averages noise. 0 = no smoothing.
+    background_fwhm : float
+        σ of the subtracted local background, in measured FWHM along each axis: removes the
+        out-of-focus cone that few iterations leave around every particle (it would join the
+        particles with each other and with the volume's faces). 0 = none.
     sigma_noise_factor : float
         Factor (> 0) on the voxel-noise σ of :func:`track.localize.localize`, which assumes
         independent voxel noise: a reconstruction's noise is correlated over several voxels,
@@ -116,7 +145,7 @@ class DetectSettings:
     auto_k_sigma: float = 5.0
     blob_min_vox: int | None = None
     blob_max_vox: int | None = None
-    auto_size_factors: tuple[float, float] = (0.3, 3.0)
+    auto_size_factors: tuple[float, float] = (0.1, 3.0)
     max_rel_aspect: float = 1.8
     clump_prominence: float = 0.2
     edge_margin_um: float = 0.0
@@ -125,6 +154,8 @@ class DetectSettings:
     localize_on: str = "input"
     sigma_noise_factor: float = 1.0
     sigma_systematic_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    smooth_fwhm: float = 0.25
+    background_fwhm: float = 1.5
 
     def __post_init__(self) -> None:
         it = self.deconvolution_iterations
@@ -141,7 +172,14 @@ class DetectSettings:
                 raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}")
         elif isinstance(thr, bool) or not isinstance(thr, int | float) or not 0 < thr < 1:
             raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}")
-        for name in ("auto_k_sigma", "max_rel_aspect", "clump_prominence", "edge_margin_um"):
+        for name in (
+            "auto_k_sigma",
+            "max_rel_aspect",
+            "clump_prominence",
+            "edge_margin_um",
+            "smooth_fwhm",
+            "background_fwhm",
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise InputError(f"{name} must be a finite number, got {v!r}")
@@ -153,6 +191,16 @@ class DetectSettings:
             raise InputError(f"clump_prominence must lie in [0, 1), got {self.clump_prominence!r}")
         if self.edge_margin_um < 0:
             raise InputError(f"edge_margin_um must be >= 0, got {self.edge_margin_um!r}")
+        if self.smooth_fwhm < 0 or self.background_fwhm < 0:
+            raise InputError(
+                f"smooth_fwhm and background_fwhm must be >= 0, got {self.smooth_fwhm!r} and "
+                f"{self.background_fwhm!r}"
+            )
+        if 0 < self.background_fwhm <= self.smooth_fwhm:
+            raise InputError(
+                f"background_fwhm ({self.background_fwhm!r}) must exceed smooth_fwhm "
+                f"({self.smooth_fwhm!r}) (or be 0)"
+            )
         for name in ("blob_min_vox", "blob_max_vox"):
             v = getattr(self, name)
             if v is not None and (
@@ -219,8 +267,11 @@ class Detection:
     sizes_vox : ndarray, shape (N,), int64
         Blob voxel counts.
     report : dict
-        Counts after each stage, threshold, size limits, PSF/deconvolution notes, localisation
-        fallbacks, timings, ``empty`` and the rejected blobs with their reasons
+        Counts after each stage, threshold, size limits, PSF/deconvolution notes, the particle
+        FWHM of the band-pass (``particle_fwhm_vox``), localisation fallbacks, timings,
+        ``empty``, ``rejections`` (rejected blobs counted by filter: ``edge``, ``too_small``,
+        ``specks``, ``too_large``, ``elongated``, ``clump``, ``localization``) and the
+        rejected blobs with their reasons
         (JSON-serialisable; blobs under ``segment.MIN_AUTO_VOX`` voxels, noise specks, are only
         counted, in ``rejected_specks``).
     voxel_size_um : tuple of 3 float
@@ -260,6 +311,49 @@ def voxel_to_um(
     dz, dy, dx = check_voxel_size_um(voxel_size_um)
     x0, y0, z0 = check_triple(origin_xyz_um, "origin_xyz_um", positive=False)
     return np.stack([x0 + p[:, 2] * dx, y0 + p[:, 1] * dy, z0 + p[:, 0] * dz], axis=1)
+
+
+def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.ndarray:
+    """The volume segmentation runs on: smoothed and background-subtracted at the scale of
+    the particles measured on ``work`` (see :class:`DetectSettings`); notes in ``report``."""
+    if settings.smooth_fwhm == 0 and settings.background_fwhm == 0:
+        report["particle_fwhm_vox"] = None
+        return work
+    fwhm = particle_fwhm_vox(work)
+    if fwhm is None:
+        log.warning("detect_particles: no particle maximum to measure; no band-pass")
+        report["particle_fwhm_vox"] = None
+        return work
+    report["particle_fwhm_vox"] = [float(v) for v in fwhm]
+    img = work.astype(np.float32)
+    sigma = settings.smooth_fwhm * fwhm
+    if settings.smooth_fwhm > 0:
+        sigma = np.maximum(sigma, SMOOTH_MIN_VOX)
+    out = ndimage.gaussian_filter(img, sigma, mode="nearest").copy()
+    if settings.background_fwhm > 0:
+        out = out - ndimage.gaussian_filter(img, settings.background_fwhm * fwhm, mode="nearest")
+        # below the local background is background: the threshold fraction is of [0, max]
+        out = np.clip(out, 0.0, None)
+    # reconstructions pile light from outside the field onto their outer voxels
+    # (segment.FACE_VOX); smoothing spreads it 2 σ further in: that band is background, so
+    # that it neither sets the threshold nor forms blobs
+    band = [FACE_VOX + math.ceil(2.0 * s) for s in sigma]
+    for axis, (b, n) in enumerate(zip(band, out.shape, strict=True)):
+        if n > 4 * b:
+            sl = [slice(None)] * 3
+            sl[axis] = slice(0, b)
+            out[tuple(sl)] = 0.0
+            sl[axis] = slice(n - b, n)
+            out[tuple(sl)] = 0.0
+    report["face_band_vox"] = [
+        int(b) if n > 4 * b else 0 for b, n in zip(band, out.shape, strict=True)
+    ]
+    log.info(
+        "detect_particles: band-pass at %s × particle FWHM %s voxels",
+        (settings.smooth_fwhm, settings.background_fwhm),
+        [f"{v:.1f}" for v in fwhm],
+    )
+    return out
 
 
 def detect_particles(
@@ -313,7 +407,16 @@ def detect_particles(
     work = vol.astype(np.float32)
     if settings.deconvolution_iterations > 0:
         t = time.perf_counter()
-        if psf is None:
+        fwhm_in = particle_fwhm_vox(vol) if psf is None else None
+        if fwhm_in is not None and fwhm_in.min() < PSF_MIN_FWHM_VOX:
+            # an image this sharp (many RL iterations) is not resolved on the voxel grid: a
+            # PSF made of it is sampling noise, and deconvolving with it only sharpens noise
+            report["psf"] = (
+                f"not estimated: the particles are {[float(v) for v in fwhm_in]} voxels wide "
+                f"(FWHM), under {PSF_MIN_FWHM_VOX} along some axis (unresolved)"
+            )
+            log.info("detect_particles: no deconvolution: %s", report["psf"])
+        elif psf is None:
             try:
                 psf = estimate_psf(
                     vol,
@@ -338,9 +441,12 @@ def detect_particles(
         report["deconvolution_iterations"] = 0
 
     t = time.perf_counter()
+    seg_vol = _bandpass(work, settings, report)
+    timings["bandpass_s"] = time.perf_counter() - t
+    t = time.perf_counter()
     margin_vox = tuple(math.ceil(settings.edge_margin_um / d) for d in spacing)
     seg = segment(
-        work,
+        seg_vol,
         spacing,
         edge_margin_vox=margin_vox,
         **{name: getattr(settings, name) for name in SEGMENT_SETTINGS},
@@ -356,6 +462,7 @@ def detect_particles(
             # noise specks (fewer voxels than the automatic-size floor) are only counted
             "rejected": [b.as_dict() for b in seg.rejected if b.n_vox >= MIN_AUTO_VOX],
             "rejected_specks": sum(1 for b in seg.rejected if b.n_vox < MIN_AUTO_VOX),
+            "rejections": seg.rejections,
         }
     )
 
@@ -396,6 +503,12 @@ def detect_particles(
     timings["localize_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - t0
     report["counts"]["localized"] = int(pos_vox.shape[0])
+    report["rejections"]["localization"] = report["localization_failures"]
+    log.info(
+        "detect_particles: %d accepted; rejected: %s",
+        pos_vox.shape[0],
+        ", ".join(f"{k} {v}" for k, v in report["rejections"].items()),
+    )
     report["method"] = settings.method
     report["empty"] = bool(pos_vox.shape[0] == 0)
     report["timings"] = timings

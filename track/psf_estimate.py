@@ -58,6 +58,7 @@ PAPER_BOX_UM = (200.0, 60.0, 60.0)
 #: FWHM holds > 99 % of a Gaussian profile).
 BOX_FWHM = 3.0
 _SMOOTH_VOX = 0.7  # Gaussian smoothing (voxels) before the search for maxima
+_FACE_VOX = 2  # outer voxels whose maxima are not particles (track.segment.FACE_VOX)
 
 
 def box_shape_vox(box_um: Sequence[float], voxel_size_um: Sequence[float]) -> tuple[int, ...]:
@@ -145,49 +146,79 @@ def _separate(smooth: np.ndarray, p: np.ndarray, q: np.ndarray, h: float) -> boo
     return bool(smooth[tuple(q)] - profile.min() >= h)
 
 
+def particle_fwhm_vox(volume: np.ndarray, n_peaks: int = 20) -> np.ndarray | None:
+    """Median full width at half maximum ``(z, y, x)`` (voxels) of the particles of a volume.
+
+    The ``n_peaks`` brightest local maxima of the volume smoothed with a 0.7-voxel Gaussian,
+    away from its two outer voxels on every face (boundary artefacts), that stand at least 5
+    robust noise levels and a quarter of the brightest of them above the median are measured
+    along each axis, from the peak outwards to where the intensity falls below half its
+    height above the background (the volume's median). The widths are measured on
+    the volume itself, so they follow the microscope, the voxel size and the reconstruction
+    settings (iterations, filter): nothing about the optics is assumed.
+
+    Parameters
+    ----------
+    volume : ndarray, shape (nz, ny, nx)
+    n_peaks : int
+        Maxima measured (the brightest).
+
+    Returns
+    -------
+    ndarray, shape (3,), float64, or None
+        The median widths (≥ 1 voxel); None when the volume has no clear maximum.
+    """
+    vol = check_volume(volume)
+    bg = float(np.median(vol))
+    sm = ndimage.gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX)
+    peaks = np.argwhere((sm == ndimage.maximum_filter(sm, size=3)) & (sm > bg))
+    # reconstructions pile light from outside the field onto their outer voxels: maxima there
+    # are artefacts (and cut), and must not set the reference height of the particles
+    shape = np.asarray(vol.shape)
+    face = np.where(shape > 4 * _FACE_VOX, _FACE_VOX, 0)
+    peaks = peaks[np.all((peaks >= face) & (peaks < shape - face), axis=1)]
+    if not peaks.size:
+        return None
+    heights = sm[tuple(peaks.T)] - bg
+    noise = 1.4826 * float(np.median(np.abs(sm - np.median(sm))))
+    real = heights >= max(5.0 * noise, 0.25 * float(heights.max()))  # particles, not noise
+    peaks, heights = peaks[real], heights[real]
+    order = np.argsort(heights)[::-1][:n_peaks]
+    widths = []
+    for p, h in zip(peaks[order], heights[order], strict=True):
+        level = bg + 0.5 * h
+        w = []
+        for axis in range(3):
+            line = np.moveaxis(sm, axis, 0)[(slice(None), *np.delete(p, axis))]
+            i = p[axis]
+            lo, hi = i, i
+            while lo > 0 and line[lo - 1] > level:
+                lo -= 1
+            while hi < line.size - 1 and line[hi + 1] > level:
+                hi += 1
+            w.append(hi - lo + 1)
+        widths.append(w)
+    if not widths:
+        return None
+    return np.median(np.asarray(widths, dtype=float), axis=0)
+
+
 def auto_box_um(
     volume: np.ndarray, voxel_size_um: Sequence[float], n_peaks: int = 20
 ) -> tuple[float, float, float]:
     """PSF box ``(z, y, x)`` in µm from the particles of ``volume``: :data:`BOX_FWHM` × the
     median full width at half maximum of its ``n_peaks`` brightest maxima along each axis
-    (maxima at least 5 robust noise levels and a quarter of the brightest above the median).
+    (:func:`particle_fwhm_vox`).
 
-    Each width is measured from the peak outwards to where the intensity falls below half its
-    height above the background (the volume's median). The box is at least 5 voxels and at
-    most half the volume along each axis (so that isolated particles fit whole inside it); a
-    volume without a clear maximum gets half its extent.
+    The box is at least 5 voxels and at most half the volume along each axis (so that
+    isolated particles fit whole inside it); a volume without a clear maximum gets half its
+    extent.
     """
     vol = check_volume(volume)
     spacing = np.asarray(check_voxel_size_um(voxel_size_um), dtype=float)
     shape = np.asarray(vol.shape)
-    bg = float(np.median(vol))
-    sm = ndimage.gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX)
-    peaks = np.argwhere((sm == ndimage.maximum_filter(sm, size=3)) & (sm > bg))
-    widths = []
-    if peaks.size:
-        heights = sm[tuple(peaks.T)] - bg
-        noise = 1.4826 * float(np.median(np.abs(sm - np.median(sm))))
-        real = heights >= max(5.0 * noise, 0.25 * float(heights.max()))  # particles, not noise
-        peaks, heights = peaks[real], heights[real]
-        order = np.argsort(heights)[::-1][:n_peaks]
-        for p, h in zip(peaks[order], heights[order], strict=True):
-            level = bg + 0.5 * h
-            w = []
-            for axis in range(3):
-                line = np.moveaxis(sm, axis, 0)[(slice(None), *np.delete(p, axis))]
-                i = p[axis]
-                lo, hi = i, i
-                while lo > 0 and line[lo - 1] > level:
-                    lo -= 1
-                while hi < line.size - 1 and line[hi + 1] > level:
-                    hi += 1
-                w.append(hi - lo + 1)
-            widths.append(w)
-    if widths:
-        fwhm_vox = np.median(np.asarray(widths, dtype=float), axis=0)
-        box_vox = BOX_FWHM * fwhm_vox
-    else:
-        box_vox = shape / 2.0
+    fwhm_vox = particle_fwhm_vox(vol, n_peaks)
+    box_vox = shape / 2.0 if fwhm_vox is None else BOX_FWHM * fwhm_vox
     # at most half the volume, so that isolated particles fit whole inside it
     box_vox = np.clip(box_vox, 5.0, np.maximum(shape / 2.0, 5.0))
     return tuple(float(v) for v in box_vox * spacing)

@@ -19,8 +19,13 @@ Components
     :func:`scipy.ndimage.label` with face connectivity (6 neighbours), which merges fewer
     touching particles than 26-connectivity.
 Edges
-    Blobs whose bounding box comes within ``edge_margin_vox`` voxels of a face (touching it
-    when the margin is 0) are rejected: their centroid is biased.
+    Blobs whose maximum lies within ``edge_margin_vox`` voxels of a face (on it when the
+    margin is 0), or whose core (the voxels above half the blob's height over the threshold)
+    comes that close to one face of an axis, are rejected: their centre is cut off or biased
+    (and reconstructions pile light from outside the field onto their faces). Along an axis
+    where the core is longer than half the volume, as the axial images of few
+    Richardson–Lucy iterations can be (their length depends on the iterations, not on the
+    particle), only the maximum is tested: the blob is kept when its maximum is inside.
 Size
     ``blob_min_vox``/``blob_max_vox`` when given; otherwise ``auto_size_factors`` × the
     *voxel-weighted* median blob size (the size of the blob holding the median segmented
@@ -33,7 +38,11 @@ Shape
     ``sqrt(μmax / μmin)``, with ``μ`` the eigenvalues of ``C₀^{-1/2} C C₀^{-1/2}``, is 1 for a
     particle of the median shape whatever its brightness (a brighter particle has a larger but
     similar ellipsoid at a fixed threshold), and large for streaks and merged pairs even though
-    every particle image is elongated along z. Blobs above ``max_rel_aspect`` are rejected.
+    every particle image is elongated along z. Blobs above the limit are rejected: the limit
+    is ``max_rel_aspect`` or, where the size-accepted blobs scatter more (sharp, noisy or
+    sub-voxel images, as many Richardson–Lucy iterations make them), the upper Tukey fence
+    ``exp(Q3 + 1.5 IQR)`` of their log aspects (at least 4 blobs), so that the test follows the
+    reconstruction and still finds the outliers (streaks, merged pairs).
 Clumps
     Blobs with two or more regional maxima of prominence ≥ ``clump_prominence`` × (peak −
     threshold) (h-maxima transform, Soille 2003, of the blob smoothed with a 0.5-voxel
@@ -151,6 +160,30 @@ class Segmentation:
         """Blobs rejected by some filter (with :attr:`Blob.reason`)."""
         return tuple(b for b in self.blobs if not b.accepted)
 
+    @property
+    def rejections(self) -> dict[str, int]:
+        """Rejected blobs counted by filter: ``edge``, ``too_small`` (noise specks under
+        :data:`MIN_AUTO_VOX` voxels apart, in ``specks``), ``too_large``, ``elongated``,
+        ``clump``."""
+        out = dict.fromkeys(REJECTION_KINDS, 0)
+        for b in self.rejected:
+            kind = next(k for k, prefix in _REASON_PREFIX.items() if b.reason.startswith(prefix))
+            if kind == "too_small" and b.n_vox < MIN_AUTO_VOX:
+                kind = "specks"
+            out[kind] += 1
+        return out
+
+
+#: Keys of :attr:`Segmentation.rejections`.
+REJECTION_KINDS = ("edge", "too_small", "specks", "too_large", "elongated", "clump")
+_REASON_PREFIX = {
+    "edge": "touches",
+    "too_small": "too small",
+    "too_large": "too large",
+    "elongated": "elongated",
+    "clump": "clump",
+}
+
 
 #: Voxels of each face left out of the intensity range: light-field reconstructions pile
 #: light from outside the field onto their outermost voxels (boundary artefacts), which must
@@ -242,7 +275,8 @@ def segment(
     auto_size_factors : tuple of 2 float
         Automatic limits as factors of the voxel-weighted median blob size.
     max_rel_aspect : float
-        Largest accepted relative aspect ratio (≥ 1) against the median blob.
+        Largest accepted relative aspect ratio (≥ 1) against the median blob, unless the
+        blobs' own scatter is wider (module docstring).
     clump_prominence : float
         Prominence, as a fraction of ``peak − threshold``, that makes a second maximum count;
         0 disables the clump test.
@@ -296,10 +330,18 @@ def segment(
     edge_lo = np.maximum(np.asarray(margin), 1)
     shape = np.asarray(vol.shape)
     for rec, sl in zip(info, slices, strict=True):
-        lo = np.array([s.start for s in sl])
-        hi = np.array([s.stop for s in sl])
         rec["bbox"] = (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop, sl[2].start, sl[2].stop)
-        rec["edge"] = bool(np.any(lo < edge_lo) or np.any(hi > shape - edge_lo))
+        # the blob's maximum must keep off the faces, and its core (above half its height over
+        # the threshold) must not be cut by a face; a core longer than half the volume along
+        # an axis (the axial image after few iterations) is judged by its maximum alone there
+        own = labels[sl] == rec["label"]
+        top = np.array(np.unravel_index(np.argmax(np.where(own, vol[sl], -np.inf)), own.shape))
+        top += [s.start for s in sl]
+        idx = np.nonzero(own & (vol[sl] >= 0.5 * (thr + rec["peak"])))
+        lo = np.array([s.start + int(i.min()) for s, i in zip(sl, idx, strict=True)])
+        hi = np.array([s.start + int(i.max()) + 1 for s, i in zip(sl, idx, strict=True)])
+        cut = ((lo < edge_lo) | (hi > shape - edge_lo)) & (hi - lo < 0.5 * shape)
+        rec["edge"] = bool(np.any(top < edge_lo) or np.any(top >= shape - edge_lo) or cut.any())
     info = [
         (r["label"], r["n_vox"], r["bbox"], r["cen"], r["peak"], r["cov"], r["edge"]) for r in info
     ]
@@ -329,6 +371,20 @@ def segment(
         ref_cov = np.full((3, 3), np.nan)
         whiten = None
 
+    def rel_aspect(cov) -> float:
+        mu = np.linalg.eigvalsh(whiten @ cov @ whiten)
+        return float(np.sqrt(mu.max() / mu.min())) if mu.min() > 0 else float("inf")
+
+    # the aspect limit: max_rel_aspect, or the upper Tukey fence of the size-accepted blobs'
+    # log aspects where their own scatter is wider (sharp, noisy or sub-voxel images scatter
+    # more; streaks and merged pairs stay outliers)
+    aspect_limit = float(max_rel_aspect)
+    if len(sized) >= 4:
+        logs = np.log([rel_aspect(x[5]) for x in sized])
+        logs = logs[np.isfinite(logs)]
+        if logs.size >= 4:
+            q1, q3 = np.percentile(logs, [25, 75])
+            aspect_limit = max(aspect_limit, float(np.exp(q3 + 1.5 * (q3 - q1))))
     blobs = []
     n_shape = n_clump = 0
     for lab, nv, bbox, cen, peak, cov, edge in info:
@@ -340,7 +396,9 @@ def segment(
             "peak": peak,
         }
         if edge:
-            blobs.append(Blob(**common, reason="touches the volume edge (within edge margin)"))
+            blobs.append(
+                Blob(**common, reason="touches the volume edge (maximum within edge margin)")
+            )
             continue
         if nv < bmin:
             blobs.append(Blob(**common, reason=f"too small ({nv} < blob_min_vox {bmin})"))
@@ -348,15 +406,13 @@ def segment(
         if nv > bmax:
             blobs.append(Blob(**common, reason=f"too large ({nv} > blob_max_vox {bmax})"))
             continue
-        mu = np.linalg.eigvalsh(whiten @ cov @ whiten)
-        rel = float(np.sqrt(mu.max() / mu.min())) if mu.min() > 0 else float("inf")
-        if rel > max_rel_aspect:
+        rel = rel_aspect(cov)
+        if rel > aspect_limit:
             blobs.append(
                 Blob(
                     **common,
                     rel_aspect=rel,
-                    reason=f"elongated (relative aspect {rel:.2f} > max_rel_aspect "
-                    f"{max_rel_aspect})",
+                    reason=f"elongated (relative aspect {rel:.2f} > limit {aspect_limit:.2f})",
                 )
             )
             continue
@@ -394,7 +450,8 @@ def _blob_stats(vol, labels, n, thr, spacing) -> list[dict]:
 
     :func:`skimage.measure.regionprops` with ``spacing`` (voxel sizes ``(dz, dy, dx)`` µm):
     the weighted central moments ``μ_pqr`` give the covariance ``C_ij = μ_(e_i+e_j) / μ_000``
-    in µm²; the weighted centroid is returned in voxels.
+    in µm², to which each voxel's own extent adds ``d_i² / 12`` on the diagonal; the weighted
+    centroid is returned in voxels.
     """
     from skimage.measure import regionprops
 
@@ -412,7 +469,10 @@ def _blob_stats(vol, labels, n, thr, spacing) -> list[dict]:
                 "n_vox": int(p.num_pixels),
                 "cen": np.asarray(p.centroid_weighted, dtype=np.float64) / spacing,
                 "peak": float(p.intensity_max) + thr,
-                "cov": cov / m[0, 0, 0],
+                # plus the variance of a voxel's own extent (a uniform box, d² / 12): a blob
+                # one voxel wide (a particle image sharpened by many iterations) has a finite
+                # width, not a degenerate tensor
+                "cov": cov / m[0, 0, 0] + np.diag(spacing**2 / 12.0),
             }
         )
     return out

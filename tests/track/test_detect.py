@@ -10,7 +10,13 @@ from scipy.spatial import cKDTree
 from track.deconvolve import deconvolve
 from track.detect import DetectSettings, detect_particles
 from track.errors import InputError, TrackingError
-from track.psf_estimate import box_shape_vox, estimate_psf, find_isolated_peaks, load_psf
+from track.psf_estimate import (
+    box_shape_vox,
+    estimate_psf,
+    find_isolated_peaks,
+    load_psf,
+    particle_fwhm_vox,
+)
 
 from .conftest import random_centres, render_blobs
 
@@ -252,8 +258,79 @@ def test_detect_rejects_bad_input(volume, voxel, kwargs, name):
         ({"psf_box_um": (10.0, -1.0, 1.0)}, "psf_box_um"),
         ({"sigma_noise_factor": 0.0}, "sigma_noise_factor"),
         ({"sigma_systematic_um": (1.0, -0.1, 0.0)}, "sigma_systematic_um"),
+        ({"smooth_fwhm": -0.1}, "smooth_fwhm"),
+        ({"smooth_fwhm": 0.5, "background_fwhm": 0.4}, "background_fwhm"),
     ],
 )
 def test_detect_settings_validation(kwargs, name):
     with pytest.raises(InputError, match=name):
         DetectSettings(**kwargs)
+
+
+# -- independence of the reconstruction settings (issue 12 §2) -------------------------------
+def _rippled_scene(rng, sigma, ripple, pedestal, snr=30.0, shape=(60, 64, 64)):
+    """Particles as reconstructions with few or many iterations make them: Gaussians of
+    ``sigma`` voxels, their axial profile modulated by ``1 + ripple · cos(2π z / 3 voxels)``
+    (the depth ripple that many Richardson–Lucy iterations sharpen into separate maxima),
+    on an axial pedestal of relative height ``pedestal`` that spans the whole depth (the
+    out-of-focus cone of few iterations), plus Gaussian noise."""
+    truth = random_centres(rng, shape, 6, (100.0, 12.0, 12.0), (shape[0] // 2 - 4, 8, 8))
+    vol = render_blobs(shape, truth, sigma)
+    z = np.arange(shape[0])[:, None, None]
+    vol *= 1.0 + ripple * np.cos(2.0 * np.pi * (z - truth[0, 0]) / 3.0)
+    if pedestal:
+        vol += pedestal * render_blobs(shape, truth, (1000.0, sigma[1], sigma[2]))
+    return vol + rng.normal(0.0, vol.max() / snr, shape), truth
+
+
+@pytest.mark.parametrize(
+    ("sigma", "ripple", "pedestal"),
+    [
+        ((3.0, 1.2, 1.2), 0.0, 0.0),  # a paper-like reconstruction (3 iterations)
+        ((6.0, 0.6, 0.6), 0.6, 0.0),  # many iterations: sharp, rippled along z
+        ((12.0, 2.0, 2.0), 0.0, 0.7),  # one iteration: long and on a pedestal to both faces
+    ],
+)
+def test_detection_follows_the_particle_scale(rng, sigma, ripple, pedestal):
+    vol, truth = _rippled_scene(rng, sigma, ripple, pedestal)
+    det = detect_particles(vol, VOXEL)
+    dist, idx = _match(det.positions_vox, truth)
+    assert det.n == len(truth) and len(set(idx)) == det.n, det.report["rejections"]
+    assert np.all(dist < 2.0 * max(sigma))
+    # the band-pass scale is the particles' own (measured on the volume segmented: without
+    # the secondary deconvolution, the input)
+    plain = detect_particles(vol, VOXEL, DetectSettings(deconvolution_iterations=0))
+    assert plain.n == len(truth), plain.report["rejections"]
+    fwhm = np.asarray(plain.report["particle_fwhm_vox"])
+    assert fwhm[1] == pytest.approx(2.355 * sigma[1], abs=1.5)
+    r = det.report
+    # every rejected blob is counted under its filter
+    assert set(r["rejections"]) == {
+        "edge",
+        "too_small",
+        "specks",
+        "too_large",
+        "elongated",
+        "clump",
+        "localization",
+    }
+    assert r["rejections"]["specks"] == r["rejected_specks"]
+    listed = sum(v for k, v in r["rejections"].items() if k not in ("specks", "localization"))
+    assert listed == len(r["rejected"])
+
+
+def test_particle_fwhm_measures_the_blobs_not_the_faces(rng):
+    shape = (40, 40, 40)
+    truth = random_centres(rng, shape, 5, (1.0, 10.0, 10.0), (10, 8, 8))
+    vol = render_blobs(shape, truth, (2.0, 1.5, 1.0))
+    vol[:, :, 0] += 5.0  # a bright boundary artefact
+    np.testing.assert_allclose(particle_fwhm_vox(vol), [5.0, 3.0, 3.0], atol=1.01)
+    assert particle_fwhm_vox(np.zeros(shape)) is None
+
+
+def test_unresolved_particles_get_no_automatic_psf(rng):
+    vol, truth = _rippled_scene(rng, (2.0, 0.4, 0.4), 0.0, 0.0, snr=100.0)
+    det = detect_particles(vol, VOXEL)
+    assert "not estimated" in det.report["psf"] and det.report["deconvolution_iterations"] == 0
+    dist, _ = _match(det.positions_vox, truth)
+    assert det.n == len(truth) and np.all(dist < 1.5)
