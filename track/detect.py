@@ -30,6 +30,7 @@ centre at ``origin_xyz_um + (i dx, j dy, k dz)``.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -43,7 +44,7 @@ from .deconvolve import deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
 from .psf_estimate import check_psf, estimate_psf, particle_fwhm_vox
-from .segment import FACE_VOX, MIN_AUTO_VOX, segment
+from .segment import FACE_VOX, MIN_AUTO_VOX, interior, segment
 
 log = logging.getLogger(__name__)
 
@@ -123,6 +124,12 @@ class DetectSettings:
         σ of the subtracted local background, in measured FWHM along each axis: removes the
         out-of-focus cone that few iterations leave around every particle (it would join the
         particles with each other and with the volume's faces). 0 = none.
+    min_peak_snr : float
+        A blob is a particle only if its peak in the segmented (band-passed) volume stands
+        ``min_peak_snr`` noise σ above the background, σ the robust spread (1.4826 × the
+        median absolute deviation) of that volume before its negative part is cut: a
+        threshold set as a fraction of the range (``threshold``) finds blobs in any volume,
+        even one of pure noise. Rejections are counted as ``"insignificant"``. 0 = off.
     sigma_noise_factor : float
         Factor (> 0) on the voxel-noise σ of :func:`track.localize.localize`, which assumes
         independent voxel noise: a reconstruction's noise is correlated over several voxels,
@@ -156,6 +163,7 @@ class DetectSettings:
     sigma_systematic_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
     smooth_fwhm: float = 0.25
     background_fwhm: float = 1.5
+    min_peak_snr: float = 5.0
 
     def __post_init__(self) -> None:
         it = self.deconvolution_iterations
@@ -179,6 +187,7 @@ class DetectSettings:
             "edge_margin_um",
             "smooth_fwhm",
             "background_fwhm",
+            "min_peak_snr",
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
@@ -191,6 +200,8 @@ class DetectSettings:
             raise InputError(f"clump_prominence must lie in [0, 1), got {self.clump_prominence!r}")
         if self.edge_margin_um < 0:
             raise InputError(f"edge_margin_um must be >= 0, got {self.edge_margin_um!r}")
+        if self.min_peak_snr < 0:
+            raise InputError(f"min_peak_snr must be >= 0, got {self.min_peak_snr!r}")
         if self.smooth_fwhm < 0 or self.background_fwhm < 0:
             raise InputError(
                 f"smooth_fwhm and background_fwhm must be >= 0, got {self.smooth_fwhm!r} and "
@@ -313,16 +324,26 @@ def voxel_to_um(
     return np.stack([x0 + p[:, 2] * dx, y0 + p[:, 1] * dy, z0 + p[:, 0] * dz], axis=1)
 
 
+def _robust_sigma(vol: np.ndarray) -> float:
+    """Noise σ of a sparse volume: 1.4826 × the median absolute deviation of its interior
+    (:func:`track.segment.interior`; particles fill too few voxels to move it)."""
+    core = interior(vol).astype(np.float64, copy=False)
+    med = float(np.median(core))
+    return 1.4826 * float(np.median(np.abs(core - med)))
+
+
 def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.ndarray:
     """The volume segmentation runs on: smoothed and background-subtracted at the scale of
     the particles measured on ``work`` (see :class:`DetectSettings`); notes in ``report``."""
     if settings.smooth_fwhm == 0 and settings.background_fwhm == 0:
         report["particle_fwhm_vox"] = None
+        report["noise_sigma_segmented"] = _robust_sigma(work)
         return work
     fwhm = particle_fwhm_vox(work)
     if fwhm is None:
         log.warning("detect_particles: no particle maximum to measure; no band-pass")
         report["particle_fwhm_vox"] = None
+        report["noise_sigma_segmented"] = _robust_sigma(work)
         return work
     report["particle_fwhm_vox"] = [float(v) for v in fwhm]
     img = work.astype(np.float32)
@@ -332,6 +353,8 @@ def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.nd
     out = ndimage.gaussian_filter(img, sigma, mode="nearest").copy()
     if settings.background_fwhm > 0:
         out = out - ndimage.gaussian_filter(img, settings.background_fwhm * fwhm, mode="nearest")
+    report["noise_sigma_segmented"] = _robust_sigma(out)
+    if settings.background_fwhm > 0:
         # below the local background is background: the threshold fraction is of [0, max]
         out = np.clip(out, 0.0, None)
     # reconstructions pile light from outside the field onto their outer voxels
@@ -453,6 +476,22 @@ def detect_particles(
     )
     timings["segment_s"] = time.perf_counter() - t
     accepted = seg.accepted
+    noise = report.get("noise_sigma_segmented")
+    floor = settings.min_peak_snr * noise if noise is not None else 0.0
+    # a pure-noise volume has a median of its own: significance is above it
+    base = float(np.median(interior(seg_vol)))
+    significant = [b for b in accepted if b.peak - base >= floor]
+    insignificant = [
+        dataclasses.replace(
+            b,
+            reason=f"insignificant (peak {(b.peak - base) / noise:.2g} σ above the background "
+            f"< min_peak_snr {settings.min_peak_snr:g})",
+        )
+        for b in accepted
+        if b.peak - base < floor
+    ]
+    n_insignificant = len(insignificant)
+    accepted = significant
     report.update(
         {
             "threshold": seg.threshold,
@@ -460,9 +499,12 @@ def detect_particles(
             "size_bounds_vox": list(seg.size_bounds_vox),
             "counts": dict(seg.counts),
             # noise specks (fewer voxels than the automatic-size floor) are only counted
-            "rejected": [b.as_dict() for b in seg.rejected if b.n_vox >= MIN_AUTO_VOX],
+            "rejected": [
+                b.as_dict() for b in [*seg.rejected, *insignificant] if b.n_vox >= MIN_AUTO_VOX
+            ],
             "rejected_specks": sum(1 for b in seg.rejected if b.n_vox < MIN_AUTO_VOX),
-            "rejections": seg.rejections,
+            "rejections": {**seg.rejections, "insignificant": n_insignificant},
+            "min_peak": base + floor,
         }
     )
 

@@ -312,6 +312,7 @@ def test_detection_follows_the_particle_scale(rng, sigma, ripple, pedestal):
         "too_large",
         "elongated",
         "clump",
+        "insignificant",
         "localization",
     }
     assert r["rejections"]["specks"] == r["rejected_specks"]
@@ -334,3 +335,19 @@ def test_unresolved_particles_get_no_automatic_psf(rng):
     assert "not estimated" in det.report["psf"] and det.report["deconvolution_iterations"] == 0
     dist, _ = _match(det.positions_vox, truth)
     assert det.n == len(truth) and np.all(dist < 1.5)
+
+
+@pytest.mark.parametrize("deconvolution_iterations", [0, 5])
+def test_a_volume_of_pure_noise_has_no_particle(rng, deconvolution_iterations):
+    """A threshold set as a fraction of the range finds blobs in any volume: the blobs of
+    pure noise (81 of them here before the significance test) are rejected as insignificant."""
+    psf = render_blobs((17, 9, 9), np.array([[8.0, 4.0, 4.0]]), (2.5, 1.2, 1.2))
+    vol = 1.0 + rng.normal(0.0, 0.5, (30, 64, 64))
+    settings = DetectSettings(deconvolution_iterations=deconvolution_iterations)
+    det = detect_particles(vol, VOXEL, settings, psf / psf.sum())
+    assert det.n == 0
+    if deconvolution_iterations:  # deconvolved noise forms particle-sized blobs
+        assert det.report["rejections"]["insignificant"] > 10
+    # while every particle of a real scene stands far above it (one iteration's worth)
+    scene, truth = _rippled_scene(rng, (3.0, 1.2, 1.2), 0.0, 0.0, snr=10.0)
+    assert detect_particles(scene, VOXEL, settings).n == len(truth)

@@ -42,8 +42,12 @@ MICROSCOPES = SWEEP.microscopes()
 #: peaks fall under the threshold (a fraction of the brightest), s = 15 leaves no particle
 #: scale to measure. Matched particles at least (of 6), still with nothing spurious.
 KNOWN_LIMITS = {
-    ("paper", (1, 5, 5.0, False, 5.0)): 4,
-    ("10x", (1, 5, 5.0, False, 5.0)): 4,
+    # One iteration, no depth filter, SNR 5: the particles stand less than
+    # DetectSettings.min_peak_snr (5) noise σ above the background, as blobs of pure noise
+    # do (up to 4.1 σ measured): rejected as insignificant (4 of 6 were found without that
+    # test, which let 81 noise blobs through on a volume of pure noise).
+    ("paper", (1, 5, 5.0, False, 5.0)): 0,
+    ("10x", (1, 5, 5.0, False, 5.0)): 0,
     ("paper", (3, 15, 5.0, False, 5.0)): 0,
     ("paper", (10, 3, 10.0, False, 5.0)): 5,
 }
