@@ -644,18 +644,25 @@ class _ThinPlateFit:
                 out[:, c] = quads[c](np.concatenate([a / den[:, c], pt], axis=1))
         return out
 
-    def std(self, q: np.ndarray, gradient: bool = False):
-        """Standard uncertainties of :meth:`evaluate`: (P, C) and (P, C, 3) or None."""
+    def std(
+        self,
+        q: np.ndarray,
+        gradient: bool = False,
+        cutoff: float = STD_MODE_CUTOFF,
+        single: bool = False,
+    ):
+        """Standard uncertainties of :meth:`evaluate`: (P, C) and (P, C, 3) or None, from the
+        modes above ``cutoff`` (:meth:`_modes`); ``single``: see :meth:`_kernels`."""
         q = np.asarray(q, dtype=float).reshape(-1, 3)
         nc = self.C.shape[1]
-        keep, Bk, H, R1inv, quad = self._std_setup(STD_MODE_CUTOFF)
+        keep, Bk, H, R1inv, quad = self._std_setup(cutoff)
         Xc = self.basis.Xc
         r = keep.size
         cols = np.concatenate([Bk] + [Xc[:, [j]] * Bk for j in range(3)], axis=1)
         u_sd = np.empty((q.shape[0], nc))
         G_sd = np.empty((q.shape[0], nc, 3)) if gradient else None
         for s in range(0, q.shape[0], _BLOCK_ROWS):
-            dq, Kq, logr = self._kernels(q[s : s + _BLOCK_ROWS])
+            dq, Kq, logr = self._kernels(q[s : s + _BLOCK_ROWS], single)
             p = np.c_[np.ones(dq.shape[0]), dq]
             a = Kq @ Bk - p @ H.T  # (P, r)
             pt = p @ R1inv  # R₁⁻ᵀ p, as rows
@@ -674,11 +681,10 @@ class _ThinPlateFit:
     def on_grid(self, axes: GridAxes, with_std: bool, stride: int | None = None):
         """Values, exact gradients and (``with_std``) standard uncertainties on a grid.
 
-        One kernel block per chunk of nodes gives all of them (:meth:`evaluate` and
-        :meth:`std` would build it twice). The uncertainties keep the modes above
-        :data:`STD_GRID_MODE_CUTOFF` and are computed on every ``stride``-th node along each
-        axis (the last node always; default :meth:`_std_stride`), from the same kernel blocks,
-        and interpolated (trilinear) at the other nodes.
+        One kernel block per chunk of nodes gives values and gradients. The uncertainties keep
+        the modes above :data:`STD_GRID_MODE_CUTOFF` and are computed (:meth:`std`) on every
+        ``stride``-th node along each axis (the last node always; default
+        :meth:`_std_stride`) and interpolated (trilinear) at the other nodes.
 
         Returns
         -------
@@ -689,24 +695,7 @@ class _ThinPlateFit:
         nc = self.C.shape[1]
         u = np.empty((pts.shape[0], nc))
         G = np.empty((pts.shape[0], nc, 3))
-        u_sd = G_sd = None
         ng = self._Cg.shape[1]
-        if with_std:
-            if stride is None:
-                stride = self._std_stride(axes)
-            stride = max(1, int(stride))
-            sub = [_sub_indices(n, stride) for n in shape]
-            on_sub = np.zeros(shape, dtype=bool)
-            on_sub[np.ix_(*sub)] = True
-            on_sub = on_sub.ravel()
-            keep, Bk, H, R1inv, quad = self._std_setup(STD_GRID_MODE_CUTOFF)
-            r = keep.size
-            Xc = self.basis.Xc
-            cols_sd = np.concatenate([Bk] + [Xc[:, [j]] * Bk for j in range(3)], axis=1)
-            n_sub = int(on_sub.sum())
-            u_sub = np.empty((n_sub, nc))
-            G_sub = np.empty((n_sub, nc, 3))
-            at = 0
         for s in range(0, pts.shape[0], _BLOCK_ROWS):
             sl = slice(s, s + _BLOCK_ROWS)
             dq, Kq, logr = self._kernels(pts[sl], single=True)
@@ -716,29 +705,17 @@ class _ThinPlateFit:
             MC = logr @ self._Cg
             g = dq[:, None, :] * MC[:, :nc, None] - MC[:, nc:ng].reshape(-1, nc, 3)
             G[sl] = g + self.D[1:].T[None, :, :]
-            if not with_std:
-                continue
-            sel = on_sub[sl]
-            m = int(sel.sum())
-            if m == 0:
-                continue
-            dqs = dq[sel]
-            p = np.c_[np.ones(m), dqs]
-            a = Kq[sel] @ Bk - p @ H.T  # (m, r)
-            out = slice(at, at + m)
-            u_sub[out] = np.sqrt(self._var(a, p @ R1inv, keep, quad))
-            MB = logr[sel] @ cols_sd  # (m, 4r)
-            MB0 = MB[:, :r]
-            for j in range(3):
-                da = dqs[:, [j]] * MB0 - MB[:, (j + 1) * r : (j + 2) * r] - H[:, 1 + j]
-                dpt = np.broadcast_to(R1inv[1 + j], (m, 4))
-                G_sub[out, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
-            at += m
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
-        if with_std:
-            sub_shape = tuple(ix.size for ix in sub)
-            u_sd = _upsample(u_sub.reshape(*sub_shape, nc), sub, shape)
-            G_sd = _upsample(G_sub.reshape(*sub_shape, nc, 3), sub, shape)
+        if not with_std:
+            return u, G, None, None
+        if stride is None:
+            stride = self._std_stride(axes)
+        sub = [_sub_indices(n, max(1, int(stride))) for n in shape]
+        coarse = GridAxes(axes.x_um[sub[2]], axes.y_um[sub[1]], axes.z_um[sub[0]])
+        u_sd, G_sd = self.std(coarse.points(), True, STD_GRID_MODE_CUTOFF, single=True)
+        sub_shape = coarse.shape
+        u_sd = _upsample(u_sd.reshape(*sub_shape, nc), sub, shape)
+        G_sd = _upsample(G_sd.reshape(*sub_shape, nc, 3), sub, shape)
         return u, G, u_sd, G_sd
 
     def _std_stride(self, axes: GridAxes) -> int:
@@ -887,15 +864,19 @@ class DisplacementInterpolant:
     def supported(self, xyz_um: np.ndarray) -> np.ndarray:
         """``True`` for positions inside the particles' hull or near a particle, shape (P,)."""
         q = np.asarray(xyz_um, dtype=float).reshape(-1, 3)
-        inside = np.zeros(q.shape[0], dtype=bool)
-        if self._hull is not None:
+        # near a particle (the search stops at the radius), else inside the hull
+        bound = np.nextafter(float(self.support_radius_um), np.inf)
+        d, _ = self._tree.query(q, k=1, distance_upper_bound=bound)
+        out = d <= self.support_radius_um
+        rest = np.flatnonzero(~out)
+        if self._hull is not None and rest.size:
             eq = self._hull.equations  # outward facet normals n and offsets c: n·x + c <= 0
             tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
-            for s in range(0, q.shape[0], 20_000):
-                block = q[s : s + 20_000] @ eq[:, :3].T + eq[:, 3]
-                inside[s : s + 20_000] = np.all(block <= tol, axis=1)
-        d, _ = self._tree.query(q, k=1)
-        return inside | (d <= self.support_radius_um)
+            for s in range(0, rest.size, 20_000):
+                idx = rest[s : s + 20_000]
+                block = q[idx] @ eq[:, :3].T + eq[:, 3]
+                out[idx] = np.all(block <= tol, axis=1)
+        return out
 
 
 def fit_displacement(
