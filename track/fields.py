@@ -534,6 +534,13 @@ class _ThinPlateFit:
             [C] + [C[:, [i]] * Xc[:, [j]] for i in range(nc) for j in range(3)], axis=1
         )
         self._xsq = np.einsum("ij,ij->i", Xc, Xc)
+        self._m2Xt = np.ascontiguousarray(-2.0 * Xc.T)
+        # log r @ W gives values and gradients at once (:meth:`_value_gradient`)
+        self._W = np.concatenate(
+            [C, self._xsq[:, None] * C] + [Xc[:, [j]] * C for j in range(3)], axis=1
+        )
+        self._s0 = C.sum(axis=0)
+        self._s1 = np.stack([(Xc[:, [j]] * C).sum(axis=0) for j in range(3)])  # (3, C)
         self._r2_scale = max(float(np.sum(np.ptp(Xc, axis=0) ** 2)), 1e-12)
         self.sigma = self._noise(sigma)
 
@@ -553,8 +560,9 @@ class _ThinPlateFit:
         return np.broadcast_to(np.sqrt(var)[None, :], (n, nc))
 
     # -- evaluation --------------------------------------------------------------------------
-    def _kernels(self, q: np.ndarray, single: bool = False):
-        """``q − X̄`` (P, 3), the kernel block ``r² log r`` (P, N) and ``log r`` (P, N).
+    def _kernels(self, q: np.ndarray, single: bool = False, kernel: bool = True):
+        """``q − X̄`` (P, 3), the kernel block ``r² log r`` (P, N; None unless ``kernel``) and
+        ``log r`` (P, N).
 
         With ``single``, ``log`` is taken in single precision (a third of the time of
         double's; the rest stays double, and the log is of ``r²`` over the centres' squared
@@ -567,8 +575,7 @@ class _ThinPlateFit:
         """
         b = self.basis
         dq = q - b.centre
-        r2 = dq @ b.Xc.T
-        r2 *= -2.0
+        r2 = dq @ self._m2Xt
         r2 += self._xsq[None, :]
         r2 += np.einsum("ij,ij->i", dq, dq)[:, None]
         np.maximum(r2, _R2_FLOOR, out=r2)
@@ -582,7 +589,26 @@ class _ThinPlateFit:
         else:
             logr = np.log(r2)
         logr *= 0.5
-        return dq, np.multiply(r2, logr, out=r2), logr
+        return dq, (np.multiply(r2, logr, out=r2) if kernel else None), logr
+
+    def _value_gradient(self, q: np.ndarray):
+        """Values (P, C) and ``∂u_i/∂x_j`` (P, C, 3) at ``q`` (P, 3) from one product
+        ``log r @ W`` (single-precision log, :meth:`_kernels`): with
+        ``r² = |q̃|² + |x̃|² − 2 q̃·x̃`` (``~``: minus the centre),
+        ``Σ c r² log r = |q̃|² (L c) + L (|x̃|² c) − 2 Σ_j q̃_j L (x̃_j c)`` and
+        ``∂/∂q_j Σ c r² log r = q̃_j (2 L c + Σ c) − (2 L (x̃_j c) + Σ x̃_j c)``."""
+        nc = self.C.shape[1]
+        dq, _, logr = self._kernels(q, single=True, kernel=False)
+        M = logr @ self._W  # (P, 5 C)
+        M0, M1 = M[:, :nc], M[:, nc : 2 * nc]
+        Mx = M[:, 2 * nc :].reshape(-1, 3, nc)  # (P, j, c)
+        u = np.einsum("ij,ij->i", dq, dq)[:, None] * M0 + M1
+        u -= 2.0 * np.einsum("pj,pjc->pc", dq, Mx)
+        u += self.D[0] + dq @ self.D[1:]
+        G = dq[:, None, :] * (2.0 * M0 + self._s0)[:, :, None]  # (P, c, j)
+        G -= np.swapaxes(2.0 * Mx + self._s1[None], 1, 2)
+        G += self.D[1:].T[None, :, :]
+        return u, G
 
     def evaluate(self, q: np.ndarray, gradient: bool = False, single: bool = False):
         """Values (P, C) and, with ``gradient``, ``∂u_i/∂x_j`` (P, C, 3) at ``q`` (P, 3);
@@ -592,6 +618,11 @@ class _ThinPlateFit:
         u = np.empty((q.shape[0], nc))
         G = np.empty((q.shape[0], nc, 3)) if gradient else None
         for s in range(0, q.shape[0], _BLOCK_ROWS):
+            if gradient and single:
+                u[s : s + _BLOCK_ROWS], G[s : s + _BLOCK_ROWS] = self._value_gradient(
+                    q[s : s + _BLOCK_ROWS]
+                )
+                continue
             dq, Kq, logr = self._kernels(q[s : s + _BLOCK_ROWS], single)
             u[s : s + _BLOCK_ROWS] = Kq @ self.C + self.D[0] + dq @ self.D[1:]
             if gradient:
@@ -693,18 +724,7 @@ class _ThinPlateFit:
         pts = axes.points()
         shape = axes.shape
         nc = self.C.shape[1]
-        u = np.empty((pts.shape[0], nc))
-        G = np.empty((pts.shape[0], nc, 3))
-        ng = self._Cg.shape[1]
-        for s in range(0, pts.shape[0], _BLOCK_ROWS):
-            sl = slice(s, s + _BLOCK_ROWS)
-            dq, Kq, logr = self._kernels(pts[sl], single=True)
-            u[sl] = Kq @ self.C + self.D[0] + dq @ self.D[1:]
-            logr *= 2.0
-            logr += 1.0  # φ'(r)/r
-            MC = logr @ self._Cg
-            g = dq[:, None, :] * MC[:, :nc, None] - MC[:, nc:ng].reshape(-1, nc, 3)
-            G[sl] = g + self.D[1:].T[None, :, :]
+        u, G = self.evaluate(pts, gradient=True, single=True)
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
         if not with_std:
             return u, G, None, None
