@@ -34,6 +34,8 @@ Uncertainty: for a fixed λ the fit is linear in the particle displacements, nod
 ``u = W d``, so ``var u_i = Σ_j W_ij² σ_ij²`` (per axis, particles and axes independent), and
 the same through the gradient; ``σ`` is the link table's per-match uncertainty when given,
 else the noise level the smoothing residuals imply (:meth:`DisplacementInterpolant.std`).
+On a grid they are computed on a sub-grid of about one particle spacing and interpolated
+(:data:`STD_GRID_SUB_SPACING`).
 
 Default grid: the particles' bounding box sampled with one isotropic spacing chosen so that
 the grid has about ``target_nodes`` = 50 000 nodes (the paper's value).
