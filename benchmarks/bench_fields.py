@@ -141,7 +141,7 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0):
     }
 
 
-def run_baseline(rev, frames, n, field, step, seed):
+def run_baseline(rev, frames, n, field, step, seed, grid="default"):
     """The same series with ``track`` of git revision ``rev`` (and today's synthetic.py)."""
     with tempfile.TemporaryDirectory(prefix="bench-fields-baseline-") as tmp:
         archive = subprocess.run(
@@ -154,7 +154,7 @@ def run_baseline(rev, frames, n, field, step, seed):
         out = Path(tmp) / "row.json"
         cmd = [sys.executable, str(Path(__file__).resolve()), "--_worker", str(out)]
         cmd += ["--frames", str(frames), "--n", str(n), "--field", field]
-        cmd += ["--step", str(step), "--seed", str(seed), "--grid", "default"]
+        cmd += ["--step", str(step), "--seed", str(seed), "--grid", grid]
         env = dict(os.environ, PYTHONPATH=tmp)
         subprocess.run(cmd, cwd=tmp, env=env, check=True)
         return json.loads(out.read_text())
@@ -196,6 +196,12 @@ def main(argv=None) -> None:
     ap.add_argument(
         "--baseline-frames", type=int, help="frames of the baseline run (default --frames)"
     )
+    ap.add_argument(
+        "--baseline-grid",
+        default="default",
+        choices=["default", "particles", "particles-nostd"],
+        help="grid of the baseline run (default: default)",
+    )
     ap.add_argument("--json", metavar="PATH", help="write all rows to this JSON file")
     ap.add_argument("--_worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -207,8 +213,10 @@ def main(argv=None) -> None:
     rows = []
     if args.baseline:
         nb = args.baseline_frames or args.frames
-        b = run_baseline(args.baseline, nb, args.n, args.field, args.step, args.seed)
-        rows.append((f"baseline {args.baseline}", b))
+        b = run_baseline(
+            args.baseline, nb, args.n, args.field, args.step, args.seed, args.baseline_grid
+        )
+        rows.append((f"baseline {args.baseline} ({args.baseline_grid})", b))
     for grid in args.grid:
         rows.append((f"new ({grid} grid)", run_case(*_case(args), grid, args.nodes_per_spacing)))
     head = ["code", "frames", "N/frame", "grid", "link_s", "fields_s", "write_s"]
