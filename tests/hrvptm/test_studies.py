@@ -154,6 +154,7 @@ def test_fig5b_axial_translation_of_a_layer(reports):
     run = reports("fig5b_axial_layer_test")
     assert sorted(p.name for p in (run["out"] / "plots").iterdir()) == [
         "displacement.png",
+        "uncertainty.png",  # |error| against σ (issue 12 §4)
         "vectors.png",
     ]
 
