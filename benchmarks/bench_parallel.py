@@ -45,7 +45,8 @@ PAPER = {
         "count = 60\nbox_um = [[-1500, 1500], [-900, 900], [100, 400]]\nmin_spacing_um = 60"
     ),
     "rays": 100000,
-    "recon": ["--z-range", "-80:720", "--z-step", "20", "-s", "3"],
+    # the paper's reconstruction: 161 planes, 5 µm voxels (s = 5)
+    "recon": ["--z-range", "-80:720", "--z-step", "5", "-s", "5"],
 }
 
 
@@ -96,6 +97,7 @@ def main() -> None:
     ap.add_argument("--paper", action="store_true", help="paper-size frames (1280 × 800 px)")
     ap.add_argument("--keep", type=Path, default=None, help="work in this folder (kept)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("-s", type=int, default=None, help="super-resolution (default: the case's)")
     a = ap.parse_args()
     case = PAPER if a.paper else SMALL
 
@@ -121,7 +123,10 @@ def main() -> None:
         f"series: {a.frames} frames of {case['scene']} rendered in "
         f"{time.perf_counter() - t0:.1f} s ({dataset})"
     )
-    common = [str(dataset), *case["recon"], "--iterations", str(a.iterations)]
+    rargs = list(case["recon"])
+    if a.s is not None:
+        rargs[rargs.index("-s") + 1] = str(a.s)
+    common = [str(dataset), *rargs, "--iterations", str(a.iterations)]
     warm = work / "warm"
     t = recon([*common, "--frames", "0:1", "-o", str(warm), "--overwrite"], env)
     print(f"PSF bank into the cache and one frame: {t:.1f} s")
