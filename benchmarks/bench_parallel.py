@@ -42,7 +42,7 @@ SMALL = {
 PAPER = {
     "scene": "paper_4x.xml",
     "particles": (
-        "count = 60\nbox_um = [[-1500, 1500], [-900, 900], [100, 400]]\nmin_spacing_um = 60"
+        "count = 60\nbox_um = [[-950, 950], [-550, 550], [100, 400]]\nmin_spacing_um = 60"
     ),
     "rays": 100000,
     # the paper's reconstruction: 161 planes, 5 µm voxels (s = 5)
