@@ -44,7 +44,7 @@ from .deconvolve import deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
 from .psf_estimate import check_psf, estimate_psf, particle_fwhm_vox
-from .segment import FACE_VOX, MIN_AUTO_VOX, interior, segment
+from .segment import FACE_VOX, MIN_AUTO_VOX, interior, median_and_sigma, segment
 
 log = logging.getLogger(__name__)
 
@@ -325,11 +325,9 @@ def voxel_to_um(
 
 
 def _robust_sigma(vol: np.ndarray) -> float:
-    """Noise σ of a sparse volume: 1.4826 × the median absolute deviation of its interior
-    (:func:`track.segment.interior`; particles fill too few voxels to move it)."""
-    core = interior(vol).astype(np.float64, copy=False)
-    med = float(np.median(core))
-    return 1.4826 * float(np.median(np.abs(core - med)))
+    """Noise σ of a sparse volume: the robust σ of its interior (:func:`track.segment.interior`;
+    particles fill too few voxels to move it)."""
+    return median_and_sigma(interior(vol))[1]
 
 
 def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.ndarray:

@@ -199,12 +199,18 @@ def interior(vol: np.ndarray) -> np.ndarray:
     return vol[sl]
 
 
+def median_and_sigma(values: np.ndarray) -> tuple[float, float]:
+    """Median and robust noise σ (1.4826 × the median absolute deviation) of ``values``."""
+    v = np.asarray(values, dtype=np.float64)
+    med = float(np.median(v))
+    return med, 1.4826 * float(np.median(np.abs(v - med)))
+
+
 def auto_threshold(volume: np.ndarray, k_sigma: float = 5.0) -> float:
     """Robust noise threshold ``median + k · 1.4826 MAD``, floored at 5 % of the range (the
     range of the interior, see :func:`interior`)."""
     vol = check_volume(volume)
-    med = float(np.median(vol))
-    sigma = 1.4826 * float(np.median(np.abs(vol - med)))
+    med, sigma = median_and_sigma(vol)
     top = float(interior(vol).max())
     return max(med + k_sigma * sigma, med + 0.05 * (top - med))
 
