@@ -201,7 +201,7 @@ def interior(vol: np.ndarray) -> np.ndarray:
 
 def median_and_sigma(values: np.ndarray) -> tuple[float, float]:
     """Median and robust noise σ (1.4826 × the median absolute deviation) of ``values``."""
-    v = np.asarray(values, dtype=np.float64)
+    v = np.asarray(values)
     med = float(np.median(v))
     return med, 1.4826 * float(np.median(np.abs(v - med)))
 
