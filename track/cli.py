@@ -95,6 +95,7 @@ EXIT_FAILED = 3
 
 
 _positive_float = number(lambda v: v > 0, "a positive number")
+_non_negative = number(lambda v: v >= 0, "a number >= 0")
 _count = int_in(0)
 _int_in = int_in
 _smoothing = number(lambda v: v >= 0, "a number >= 0", keyword="gcv")
@@ -147,6 +148,37 @@ DETECT_OPTIONS = (
         "margin in µm a blob must keep from the faces of the volume",
         float,
         "UM",
+    ),
+    SettingOption(
+        "smooth_fwhm",
+        ("--smooth-fwhm",),
+        "band-pass before segmentation: Gaussian smoothing of σ = this × the particles' FWHM "
+        "measured on the volume, per axis (0: none)",
+        _non_negative,
+        "F",
+    ),
+    SettingOption(
+        "background_fwhm",
+        ("--background-fwhm",),
+        "band-pass: σ of the subtracted local background, in measured FWHM (0: none; "
+        "else > --smooth-fwhm)",
+        _non_negative,
+        "F",
+    ),
+    SettingOption(
+        "min_peak_snr",
+        ("--min-peak-snr",),
+        "a blob is a particle only if its band-passed peak stands this many noise σ above "
+        "the background (0: test off)",
+        _non_negative,
+        "K",
+    ),
+    SettingOption(
+        "max_rel_aspect",
+        ("--max-rel-aspect",),
+        "largest aspect ratio of a blob relative to the median blob's (>= 1)",
+        number(lambda v: v >= 1, "a number >= 1"),
+        "R",
     ),
 )
 

@@ -338,3 +338,23 @@ def test_run_with_an_empty_volume_fails_unless_partial_results_are_allowed(tmp_p
     assert (out / "fields" / "000001.npz").is_file()
     assert not (out / "fields" / "000002.npz").exists()
     assert "Traceback" not in err
+
+
+def test_detector_band_pass_and_significance_options(tmp_path, capsys):
+    vols = tmp_path / "vols"
+    _volumes(vols, n_frames=1)
+    out = tmp_path / "res"
+    argv = ["detect", vols, "-o", out, "--no-deconvolution", "--no-progress"]
+    rc, err = _run([*argv, "--smooth-fwhm", "0.3", "--background-fwhm", "0.2"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and not out.exists()
+    assert "--background-fwhm (0.2) must exceed --smooth-fwhm (0.3)" in err
+    rc, err = _run([*argv, "--max-rel-aspect", "0.5"], capsys)
+    assert rc == 2 and "argument --max-rel-aspect: expected a number >= 1, got '0.5'" in err
+    # a significance far above every particle's peak rejects them all, and says so
+    rc, err = _run([*argv, "--min-peak-snr", "1e6", "--allow-partial"], capsys)
+    assert rc == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    det = s["parameters"]["detect"]
+    assert det["min_peak_snr"] == 1e6 and det["smooth_fwhm"] == 0.25
+    assert s["frames"][0]["report"]["rejections"]["insignificant"] >= 18
+    assert "no particle found" in err
