@@ -9,9 +9,11 @@ The update of Richardson (1972) and Lucy (1974) for ``y ≈ h * x`` is
 
 ``x ← x · [h̃ * (y / (h * x))] / (h̃ * 1)``,
 
-with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution: transforms are real
-FFTs (:func:`scipy.fft.rfftn`) zero-padded to at least ``n + m − 1`` samples per axis, so
-nothing wraps around.
+with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution: real FFTs
+(:func:`scipy.fft.rfftn`, on :func:`track._threads.compute_threads` threads) of the extended
+domain below, whose outputs that are kept never reach across its ends (see
+:class:`_Convolver`), so nothing wraps around. The kernel's transform and the normalisation
+are made once for a series deconvolved with one PSF.
 
 Boundaries follow Bertero & Boccacci (A&A 437, 2005): the object ``x`` is estimated on the
 volume *extended by half a PSF* on every face, the data ``y`` only on the volume (``y = M (h *
