@@ -13,6 +13,9 @@ the caller records each frame (and, e.g., links it) as soon as it exists:
 - ``Parallel(scheduler="tcp://host:port")``: on an existing cluster (``dask scheduler`` /
   ``dask worker``, or ``dask-jobqueue`` on a batch system); ``workers`` is then the cluster's.
 
+Several maps in a row (the stages of a study) can share one local cluster instead of starting
+one each: :func:`shared_cluster`.
+
 Shared read-only inputs (a PSF bank, a projector) are a :class:`WorkerContext`: its
 ``build(*args)`` runs at most once per process — in this process for ``workers=1``, once in
 every worker process otherwise — with ``args`` sent to each worker once (``scatter`` with
@@ -36,6 +39,7 @@ is logged at info level and kept in :attr:`FrameMap.peak_memory_bytes`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import sys
@@ -43,6 +47,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -340,7 +345,7 @@ class FrameMap:
 
     def _connect(self):
         import dask
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         par = self.parallel
         if par.scheduler is not None:
@@ -362,16 +367,7 @@ class FrameMap:
                     par.scheduler,
                 )
             return
-        threads = par.worker_threads()
-        self._cluster = LocalCluster(
-            n_workers=par.n_workers,
-            threads_per_worker=1,  # one frame at a time per process; it uses `threads` cores
-            processes=True,
-            memory_limit=par.memory_limit if par.memory_limit is not None else 0,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-            env={"HRVPTM_THREADS": str(threads)},
-        )
+        self._cluster = _local_cluster(par)
         self._client = Client(self._cluster, set_as_default=False)
         log.info("started %s", par.describe())
 
@@ -465,6 +461,52 @@ class FrameMap:
             self._shutdown()
 
 
+def _local_cluster(par: Parallel):
+    """Start the local cluster of ``par`` (``n_workers`` processes, ``worker_threads()``
+    cores each, one frame at a time per process)."""
+    from distributed import LocalCluster
+
+    return LocalCluster(
+        n_workers=par.n_workers,
+        threads_per_worker=1,  # one frame at a time per process; it uses `threads` cores
+        processes=True,
+        memory_limit=par.memory_limit if par.memory_limit is not None else 0,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+        env={"HRVPTM_THREADS": str(par.worker_threads())},
+    )
+
+
+@contextmanager
+def shared_cluster(parallel: Parallel | None) -> Iterator[Parallel | None]:
+    """One local cluster for several frame maps (e.g. every stage of a study).
+
+    For a ``parallel`` that would start a local cluster in every :func:`frame_map`
+    (``workers > 1``, no ``scheduler``), starts it once (≈ 10 s on 2 cores) and yields a
+    :class:`Parallel` that uses it (its ``scheduler``, the same threads per worker and
+    retries), stopping it on exit. Any other ``parallel`` (None, in process, an existing
+    scheduler) is yielded as it is. The results are the same either way; a worker keeps the
+    peak memory of every map run on it.
+    """
+    if parallel is None or parallel.in_process or parallel.scheduler is not None:
+        yield parallel
+        return
+    t0 = time.perf_counter()
+    cluster = _local_cluster(parallel)
+    log.info("started %s (shared) in %.1f s", parallel.describe(), time.perf_counter() - t0)
+    try:
+        yield dataclasses.replace(
+            parallel,
+            scheduler=cluster.scheduler_address,
+            threads=parallel.worker_threads(),
+        )
+    finally:
+        try:
+            cluster.close()
+        except Exception as exc:  # pragma: no cover - best effort
+            log.debug("closing the shared local cluster: %s", exc)
+
+
 def frame_map(
     func: Callable[[Any, Any], Any],
     items: Iterable,
@@ -539,4 +581,5 @@ __all__ = [
     "available_cores",
     "frame_map",
     "in_order",
+    "shared_cluster",
 ]

@@ -120,6 +120,36 @@ def _plots(study: Study, results: dict, report: Path) -> list[str]:
     return [str(p.relative_to(report)) for p in out]
 
 
+def _run_stages(study, report, state, variants, seconds, last, progress, parallel) -> None:
+    """Simulate, reconstruct and track every variant up to stage ``last`` (resuming), their
+    seconds into ``seconds`` and the state record."""
+    for variant, experiment in variants.items():
+        paths = VariantPaths(report / variant)
+        totals = state["seconds_total"].setdefault(variant, {})
+        steps = (
+            (
+                "simulate",
+                lambda e=experiment, p=paths: simulate(e, p, progress=progress, parallel=parallel),
+            ),
+            (
+                "reconstruct",
+                lambda p=paths: reconstruct(study, p, progress=progress, parallel=parallel),
+            ),
+            (
+                "track",
+                lambda p=paths: track_stage(study, p, progress=progress, parallel=parallel),
+            ),
+        )
+        for i, (stage, fn) in enumerate(steps):
+            if i > last:
+                break
+            log.info("%s / %s: %s", study.name, variant, stage)
+            dt = fn()
+            seconds[variant][stage] = dt
+            totals[stage] = totals.get(stage, 0.0) + dt
+            _save_state(report, state)
+
+
 def run_study(
     study: Study,
     report_dir,
@@ -165,6 +195,7 @@ def run_study(
         ``StageError`` also when frames failed (after the report is written), unless
         ``allow_partial``.
     """
+    from hrvbase.parallel import shared_cluster
     from lfsim import init_backend
 
     if until not in STAGES:
@@ -180,31 +211,8 @@ def run_study(
     init_backend()
     variants = study.variants()
     seconds: dict[str, dict[str, float]] = {v: {} for v in variants}
-    for variant, experiment in variants.items():
-        paths = VariantPaths(report / variant)
-        totals = state["seconds_total"].setdefault(variant, {})
-        steps = (
-            (
-                "simulate",
-                lambda e=experiment, p=paths: simulate(e, p, progress=progress, parallel=parallel),
-            ),
-            (
-                "reconstruct",
-                lambda p=paths: reconstruct(study, p, progress=progress, parallel=parallel),
-            ),
-            (
-                "track",
-                lambda p=paths: track_stage(study, p, progress=progress, parallel=parallel),
-            ),
-        )
-        for i, (stage, fn) in enumerate(steps):
-            if i > last:
-                break
-            log.info("%s / %s: %s", study.name, variant, stage)
-            dt = fn()
-            seconds[variant][stage] = dt
-            totals[stage] = totals.get(stage, 0.0) + dt
-            _save_state(report, state)
+    with shared_cluster(parallel) as par:  # one local cluster for every stage, if any
+        _run_stages(study, report, state, variants, seconds, last, progress, par)
     if last < STAGES.index("analyse"):
         run["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
         _save_state(report, state)

@@ -9,9 +9,11 @@ The update of Richardson (1972) and Lucy (1974) for ``y ≈ h * x`` is
 
 ``x ← x · [h̃ * (y / (h * x))] / (h̃ * 1)``,
 
-with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution: transforms are real
-FFTs (:func:`scipy.fft.rfftn`) zero-padded to at least ``n + m − 1`` samples per axis, so
-nothing wraps around.
+with ``h̃`` the mirrored PSF and ``*`` *linear* (not circular) convolution: real FFTs
+(:func:`scipy.fft.rfftn`, on :func:`track._threads.compute_threads` threads) of the extended
+domain below, whose outputs that are kept never reach across its ends (see
+:class:`_Convolver`), so nothing wraps around. The kernel's transform and the normalisation
+are made once for a series deconvolved with one PSF.
 
 Boundaries follow Bertero & Boccacci (A&A 437, 2005): the object ``x`` is estimated on the
 volume *extended by half a PSF* on every face, the data ``y`` only on the volume (``y = M (h *
@@ -27,7 +29,9 @@ contribute a ratio of 0 instead of blowing up.
 
 from __future__ import annotations
 
+import hashlib
 import logging
+import threading
 
 import numpy as np
 import scipy.fft as sfft
@@ -35,6 +39,7 @@ import scipy.fft as sfft
 from hrvbase.errors import raised_as
 from hrvbase.validate import int_in_range
 
+from ._threads import compute_threads
 from .errors import InputError
 from .localize import check_volume
 from .psf_estimate import check_psf
@@ -50,30 +55,40 @@ class _Convolver:
     The object lives on the volume of shape ``shape`` extended by ``m // 2`` voxels on both
     faces of every axis (``m``: kernel size); :meth:`forward` blurs it and crops to the volume,
     :meth:`adjoint` is its exact transpose.
+
+    Both are *circular* convolutions of length ``L ≥ n + 2 (m // 2)`` per axis (the extended
+    size, rounded up to a fast FFT length) with the kernel centred on index 0: the outputs
+    they keep never reach across the ends (the forward output on the volume needs the object
+    only on the extended domain; the adjoint's input is 0 on the extension), so they are the
+    linear convolutions, with about 30 % fewer samples per transform than zero-padding to
+    ``n + m − 1``. The mirrored kernel's transform is the conjugate of the kernel's.
+    Transforms use ``threads`` threads (:func:`compute_threads`).
     """
 
-    def __init__(self, shape: tuple[int, ...], kernel: np.ndarray) -> None:
-        self.shape = shape
+    def __init__(
+        self, shape: tuple[int, ...], kernel: np.ndarray, threads: int | None = None
+    ) -> None:
+        self.shape = tuple(int(n) for n in shape)
+        self.threads = compute_threads() if threads is None else int(threads)
         self.pad = tuple(m // 2 for m in kernel.shape)
-        self.ext_shape = tuple(n + 2 * p for n, p in zip(shape, self.pad, strict=True))
-        self.fshape = tuple(
-            sfft.next_fast_len(n + m - 1, real=True)
-            for n, m in zip(self.ext_shape, kernel.shape, strict=True)
-        )
-        # 'same' crop of the full linear convolution on the extended domain ...
-        self.same = tuple(
-            slice(m // 2, m // 2 + n) for n, m in zip(self.ext_shape, kernel.shape, strict=True)
-        )
-        # ... and the volume inside the extended domain.
-        self.inner = tuple(slice(p, p + n) for n, p in zip(shape, self.pad, strict=True))
-        self.otf = sfft.rfftn(kernel, s=self.fshape, workers=-1)
-        self.otf_t = sfft.rfftn(kernel[::-1, ::-1, ::-1], s=self.fshape, workers=-1)
+        self.ext_shape = tuple(n + 2 * p for n, p in zip(self.shape, self.pad, strict=True))
+        self.fshape = tuple(sfft.next_fast_len(n, real=True) for n in self.ext_shape)
+        # the volume inside the extended domain
+        self.inner = tuple(slice(p, p + n) for n, p in zip(self.shape, self.pad, strict=True))
+        self.ext = tuple(slice(0, n) for n in self.ext_shape)
+        centred = np.zeros(self.fshape, dtype=kernel.dtype)
+        centred[tuple(slice(0, m) for m in kernel.shape)] = kernel
+        centred = np.roll(centred, [-p for p in self.pad], axis=(0, 1, 2))
+        self.otf = sfft.rfftn(centred, workers=self.threads)
+        self.otf_t = np.conj(self.otf)
 
     def _apply(self, x: np.ndarray, otf: np.ndarray) -> np.ndarray:
-        full = sfft.irfftn(
-            sfft.rfftn(x, s=self.fshape, workers=-1) * otf, s=self.fshape, workers=-1
-        )
-        return full[self.same]
+        f = sfft.rfftn(x, s=self.fshape, workers=self.threads)
+        if f.dtype == np.result_type(f, otf):
+            f *= otf
+        else:
+            f = f * otf
+        return sfft.irfftn(f, s=self.fshape, workers=self.threads)
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``M (h * x)``: extended-domain object → volume-shaped data."""
@@ -81,9 +96,9 @@ class _Convolver:
 
     def adjoint(self, r: np.ndarray) -> np.ndarray:
         """``h̃ * Mᵀ r``: volume-shaped data → extended domain (adjoint of :meth:`forward`)."""
-        ext = np.zeros(self.ext_shape, dtype=r.dtype)
-        ext[self.inner] = r
-        return self._apply(ext, self.otf_t)
+        buf = np.zeros(self.fshape, dtype=r.dtype)
+        buf[self.inner] = r
+        return self._apply(buf, self.otf_t)[self.ext]
 
     def extend(self, y: np.ndarray) -> np.ndarray:
         """``y`` on the extended domain (edge values repeated): the starting estimate."""
@@ -92,6 +107,29 @@ class _Convolver:
     def crop(self, x: np.ndarray) -> np.ndarray:
         """The volume part of an extended-domain array."""
         return x[self.inner]
+
+
+#: The last operator and its normalisation ``h̃ * Mᵀ1`` (a series deconvolves every volume
+#: with the first volume's PSF: the kernel's transform is made once).
+_LAST: dict = {}
+_LAST_LOCK = threading.Lock()
+
+
+def _operator(shape: tuple[int, ...], kernel: np.ndarray) -> tuple[_Convolver, np.ndarray]:
+    """The :class:`_Convolver` of ``shape`` and ``kernel`` (float32) and its normalisation,
+    reused while both stay the same."""
+    threads = compute_threads()
+    key = (tuple(shape), kernel.shape, hashlib.sha1(kernel.tobytes()).hexdigest(), threads)
+    with _LAST_LOCK:
+        if _LAST.get("key") == key:
+            return _LAST["conv"], _LAST["norm"]
+    conv = _Convolver(shape, kernel, threads)
+    norm = conv.adjoint(np.ones(shape, dtype=np.float32))
+    norm = np.where(norm > _TINY, norm, np.inf).astype(np.float32)
+    with _LAST_LOCK:
+        _LAST.clear()
+        _LAST.update(key=key, conv=conv, norm=norm)
+    return conv, norm
 
 
 def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.ndarray:
@@ -125,16 +163,16 @@ def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.n
     y = np.clip(vol, 0.0, None).astype(np.float32)
     if iterations == 0 or not float(y.max()) > 0:
         return y
-    conv = _Convolver(y.shape, kernel)
-    norm = conv.adjoint(np.ones_like(y))
-    norm = np.where(norm > _TINY, norm, np.inf).astype(np.float32)
+    conv, norm = _operator(y.shape, kernel)
     x = conv.extend(y)
     for it in range(int(iterations)):
         blurred = conv.forward(x)
         floor = _TINY * float(blurred.max())
         ratio = np.zeros_like(y)
         np.divide(y, blurred, out=ratio, where=blurred > floor)
-        x = np.clip(x * conv.adjoint(ratio) / norm, 0.0, None).astype(np.float32)
+        x *= conv.adjoint(ratio)
+        x /= norm
+        np.clip(x, 0.0, None, out=x)
         log.debug("deconvolve: iteration %d of %d done", it + 1, iterations)
     log.info("deconvolve: %d Richardson–Lucy iterations on a %s volume", iterations, y.shape)
     return np.ascontiguousarray(conv.crop(x))

@@ -38,8 +38,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
+from ._threads import gaussian_filter
 from .deconvolve import deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
@@ -348,9 +348,9 @@ def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.nd
     sigma = settings.smooth_fwhm * fwhm
     if settings.smooth_fwhm > 0:
         sigma = np.maximum(sigma, SMOOTH_MIN_VOX)
-    out = ndimage.gaussian_filter(img, sigma, mode="nearest").copy()
+    out = gaussian_filter(img, sigma, mode="nearest")
     if settings.background_fwhm > 0:
-        out = out - ndimage.gaussian_filter(img, settings.background_fwhm * fwhm, mode="nearest")
+        out -= gaussian_filter(img, settings.background_fwhm * fwhm, mode="nearest")
     report["noise_sigma_segmented"] = _robust_sigma(out)
     if settings.background_fwhm > 0:
         # below the local background is background: the threshold fraction is of [0, max]

@@ -47,6 +47,7 @@ from scipy import ndimage
 from hrvbase.errors import raised_as
 from hrvbase.validate import int_in_range
 
+from ._threads import gaussian_filter, maximum_filter3
 from .errors import InputError, TrackingError
 from .localize import check_triple, check_volume, check_voxel_size_um
 
@@ -106,9 +107,9 @@ def find_isolated_peaks(
         raise InputError(f"box_vox must be odd along every axis, got {box}")
     half = np.asarray(box) // 2
     b, s = _noise(vol)
-    smooth = ndimage.gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX, mode="nearest")
+    smooth = gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX, mode="nearest")
     b_sm, s_sm = _noise(smooth)
-    is_max = smooth == ndimage.maximum_filter(smooth, size=3, mode="nearest")
+    is_max = smooth == maximum_filter3(smooth, mode="nearest")
     peaks = np.argwhere(is_max & (smooth - b_sm > 5.0 * s_sm))
     height = vol[tuple(peaks.T)] - b
     # Only maxima whose box fits in the volume can be used, and only they set the reference
@@ -170,8 +171,8 @@ def particle_fwhm_vox(volume: np.ndarray, n_peaks: int = 20) -> np.ndarray | Non
     """
     vol = check_volume(volume)
     bg = float(np.median(vol))
-    sm = ndimage.gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX)
-    peaks = np.argwhere((sm == ndimage.maximum_filter(sm, size=3)) & (sm > bg))
+    sm = gaussian_filter(vol.astype(np.float64), _SMOOTH_VOX)
+    peaks = np.argwhere((sm == maximum_filter3(sm)) & (sm > bg))
     # reconstructions pile light from outside the field onto their outer voxels: maxima there
     # are artefacts (and cut), and must not set the reference height of the particles
     shape = np.asarray(vol.shape)

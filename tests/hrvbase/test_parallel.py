@@ -17,7 +17,7 @@ import pytest
 
 from hrvbase.cli import add_parallel_options, parallel_from_args
 from hrvbase.errors import InputError
-from hrvbase.parallel import Parallel, WorkerContext, frame_map, in_order
+from hrvbase.parallel import Parallel, WorkerContext, frame_map, in_order, shared_cluster
 from tests.helpers import LoopbackCluster
 
 
@@ -159,6 +159,28 @@ def test_local_cluster_same_results_context_once_per_worker(tmp_path):
     assert set(map(int, builds)) == pids
     assert len(fm.peak_memory_bytes) == 2
     assert all(v > 10 * 2**20 for v in fm.peak_memory_bytes.values())
+
+
+def test_shared_cluster_serves_several_maps(tmp_path):
+    """One local cluster for maps in a row (a study's stages): the same worker processes, the
+    same results; stopped on exit. Other settings pass through unchanged."""
+    for par in (None, Parallel(), Parallel(scheduler="tcp://10.0.0.5:8786")):
+        with shared_cluster(par) as got:
+            assert got is par
+    n = 6
+    with shared_cluster(Parallel(workers=2)) as par:
+        assert par.scheduler.startswith("tcp://127.0.0.1") and par.worker_threads() >= 1
+        pids = []
+        for offset in (1.0, 3.0):
+            ctx = WorkerContext(_build, (offset, str(tmp_path)))
+            with frame_map(_frame, range(n), parallel=par, context=ctx) as fm:
+                got = dict(fm)
+            assert [got[k][0] for k in range(n)] == _expected(n, offset)  # bit for bit
+            pids.append({pid for _, pid in got.values()})
+    assert os.getpid() not in pids[0] | pids[1]
+    assert len(pids[0] | pids[1]) <= 2  # the same two worker processes for both maps
+    with pytest.raises(InputError, match="scheduler"):  # stopped on exit
+        list(frame_map(_frame, range(2), parallel=par, context=ctx))
 
 
 def test_local_cluster_failure_is_raised_and_not_retried(tmp_path):

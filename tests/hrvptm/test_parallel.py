@@ -55,3 +55,34 @@ def test_bad_workers_is_one_line(tmp_path, capsys, value):
     err = capsys.readouterr().err
     assert err == f"hrvptm: error: --workers must be an integer >= 1 or 'auto', got '{value}'\n"
     assert not (tmp_path / "r").exists()
+
+
+def test_study_stages_share_one_local_cluster(tmp_path, monkeypatch):
+    """--workers N: one local cluster for all the stages of a study (not one per stage)."""
+    import hrvbase.parallel as hp
+    import hrvptm.study as hs
+    from hrvptm.config import load_study
+
+    started, closed, got = [], [], []
+
+    class FakeCluster:
+        scheduler_address = "tcp://127.0.0.1:1"
+
+        def close(self):
+            closed.append(1)
+
+    monkeypatch.setattr(hp, "_local_cluster", lambda par: started.append(par) or FakeCluster())
+    for stage in ("simulate", "reconstruct", "track_stage"):
+        monkeypatch.setattr(
+            hs, stage, lambda *a, _s=stage, **k: got.append((_s, k["parallel"])) or 0.0
+        )
+    study = load_study(EXPERIMENTS / "demo_simple_shear.toml")
+    hs.run_study(study, tmp_path / "r", until="track", progress=False, parallel=Parallel(workers=2))
+    shared = Parallel(
+        workers=2,
+        scheduler=FakeCluster.scheduler_address,
+        threads=Parallel(workers=2).worker_threads(),
+    )
+    assert started == [Parallel(workers=2)] and closed == [1]
+    assert [s for s, _ in got] == ["simulate", "reconstruct", "track_stage"]
+    assert all(p == shared for _, p in got)
