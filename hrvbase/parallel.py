@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import sys
 import threading
 import time
@@ -52,19 +51,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from .errors import HrvError, InputError
+from .threads import available_cores
 
 log = logging.getLogger(__name__)
 
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT_S = 10.0
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on (its affinity mask, else ``os.cpu_count()``)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
 
 
 @dataclass(frozen=True)

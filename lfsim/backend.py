@@ -18,6 +18,9 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from hrvbase.errors import InputError
+from hrvbase.threads import env_threads
+
 from .errors import BackendError
 
 log = logging.getLogger(__name__)
@@ -152,8 +155,11 @@ def init_backend(
         device = os.environ.get("HRVPTM_DEVICE", "auto")
     if device not in ("auto", "llvm", "cuda"):
         raise BackendError(f"device must be 'auto', 'llvm' or 'cuda', got {device!r}")
-    if threads is None and os.environ.get("HRVPTM_THREADS"):
-        threads = int(os.environ["HRVPTM_THREADS"])
+    if threads is None:
+        try:
+            threads = env_threads()
+        except InputError as exc:
+            raise BackendError(str(exc)) from None
     if threads is not None and threads < 1:
         raise BackendError(f"threads must be >= 1, got {threads}")
     cache_dir = cache_dir or os.environ.get("HRVPTM_KERNEL_CACHE")

@@ -39,12 +39,14 @@ all its arrays:
 from __future__ import annotations
 
 import logging
-import os
 from contextlib import nullcontext
 from itertools import pairwise
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+
+from hrvbase.errors import raised_as
+from hrvbase.threads import available_cores, env_threads
 
 from .arrays import NUMPY, drjit_arrays
 from .errors import InputError
@@ -239,14 +241,6 @@ class LightFieldProjector(_ProjectorBase):
         return self.backward_dr(polyphase)
 
 
-def available_cores() -> int:
-    """CPU cores this process may run on (its affinity mask where the OS has one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - macOS, Windows
-        return max(1, os.cpu_count() or 1)
-
-
 def resolve_threads(threads: int | None = None, workers: int = 1) -> int:
     """Threads for one projector: ``threads``, or the cores shared among ``workers``.
 
@@ -267,15 +261,11 @@ def resolve_threads(threads: int | None = None, workers: int = 1) -> int:
     """
     if int(workers) != workers or workers < 1:
         raise InputError(f"workers must be an integer >= 1, got {workers!r}")
-    if threads is None and os.environ.get("HRVPTM_THREADS"):
-        env = os.environ["HRVPTM_THREADS"]
-        try:
-            return resolve_threads(int(env))
-        except (ValueError, InputError):
-            raise InputError(
-                f"environment variable HRVPTM_THREADS must be an integer >= 1, got {env!r}"
-            ) from None
     if threads is None:
+        with raised_as(InputError):
+            env = env_threads()
+        if env is not None:
+            return env
         return max(1, available_cores() // int(workers))
     if isinstance(threads, bool) or int(threads) != threads or threads < 1:
         raise InputError(f"threads must be an integer >= 1, got {threads!r}")

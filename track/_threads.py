@@ -13,42 +13,32 @@ slabs cut along another axis, one per thread (SciPy releases the GIL while filte
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy import ndimage
 
-from .errors import InputError
+from hrvbase.errors import raised_as
+from hrvbase.threads import compute_threads as _compute_threads
 
-#: Slabs thinner than this (voxels along the split axis) are not worth a thread.
-_MIN_SLAB = 4
+from .errors import InputError
 
 
 def compute_threads() -> int:
     """Threads for one frame's computation: ``HRVPTM_THREADS`` if set, else the cores this
-    process may run on.
+    process may run on (:func:`hrvbase.threads.compute_threads`).
 
     Raises
     ------
     InputError
         ``HRVPTM_THREADS`` is not an integer >= 1.
     """
-    env = os.environ.get("HRVPTM_THREADS")
-    if env:
-        try:
-            n = int(env)
-        except ValueError:
-            n = 0
-        if n < 1:
-            raise InputError(
-                f"environment variable HRVPTM_THREADS must be an integer >= 1, got {env!r}"
-            )
-        return n
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
+    with raised_as(InputError):
+        return _compute_threads()
+
+
+#: Slabs thinner than this (voxels along the split axis) are not worth a thread.
+_MIN_SLAB = 4
 
 
 def _split_axis(shape: tuple[int, ...], axis: int) -> int:
