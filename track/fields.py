@@ -873,27 +873,26 @@ class _ThinPlateFit:
         nc = self.C.shape[1]
         u = np.empty((pts.shape[0], nc))
         G = np.empty((pts.shape[0], nc, 3))
-        if with_std:
+        rest = np.arange(pts.shape[0])
+        if with_std:  # the sub-grid's nodes first: their log r blocks serve both
             if stride is None:
                 stride = self._std_stride(axes)
             sub = [_sub_indices(n, max(1, int(stride))) for n in shape]
             on_sub = np.zeros(shape, dtype=bool)
             on_sub[np.ix_(*sub)] = True
-            on_sub = on_sub.ravel()
+            first, rest = np.flatnonzero(on_sub), np.flatnonzero(~on_sub)
             setup = self._std_features(STD_GRID_MODE_CUTOFF)
-            n_sub = int(on_sub.sum())
-            u_sd, G_sd = np.empty((n_sub, nc)), np.empty((n_sub, nc, 3))
-            at = 0
-        for s in range(0, pts.shape[0], _BLOCK_ROWS):
-            blk = slice(s, s + _BLOCK_ROWS)
-            dq, L = self._logs(pts[blk])
-            u[blk], G[blk] = self._value_gradient(None, (dq, L))
-            if with_std:
-                rows = np.flatnonzero(on_sub[blk])
-                if rows.size:
-                    k = slice(at, at + rows.size)
-                    u_sd[k], G_sd[k] = self._std_from_logs((dq[rows], L[rows]), setup)
-                    at += rows.size
+            u_sd, G_sd = np.empty((first.size, nc)), np.empty((first.size, nc, 3))
+            for s in range(0, first.size, _BLOCK_ROWS):
+                idx = first[s : s + _BLOCK_ROWS]
+                logs = self._logs(pts[idx])
+                u[idx], G[idx] = self._value_gradient(None, logs)
+                u_sd[s : s + _BLOCK_ROWS], G_sd[s : s + _BLOCK_ROWS] = self._std_from_logs(
+                    logs, setup
+                )
+        for s in range(0, rest.size, _BLOCK_ROWS):
+            idx = rest[s : s + _BLOCK_ROWS] if with_std else slice(s, s + _BLOCK_ROWS)
+            u[idx], G[idx] = self._value_gradient(pts[idx])
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
         if not with_std:
             return u, G, None, None
@@ -1063,6 +1062,31 @@ class DisplacementInterpolant:
                 block = q[idx] @ eq[:, :3].T + eq[:, 3]
                 out[idx] = np.all(block <= tol, axis=1)
         return out
+
+    def supported_on_grid(self, axes: GridAxes) -> np.ndarray:
+        """:meth:`supported` at the nodes of ``axes`` (in :meth:`GridAxes.points` order, shape
+        (P,)): the hull is convex, so along each line of nodes in x it holds an interval,
+        found from the facets once per line instead of testing every node against every
+        facet."""
+        pts = axes.points()
+        bound = np.nextafter(float(self.support_radius_um), np.inf)
+        d, _ = self._tree.query(pts, k=1, distance_upper_bound=bound)
+        out = d <= self.support_radius_um
+        if self._hull is None:
+            return out
+        eq = self._hull.equations  # n·x + c <= 0 inside
+        tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
+        Z, Y = np.meshgrid(axes.z_um, axes.y_um, indexing="ij")
+        # n_x x <= b on each line (z, y), for each facet
+        b = tol - eq[:, 3] - Y[..., None] * eq[:, 1] - Z[..., None] * eq[:, 2]  # (nz, ny, F)
+        nx = eq[:, 0]
+        pos, neg = nx > 0, nx < 0
+        hi = np.min(b[..., pos] / nx[pos], axis=-1, initial=np.inf)
+        lo = np.max(b[..., neg] / nx[neg], axis=-1, initial=-np.inf)
+        ok = np.all(b[..., ~(pos | neg)] >= 0, axis=-1)
+        x = axes.x_um
+        inside = ok[..., None] & (x >= lo[..., None]) & (x <= hi[..., None])
+        return out | inside.ravel()
 
 
 def fit_displacement(
@@ -1282,7 +1306,7 @@ def field_on_grid(
     else:
         u = interpolant(pts).reshape(*shape, 3)
         F, E, e = strain_from_displacement(axes, u)
-    mask = interpolant.supported(pts).reshape(shape)
+    mask = interpolant.supported_on_grid(axes).reshape(shape)
     return GridField(axes.x_um, axes.y_um, axes.z_um, u, F, E, e, mask, **stds)
 
 

@@ -574,12 +574,14 @@ def _grid_lookup(fld: GridField, xyz_um: np.ndarray) -> tuple[np.ndarray, np.nda
     i0 = np.minimum(np.floor(t).astype(np.int64), shape - 2)
     w = t - i0
     n = t.shape[0]
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    base = i0 @ strides
+    ws = (1.0 - w, w)
     out = np.zeros((n, 12))
     for corner in range(8):
-        d = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
-        wc = np.prod(np.where(d, w, 1.0 - w), axis=1)
-        idx = np.ravel_multi_index((i0 + d).T, tuple(shape))
-        out += wc[:, None] * vals[idx]
+        d = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
+        wc = ws[d[0]][:, 0] * ws[d[1]][:, 1] * ws[d[2]][:, 2]
+        out += wc[:, None] * vals[base + int(np.dot(d, strides))]
     return out[:, :3], out[:, 3:].reshape(n, 3, 3)
 
 
