@@ -394,7 +394,10 @@ def gcv_smoothing(
     ``(I − A) y = Q₂ U diag(λ / (γ + λ)) Uᵀ Q₂ᵀ y``,  ``tr(I − A) = Σ λ / (γ_k + λ)``,
 
     so one eigen-decomposition gives ``V`` for every λ of a log-spaced scan (16 decades, 10 per
-    decade). A column of exactly affine data (no residual) gets the smallest λ of the scan.
+    decade). A column of exactly affine data (its non-affine part ``Bᵀ y`` at round-off,
+    :data:`GCV_AFFINE_RTOL`) gets the largest λ of the scan: its fit is that affine function
+    for every λ, its uncertainties those of the affine least-squares fit (round-off alone
+    would otherwise choose λ, differently with each BLAS and thread count).
 
     Parameters
     ----------
@@ -438,11 +441,17 @@ def gcv_smoothing(
         X, Y = X[keep], Y[keep]
         scale = n / float(max_points)
     basis = _ThinPlateBasis(X)
-    return _gcv_choose(basis.gam, basis.to_modes(Y)) * scale
+    return _gcv_choose(basis.gam, basis.to_modes(Y), np.linalg.norm(Y, axis=0)) * scale
 
 
-def _gcv_choose(gam: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """GCV's λ for each column of ``z = Bᵀ y`` (shape (m − 4, C)), eigenvalues ``gam``."""
+#: A column whose non-affine part ``‖Bᵀ y‖`` is at most this fraction of ``‖y‖`` is exactly
+#: affine (round-off): :func:`_gcv_choose` gives it the largest λ of the scan.
+GCV_AFFINE_RTOL = 1e-11
+
+
+def _gcv_choose(gam: np.ndarray, z: np.ndarray, y_norm: np.ndarray | None = None) -> np.ndarray:
+    """GCV's λ for each column of ``z = Bᵀ y`` (shape (m − 4, C)), eigenvalues ``gam``;
+    ``y_norm``: ``‖y‖`` of each column (exactly affine columns, see :func:`gcv_smoothing`)."""
     m = gam.size + 4
     z2 = z * z
     top = max(float(gam.max(initial=0.0)), np.finfo(float).tiny)
@@ -452,6 +461,9 @@ def _gcv_choose(gam: np.ndarray, z: np.ndarray) -> np.ndarray:
     tr = f.sum(axis=0)  # (L,)
     score = m * rss / (tr * tr)[:, None]
     best = np.argmin(score, axis=0)
+    if y_norm is not None:
+        affine = np.sqrt(z2.sum(axis=0)) <= GCV_AFFINE_RTOL * np.asarray(y_norm)
+        best[affine] = lams.size - 1
     return lams[best]
 
 
@@ -1175,7 +1187,7 @@ def fit_displacement(
             lam[:] = float(settings.smoothing)
         elif n >= GCV_MIN_POINTS:
             if basis is not None and n <= settings.gcv_max_points:
-                lam = _gcv_choose(basis.gam, basis.to_modes(U))
+                lam = _gcv_choose(basis.gam, basis.to_modes(U), np.linalg.norm(U, axis=0))
             else:
                 lam = gcv_smoothing(X, U, max_points=settings.gcv_max_points)
             log.debug("GCV smoothing of u_x, u_y, u_z: %.3g, %.3g, %.3g", *lam)

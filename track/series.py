@@ -525,10 +525,11 @@ class EulerianCumulation:
         (:meth:`DisplacementInterpolant.std`).
         """
         x = self._X + self._u
-        self._u, self._F, sup = compose_step(
-            self._X, self._u, self._F, increment, self.axes.spacing_xyz_um
-        )
-        self._mask &= sup
+        u_inc, G_inc = increment.value_and_gradient(x, self.axes.spacing_xyz_um)
+        self._F = np.einsum("pij,pjk->pik", np.eye(3) + G_inc, self._F)  # (compose_step)
+        self._u = self._u + u_inc
+        keep = np.flatnonzero(self._mask)  # a node once unsupported stays so
+        self._mask[keep] = increment.supported(x[keep])
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
         stds = {}
