@@ -1067,6 +1067,40 @@ def _one_blas_thread():
         put(before)
 
 
+#: glibc ``mallopt`` parameters (malloc.h).
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+@contextlib.contextmanager
+def _heap_kept():
+    """Run the block with glibc's heap kept between the blocks' temporaries (Linux only).
+
+    A Dask worker's nanny starts it with ``MALLOC_TRIM_THRESHOLD_=65536``: every freed
+    temporary above 128 kB is returned to the system and the next one faulted in again, page
+    by page, which made an increment's fit and grid 2.3 times as slow as in this process
+    (measured). Afterwards the worker's own settings are set back.
+    """
+    import ctypes
+    import os
+    import sys
+
+    libc = None
+    if sys.platform.startswith("linux") and os.environ.get("MALLOC_TRIM_THRESHOLD_"):
+        try:
+            libc = ctypes.CDLL("libc.so.6")
+            libc.mallopt(_M_TRIM_THRESHOLD, 256 << 20)
+            libc.mallopt(_M_MMAP_THRESHOLD, 32 << 20)
+        except (OSError, AttributeError):
+            libc = None
+    try:
+        yield
+    finally:
+        if libc is not None:
+            libc.mallopt(_M_TRIM_THRESHOLD, int(os.environ["MALLOC_TRIM_THRESHOLD_"]))
+            libc.mallopt(_M_MMAP_THRESHOLD, 128 << 10)
+            libc.malloc_trim(0)
+
+
 class _NotFitted:
     """An increment whose field could not be fitted (its InputError's message)."""
 
@@ -1093,7 +1127,8 @@ def _increment_context(grid: GridSettings, axes: GridAxes, jobs: dict):
 def _increment_task(k: int, ctx):
     """(On a worker) fit and grid increment ``k``."""
     grid, axes, jobs = ctx
-    return _grid_increment(jobs[k], grid, axes)
+    with _heap_kept():
+        return _grid_increment(jobs[k], grid, axes)
 
 
 def _increments(pts, pairs, settings, axes, parallel):
