@@ -8,7 +8,8 @@ drop-outs), every step the same known heterogeneous field (default ``stiff_inclu
 ``track link`` runs) in incremental mode: link the pairs, grid the fields, write the field
 files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, and prints:
 
-* ``link_s``, ``fields_s``, ``write_s``: wall / CPU seconds (all threads) of each stage, and
+* ``link_s``, ``fields_s``, ``write_s``: wall / CPU seconds (all threads of this process;
+  with ``--workers N`` the workers' CPU is not counted) of each stage, and
   ``(f+w)/link`` = (fields + write) / link, the figure issue 13 asks to bring to ≤ 2;
   ``load``: the 1-min load average before the case (on a shared machine the wall times grow
   with the other load, the CPU seconds much less);
@@ -23,7 +24,9 @@ to a temporary folder, today's ``synthetic.py`` copied in, run in a subprocess) 
 series, side by side. ``--grid`` chooses the grids of the new code (``default``: the
 ``GridSettings`` defaults, 50 000 nodes; ``particles``: ``nodes_per_spacing`` (option
 ``--nodes-per-spacing``, default 2), the node spacing follows the particle spacing;
-``particles-nostd``: the same without uncertainties); the baseline always uses its defaults.
+``particles-nostd``: the same without uncertainties); the baseline uses ``--baseline-grid``.
+``--workers 1 2`` also grids the increments on a local Dask cluster of 2 workers (its start
+included in ``fields_s``).
 
 Usage (from the repository root; ``PYTHONPATH=.`` makes this checkout's ``track`` the one
 imported, ``OPENBLAS_NUM_THREADS=1`` keeps BLAS threads from fighting on a shared machine)::
@@ -57,7 +60,7 @@ def _timed(fn):
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
-def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0):
+def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=1):
     """Link and grid one series with the importable ``track``; a dict of results.
 
     The stages of :func:`track.pipeline.track_clouds` (``track link``), each timed (wall and
@@ -83,7 +86,12 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0):
     clouds = list(s.frames_xyz_um)
     load = os.getloadavg()[0]
     pairs, link_s, link_cpu = _timed(lambda: link_pairs(clouds, settings))
-    res, fields_s, fields_cpu = _timed(lambda: track_series(clouds, settings, pairs=pairs))
+    kw = {}
+    if workers > 1:  # (a baseline's track_series may not know the argument)
+        from hrvbase.parallel import Parallel
+
+        kw["parallel"] = Parallel(workers=workers)
+    res, fields_s, fields_cpu = _timed(lambda: track_series(clouds, settings, pairs=pairs, **kw))
 
     def write():
         with tempfile.TemporaryDirectory(prefix="bench-fields-") as tmp:
@@ -123,6 +131,7 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0):
         "frames": frames,
         "particles_per_frame": float(np.mean([len(f) for f in s.frames_xyz_um])),
         "grid": grid,
+        "workers": workers,
         "grid_shape": list(res.axes.shape),
         "link_s": link_s,
         "fields_s": fields_s,
@@ -192,6 +201,13 @@ def main(argv=None) -> None:
         choices=["default", "particles", "particles-nostd"],
     )
     ap.add_argument("--nodes-per-spacing", type=float, default=2.0, help="of the 'particles' grids")
+    ap.add_argument(
+        "--workers",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="Dask workers of the new code's fields, one row each (default 1: in process)",
+    )
     ap.add_argument("--baseline", metavar="REV", help="also run track of this git revision")
     ap.add_argument(
         "--baseline-frames", type=int, help="frames of the baseline run (default --frames)"
@@ -218,7 +234,9 @@ def main(argv=None) -> None:
         )
         rows.append((f"baseline {args.baseline} ({args.baseline_grid})", b))
     for grid in args.grid:
-        rows.append((f"new ({grid} grid)", run_case(*_case(args), grid, args.nodes_per_spacing)))
+        for w in args.workers:
+            label = f"new ({grid} grid)" + (f" {w} workers" if w > 1 else "")
+            rows.append((label, run_case(*_case(args), grid, args.nodes_per_spacing, w)))
     head = ["code", "frames", "N/frame", "grid", "link_s", "fields_s", "write_s"]
     head += ["(f+w)/link", "load", "E_rmse_all", "E_rmse_last", "u_rmse", "cover1/2"]
     table = [_fmt(r, label) for label, r in rows]

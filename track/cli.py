@@ -27,7 +27,10 @@ tracking ratio and status of every pair, timings). Every file is written atomica
 Frames in parallel: ``run``/``detect`` ``--workers N`` detect N volumes at a time on local
 Dask worker processes, ``--scheduler ADDRESS`` on the workers of an existing Dask cluster
 (:mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
-the others are still being detected. The results are the same as with one worker.
+the others are still being detected. ``run``/``link`` then fit and grid N increments at a time
+on the workers (a local cluster started for the fields once the detection's has stopped, or
+the same ``--scheduler``), the Eulerian cumulation running here as they arrive. The results
+are the same as with one worker.
 
 Resuming: ``run``/``detect`` record each volume's SHA-256 in ``summary.json`` and skip the
 detection of volumes whose particle table exists with the same checksum; linking and fields
@@ -296,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(r)
     _detect_options(r)
     _link_options(r)
-    add_parallel_options(r.add_argument_group("frames in parallel (detection)"))
+    add_parallel_options(r.add_argument_group("frames in parallel (detection and fields)"))
     r.set_defaults(func=cmd_run)
     d = sub.add_parser("detect", parents=[common], help="detect particles in a folder of volumes")
     d.add_argument(
@@ -319,6 +322,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _common(k)
     _link_options(k)
+    add_parallel_options(k.add_argument_group("increments in parallel (fields)"))
     k.set_defaults(func=cmd_link)
     return p
 
@@ -464,6 +468,7 @@ def cmd_link(args) -> int:
     from .pipeline import track_clouds
 
     series = series_settings(args)
+    parallel = parallel_from_args(args)
     if len(args.clouds) >= 2:
         first = read_points_csv(args.clouds[0])
         if first.shape[0] >= 2:
@@ -475,6 +480,7 @@ def cmd_link(args) -> int:
             args.output,
             series=series,
             vti_encoding=args.vti_encoding,
+            parallel=parallel,
             **_common_kwargs(args),
         ),
     )

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hrvbase.io import atomic_path, atomic_write_text
+from hrvbase.io import atomic_path
 
 from .errors import InputError
 from .fields import GridField
@@ -127,23 +127,28 @@ def write_field_vti(
         f'    <Piece Extent="{ext}">',
         '      <PointData Vectors="displacement" Tensors="F" Scalars="E_xx">',
     ]
-    for name, arr in vti_arrays(fld).items():
-        if arr.dtype == np.uint8:
-            data, vtype = arr.astype("<u1"), "UInt8"
-        else:
-            data, vtype = arr.astype("<f4"), "Float32"
-        if encoding == "binary":
-            raw = data.tobytes()
-            body = base64.b64encode(np.uint64(len(raw)).astype("<u8").tobytes() + raw).decode()
-        else:
-            fmt = "%d" if vtype == "UInt8" else "%.7g"
-            body = " ".join(fmt % v for v in data.ravel())
-        parts.append(
-            f'        <DataArray type="{vtype}" Name="{name}" '
-            f'NumberOfComponents="{arr.shape[1]}" format="{encoding}">{body}</DataArray>'
-        )
-    parts += ["      </PointData>", "    </Piece>", "  </ImageData>", "</VTKFile>", ""]
-    return atomic_write_text(path, "\n".join(parts), overwrite=overwrite)
+    tail = ["      </PointData>", "    </Piece>", "  </ImageData>", "</VTKFile>"]
+    # written piece by piece as bytes: no text copy of the (base64) arrays, no joined copy
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
+        fh.write("\n".join([*parts, ""]).encode())
+        for name, arr in vti_arrays(fld).items():
+            if arr.dtype == np.uint8:
+                data, vtype = arr.astype("<u1"), "UInt8"
+            else:
+                data, vtype = arr.astype("<f4"), "Float32"
+            fh.write(
+                f'        <DataArray type="{vtype}" Name="{name}" '
+                f'NumberOfComponents="{arr.shape[1]}" format="{encoding}">'.encode()
+            )
+            if encoding == "binary":
+                raw = data.tobytes()
+                fh.write(base64.b64encode(np.uint64(len(raw)).astype("<u8").tobytes() + raw))
+            else:
+                fmt = "%d" if vtype == "UInt8" else "%.7g"
+                fh.write(" ".join(fmt % v for v in data.ravel()).encode())
+            fh.write(b"</DataArray>\n")
+        fh.write("\n".join([*tail, ""]).encode())
+    return Path(path)
 
 
 __all__ = ["read_field_npz", "vti_arrays", "write_field_npz", "write_field_vti"]

@@ -360,6 +360,16 @@ def _tps_kernel(r: np.ndarray) -> np.ndarray:
     return xlogy(r * r, r)
 
 
+def _tps_kernel_sq(r2: np.ndarray) -> np.ndarray:
+    """:func:`_tps_kernel` from ``r²``, as ``r² log(r²) / 2`` (no square root, no ``xlogy``)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k = np.log(r2)
+        k *= r2
+    k *= 0.5
+    k[r2 <= 0] = 0.0
+    return k
+
+
 def gcv_smoothing(
     positions_um: np.ndarray,
     values: np.ndarray,
@@ -384,7 +394,10 @@ def gcv_smoothing(
     ``(I − A) y = Q₂ U diag(λ / (γ + λ)) Uᵀ Q₂ᵀ y``,  ``tr(I − A) = Σ λ / (γ_k + λ)``,
 
     so one eigen-decomposition gives ``V`` for every λ of a log-spaced scan (16 decades, 10 per
-    decade). A column of exactly affine data (no residual) gets the smallest λ of the scan.
+    decade). A column of exactly affine data (its non-affine part ``Bᵀ y`` at round-off,
+    :data:`GCV_AFFINE_RTOL`) gets the largest λ of the scan: its fit is that affine function
+    for every λ, its uncertainties those of the affine least-squares fit (round-off alone
+    would otherwise choose λ, differently with each BLAS and thread count).
 
     Parameters
     ----------
@@ -428,11 +441,17 @@ def gcv_smoothing(
         X, Y = X[keep], Y[keep]
         scale = n / float(max_points)
     basis = _ThinPlateBasis(X)
-    return _gcv_choose(basis.gam, basis.B.T @ Y) * scale
+    return _gcv_choose(basis.gam, basis.to_modes(Y), np.linalg.norm(Y, axis=0)) * scale
 
 
-def _gcv_choose(gam: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """GCV's λ for each column of ``z = Bᵀ y`` (shape (m − 4, C)), eigenvalues ``gam``."""
+#: A column whose non-affine part ``‖Bᵀ y‖`` is at most this fraction of ``‖y‖`` is exactly
+#: affine (round-off): :func:`_gcv_choose` gives it the largest λ of the scan.
+GCV_AFFINE_RTOL = 1e-11
+
+
+def _gcv_choose(gam: np.ndarray, z: np.ndarray, y_norm: np.ndarray | None = None) -> np.ndarray:
+    """GCV's λ for each column of ``z = Bᵀ y`` (shape (m − 4, C)), eigenvalues ``gam``;
+    ``y_norm``: ``‖y‖`` of each column (exactly affine columns, see :func:`gcv_smoothing`)."""
     m = gam.size + 4
     z2 = z * z
     top = max(float(gam.max(initial=0.0)), np.finfo(float).tiny)
@@ -442,32 +461,89 @@ def _gcv_choose(gam: np.ndarray, z: np.ndarray) -> np.ndarray:
     tr = f.sum(axis=0)  # (L,)
     score = m * rss / (tr * tr)[:, None]
     best = np.argmin(score, axis=0)
+    if y_norm is not None:
+        affine = np.sqrt(z2.sum(axis=0)) <= GCV_AFFINE_RTOL * np.asarray(y_norm)
+        best[affine] = lams.size - 1
     return lams[best]
 
 
 class _ThinPlateBasis:
     """The eigen-basis of a thin-plate spline with a degree-1 polynomial on ``N`` centres.
 
-    ``P = [1, X − X̄] = Q₁ R₁`` (thin QR), ``Q₂`` an orthonormal basis of the null space of
-    ``Pᵀ``, ``Q₂ᵀ K Q₂ = V diag(γ) Vᵀ`` and ``B = Q₂ V`` (N × (N − 4), orthonormal columns,
+    ``P = [1, X − X̄] = Q R`` (Householder QR, ``Q = H₀ H₁ H₂ H₃``, ``Q₁ R₁`` its thin part),
+    ``Q₂`` the other ``N − 4`` columns of ``Q`` (an orthonormal basis of the null space of
+    ``Pᵀ``), ``Q₂ᵀ K Q₂ = V diag(γ) Vᵀ`` and ``B = Q₂ V`` (N × (N − 4), orthonormal columns,
     orthogonal to ``Q₁``). Every smoothing parameter λ reuses it (:func:`gcv_smoothing`,
     :class:`_ThinPlateFit`).
+
+    ``Qᵀ K Q`` is formed with the four reflectors (rank-2 updates, O(N²)) and ``B`` is applied
+    through them (:meth:`to_modes`, :meth:`from_modes`) instead of as dense N × N products:
+    the eigen-decomposition is then most of the cost.
     """
 
     def __init__(self, X: np.ndarray) -> None:
+        from scipy.linalg import qr
         from scipy.spatial.distance import cdist
 
         self.centre = X.mean(axis=0)
         self.Xc = X - self.centre
         m = X.shape[0]
         P = np.c_[np.ones(m), self.Xc]
-        Q, R = np.linalg.qr(P, mode="complete")
-        self.Q1, self.R1 = Q[:, :4], R[:4, :4]
-        self.K = _tps_kernel(cdist(self.Xc, self.Xc))
-        Q2 = Q[:, 4:]
-        gam, V = np.linalg.eigh(Q2.T @ self.K @ Q2)
+        (h, tau), R = qr(P, mode="raw", check_finite=False)
+        vs = np.zeros((4, m))
+        for j in range(4):
+            vs[j, j] = 1.0
+            vs[j, j + 1 :] = h[j + 1 :, j]
+        self._v, self._tau = vs, np.asarray(tau, dtype=float)
+        self.R1 = np.triu(R[:4, :4])
+        self.K = _tps_kernel_sq(cdist(self.Xc, self.Xc, "sqeuclidean"))
+        M = self.K.copy()
+        for v, t in zip(vs, self._tau, strict=True):  # M ← H M H, H = I − τ v vᵀ
+            w = M @ v
+            p = t * w - (0.5 * t * t * float(v @ w)) * v
+            M -= np.outer(v, p)
+            M -= np.outer(p, v)
+        e = np.zeros((m, 4))
+        e[:4, :4] = np.eye(4)
+        self.Q1 = self._apply_q(e)
+        M2 = M[4:, 4:]
+        gam, self.V = np.linalg.eigh(0.5 * (M2 + M2.T))
         self.gam = np.maximum(gam, 0.0)
-        self.B = Q2 @ V
+
+    def _apply_q(self, Y: np.ndarray) -> np.ndarray:
+        """``Q Y`` (N, C) for ``Y`` (N, C)."""
+        Y = np.array(Y, dtype=float)
+        for v, t in zip(self._v[::-1], self._tau[::-1], strict=True):
+            Y -= np.outer(t * v, v @ Y)
+        return Y
+
+    def _apply_qt(self, Y: np.ndarray) -> np.ndarray:
+        """``Qᵀ Y`` (N, C) for ``Y`` (N, C)."""
+        Y = np.array(Y, dtype=float)
+        for v, t in zip(self._v, self._tau, strict=True):
+            Y -= np.outer(t * v, v @ Y)
+        return Y
+
+    def to_modes(self, Y: np.ndarray) -> np.ndarray:
+        """``Bᵀ Y`` (N − 4, C) for ``Y`` (N, C)."""
+        return self.V.T @ self._apply_qt(Y)[4:]
+
+    def from_modes(self, Z: np.ndarray) -> np.ndarray:
+        """``B Z`` (N, C) for ``Z`` (N − 4, C)."""
+        W = np.zeros((Z.shape[0] + 4, Z.shape[1]))
+        W[4:] = self.V @ Z
+        return self._apply_q(W)
+
+    def columns(self, keep: np.ndarray) -> np.ndarray:
+        """The columns ``B[:, keep]`` (N, r)."""
+        W = np.zeros((self.V.shape[0] + 4, keep.size))
+        W[4:] = self.V[:, keep]
+        return self._apply_q(W)
+
+    @property
+    def B(self) -> np.ndarray:
+        """``B`` (N, N − 4), formed (for tests and checks; the fits use :meth:`to_modes`)."""
+        return self.columns(np.arange(self.V.shape[1]))
 
 
 #: Modes of the spline whose filter factor γ/(γ + λ) is below this are left out of the
@@ -525,8 +601,8 @@ class _ThinPlateFit:
                 "or repeated"
             )
         self.den = den
-        self.z = b.B.T @ Y  # (N - 4, C)
-        C = b.B @ (self.z / den)
+        self.z = b.to_modes(Y)  # (N - 4, C)
+        C = b.from_modes(self.z / den)
         D = np.linalg.solve(b.R1, b.Q1.T @ (Y - b.K @ C - C * self.lam[None, :]))
         self.C, self.D = C, D
         nc = Y.shape[1]
@@ -544,6 +620,12 @@ class _ThinPlateFit:
         self._s0 = C.sum(axis=0)
         self._s1 = np.stack([(Xc[:, [j]] * C).sum(axis=0) for j in range(3)])  # (3, C)
         self._r2_scale = max(float(np.sum(np.ptp(Xc, axis=0) ** 2)), 1e-12)
+        # r² / s = [q̃, 1, |q̃|²] @ _Xaug (one product, :meth:`_logs`)
+        self._Xaug = np.vstack([self._m2Xt, self._xsq[None, :], np.ones((1, Xc.shape[0]))])
+        self._Xaug /= self._r2_scale
+        self._log_s = math.log(self._r2_scale)
+        self._floor32 = np.float32(max(_R2_FLOOR / self._r2_scale, 1e-37))
+        self._W_sum = self._W.sum(axis=0)
         self.sigma = self._noise(sigma)
 
     # -- noise -------------------------------------------------------------------------------
@@ -593,15 +675,38 @@ class _ThinPlateFit:
         logr *= 0.5
         return dq, (np.multiply(r2, logr, out=r2) if kernel else None), logr
 
-    def _value_gradient(self, q: np.ndarray):
+    def _logs(self, q: np.ndarray):
+        """``q − X̄`` (P, 3) and ``log(r² / s)`` (P, N) in single precision, ``s`` the centres'
+        squared extent (:meth:`_kernels`' ``single``; ``log r = (L + log s) / 2``): ``r²`` from
+        one product in double precision, then scaled, floored and logged in float32."""
+        dq = q - self.basis.centre
+        A = np.empty((dq.shape[0], 5))
+        A[:, :3] = dq
+        A[:, 3] = 1.0
+        A[:, 4] = np.einsum("ij,ij->i", dq, dq)
+        L = np.empty((dq.shape[0], self._Xaug.shape[1]), dtype=np.float32)
+        np.matmul(A, self._Xaug, out=L, casting="same_kind")
+        np.maximum(L, self._floor32, out=L)
+        np.log(L, out=L)
+        return dq, L
+
+    def _log_r_product(self, L: np.ndarray, W: np.ndarray, W_sum: np.ndarray) -> np.ndarray:
+        """``log r @ W`` (P, K) from :meth:`_logs`' ``L`` and ``W_sum = W.sum(axis=0)`` (in
+        double precision; the product in single precision when ``W`` is float32)."""
+        M = np.asarray(L @ W, dtype=np.float64)
+        M += self._log_s * W_sum
+        M *= 0.5
+        return M
+
+    def _value_gradient(self, q: np.ndarray, logs=None):
         """Values (P, C) and ``∂u_i/∂x_j`` (P, C, 3) at ``q`` (P, 3) from one product
-        ``log r @ W`` (single-precision log, :meth:`_kernels`): with
+        ``log r @ W`` (single-precision log, :meth:`_logs`): with
         ``r² = |q̃|² + |x̃|² − 2 q̃·x̃`` (``~``: minus the centre),
         ``Σ c r² log r = |q̃|² (L c) + L (|x̃|² c) − 2 Σ_j q̃_j L (x̃_j c)`` and
         ``∂/∂q_j Σ c r² log r = q̃_j (2 L c + Σ c) − (2 L (x̃_j c) + Σ x̃_j c)``."""
         nc = self.C.shape[1]
-        dq, _, logr = self._kernels(q, single=True, kernel=False)
-        M = logr @ self._W  # (P, 5 C)
+        dq, L = self._logs(q) if logs is None else logs
+        M = self._log_r_product(L, self._W, self._W_sum)  # (P, 5 C)
         M0, M1 = M[:, :nc], M[:, nc : 2 * nc]
         Mx = M[:, 2 * nc :].reshape(-1, 3, nc)  # (P, j, c)
         u = np.einsum("ij,ij->i", dq, dq)[:, None] * M0 + M1
@@ -646,7 +751,7 @@ class _ThinPlateFit:
         """Mode indices, ``Bₖ``, ``H``, ``R₁⁻¹`` and the quadratic form of each column."""
         b = self.basis
         keep = self._modes(cutoff)
-        Bk = b.B[:, keep]
+        Bk = b.columns(keep)
         R1inv = np.linalg.inv(b.R1)  # (4, 4)
         H = (Bk.T @ (b.K @ b.Q1)) @ R1inv.T  # (r, 4): a(q) = Bₖᵀ k(q) − H p(q)
         Ob = np.concatenate([Bk, b.Q1], axis=1)  # (N, r + 4), orthonormal columns
@@ -688,36 +793,88 @@ class _ThinPlateFit:
         modes above ``cutoff`` (:meth:`_modes`); ``single``: see :meth:`_kernels`."""
         q = np.asarray(q, dtype=float).reshape(-1, 3)
         nc = self.C.shape[1]
-        keep, Bk, H, R1inv, quad = self._std_setup(cutoff)
-        Xc = self.basis.Xc
-        r = keep.size
-        cols = np.concatenate([Bk] + [Xc[:, [j]] * Bk for j in range(3)], axis=1)
+        setup = self._std_setup(cutoff)
         u_sd = np.empty((q.shape[0], nc))
         G_sd = np.empty((q.shape[0], nc, 3)) if gradient else None
         for s in range(0, q.shape[0], _BLOCK_ROWS):
-            dq, Kq, logr = self._kernels(q[s : s + _BLOCK_ROWS], single)
-            p = np.c_[np.ones(dq.shape[0]), dq]
-            a = Kq @ Bk - p @ H.T  # (P, r)
-            pt = p @ R1inv  # R₁⁻ᵀ p, as rows
-            u_sd[s : s + _BLOCK_ROWS] = np.sqrt(self._var(a, pt, keep, quad))
+            blk = slice(s, s + _BLOCK_ROWS)
+            if single:
+                u_sd[blk], g = self._std_from_logs(self._logs(q[blk]), setup, gradient)
+            else:
+                u_sd[blk], g = self._std_block(q[blk], setup, gradient)
             if gradient:
-                logr *= 2.0
-                logr += 1.0
-                MB = logr @ cols[:, r:]  # (P, 3r)
-                MB0 = logr @ Bk
-                for j in range(3):
-                    da = dq[:, [j]] * MB0 - MB[:, j * r : (j + 1) * r] - H[:, 1 + j]
-                    dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
-                    G_sd[s : s + _BLOCK_ROWS, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
+                G_sd[blk] = g
+        return u_sd, G_sd
+
+    def _std_features(self, cutoff: float):
+        """:meth:`_std_setup` and the weights of ``log r`` giving ``a`` and ``∂a/∂q`` at once
+        (:meth:`_std_from_logs`): ``[Bₖ, |x̃|² Bₖ, x̃_x Bₖ, x̃_y Bₖ, x̃_z Bₖ]`` (N, 5 r)."""
+        keep, Bk, H, R1inv, quads = self._std_setup(cutoff)
+        Xc = self.basis.Xc
+        Wb = np.concatenate([Bk, self._xsq[:, None] * Bk] + [Xc[:, [j]] * Bk for j in range(3)], 1)
+        # float32 weights: the product is the largest of the grid (P × N × 5 r) and variances
+        # need no more (measured on bench_fields' series: 2e-6 of u_std and F_std)
+        return keep, Bk, H, R1inv, quads, Wb.astype(np.float32), Wb.sum(axis=0)
+
+    def _std_block(self, q, setup, gradient):
+        """:meth:`std` in double precision for one block of points."""
+        keep, Bk, H, R1inv, quad = setup[:5]
+        Xc = self.basis.Xc
+        r = keep.size
+        dq, Kq, logr = self._kernels(q)
+        p = np.c_[np.ones(dq.shape[0]), dq]
+        a = Kq @ Bk - p @ H.T  # (P, r)
+        pt = p @ R1inv  # R₁⁻ᵀ p, as rows
+        u_sd = np.sqrt(self._var(a, pt, keep, quad))
+        if not gradient:
+            return u_sd, None
+        G_sd = np.empty((q.shape[0], self.C.shape[1], 3))
+        logr *= 2.0
+        logr += 1.0
+        cols = np.concatenate([Bk] + [Xc[:, [j]] * Bk for j in range(3)], axis=1)
+        MB = logr @ cols  # (P, 4r)
+        for j in range(3):
+            da = dq[:, [j]] * MB[:, :r] - MB[:, (j + 1) * r : (j + 2) * r] - H[:, 1 + j]
+            dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
+            G_sd[:, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
+        return u_sd, G_sd
+
+    def _std_from_logs(self, logs, setup, gradient: bool = True):
+        """:meth:`std` at the points of :meth:`_logs`' ``(q̃, L)``, from one product
+        ``log r @ [Bₖ, |x̃|² Bₖ, x̃_j Bₖ]`` (``setup``: :meth:`_std_features`): with
+        ``M_b = log r @ Bₖ``, ``M_s = log r @ (|x̃|² Bₖ)``, ``M_j = log r @ (x̃_j Bₖ)``,
+        ``Bₖᵀ k(q) = |q̃|² M_b + M_s − 2 Σ_j q̃_j M_j`` and, with ``φ'(r)/r = 2 log r + 1``,
+        ``∂(Bₖᵀ k)/∂q_j = q̃_j (2 M_b + Σ Bₖ) − (2 M_j + Σ x̃_j Bₖ)``."""
+        keep, _, H, R1inv, quad, Wb, Wb_sum = setup
+        dq, L = logs
+        r = keep.size
+        M = self._log_r_product(L, Wb, Wb_sum)  # (P, 5 r)
+        Mb, Ms = M[:, :r], M[:, r : 2 * r]
+        p = np.c_[np.ones(dq.shape[0]), dq]
+        a = np.einsum("ij,ij->i", dq, dq)[:, None] * Mb + Ms - p @ H.T
+        for j in range(3):
+            a -= 2.0 * dq[:, [j]] * M[:, (2 + j) * r : (3 + j) * r]
+        u_sd = np.sqrt(self._var(a, p @ R1inv, keep, quad))
+        if not gradient:
+            return u_sd, None
+        G_sd = np.empty((dq.shape[0], self.C.shape[1], 3))
+        phi_b = 2.0 * Mb + Wb_sum[:r]
+        for j in range(3):
+            da = dq[:, [j]] * phi_b
+            da -= 2.0 * M[:, (2 + j) * r : (3 + j) * r] + Wb_sum[(2 + j) * r : (3 + j) * r]
+            da -= H[:, 1 + j]
+            dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
+            G_sd[:, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
         return u_sd, G_sd
 
     def on_grid(self, axes: GridAxes, with_std: bool, stride: int | None = None):
         """Values, exact gradients and (``with_std``) standard uncertainties on a grid.
 
-        One kernel block per chunk of nodes gives values and gradients. The uncertainties keep
-        the modes above :data:`STD_GRID_MODE_CUTOFF` and are computed (:meth:`std`) on every
-        ``stride``-th node along each axis (the last node always; default
-        :meth:`_std_stride`) and interpolated (trilinear) at the other nodes.
+        One single-precision ``log r`` block per chunk of nodes (:meth:`_logs`) gives values
+        and gradients and, on the nodes of the sub-grid, the uncertainties: they keep the modes
+        above :data:`STD_GRID_MODE_CUTOFF`, are computed on every ``stride``-th node along each
+        axis (the last node always; default :meth:`_std_stride`) and interpolated (trilinear)
+        at the other nodes.
 
         Returns
         -------
@@ -726,16 +883,32 @@ class _ThinPlateFit:
         pts = axes.points()
         shape = axes.shape
         nc = self.C.shape[1]
-        u, G = self.evaluate(pts, gradient=True, single=True)
+        u = np.empty((pts.shape[0], nc))
+        G = np.empty((pts.shape[0], nc, 3))
+        rest = np.arange(pts.shape[0])
+        if with_std:  # the sub-grid's nodes first: their log r blocks serve both
+            if stride is None:
+                stride = self._std_stride(axes)
+            sub = [_sub_indices(n, max(1, int(stride))) for n in shape]
+            on_sub = np.zeros(shape, dtype=bool)
+            on_sub[np.ix_(*sub)] = True
+            first, rest = np.flatnonzero(on_sub), np.flatnonzero(~on_sub)
+            setup = self._std_features(STD_GRID_MODE_CUTOFF)
+            u_sd, G_sd = np.empty((first.size, nc)), np.empty((first.size, nc, 3))
+            for s in range(0, first.size, _BLOCK_ROWS):
+                idx = first[s : s + _BLOCK_ROWS]
+                logs = self._logs(pts[idx])
+                u[idx], G[idx] = self._value_gradient(None, logs)
+                u_sd[s : s + _BLOCK_ROWS], G_sd[s : s + _BLOCK_ROWS] = self._std_from_logs(
+                    logs, setup
+                )
+        for s in range(0, rest.size, _BLOCK_ROWS):
+            idx = rest[s : s + _BLOCK_ROWS] if with_std else slice(s, s + _BLOCK_ROWS)
+            u[idx], G[idx] = self._value_gradient(pts[idx])
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
         if not with_std:
             return u, G, None, None
-        if stride is None:
-            stride = self._std_stride(axes)
-        sub = [_sub_indices(n, max(1, int(stride))) for n in shape]
-        coarse = GridAxes(axes.x_um[sub[2]], axes.y_um[sub[1]], axes.z_um[sub[0]])
-        u_sd, G_sd = self.std(coarse.points(), True, STD_GRID_MODE_CUTOFF, single=True)
-        sub_shape = coarse.shape
+        sub_shape = tuple(ix.size for ix in sub)
         u_sd = _upsample(u_sd.reshape(*sub_shape, nc), sub, shape)
         G_sd = _upsample(G_sd.reshape(*sub_shape, nc, 3), sub, shape)
         return u, G, u_sd, G_sd
@@ -902,6 +1075,31 @@ class DisplacementInterpolant:
                 out[idx] = np.all(block <= tol, axis=1)
         return out
 
+    def supported_on_grid(self, axes: GridAxes) -> np.ndarray:
+        """:meth:`supported` at the nodes of ``axes`` (in :meth:`GridAxes.points` order, shape
+        (P,)): the hull is convex, so along each line of nodes in x it holds an interval,
+        found from the facets once per line instead of testing every node against every
+        facet."""
+        pts = axes.points()
+        bound = np.nextafter(float(self.support_radius_um), np.inf)
+        d, _ = self._tree.query(pts, k=1, distance_upper_bound=bound)
+        out = d <= self.support_radius_um
+        if self._hull is None:
+            return out
+        eq = self._hull.equations  # n·x + c <= 0 inside
+        tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
+        Z, Y = np.meshgrid(axes.z_um, axes.y_um, indexing="ij")
+        # n_x x <= b on each line (z, y), for each facet
+        b = tol - eq[:, 3] - Y[..., None] * eq[:, 1] - Z[..., None] * eq[:, 2]  # (nz, ny, F)
+        nx = eq[:, 0]
+        pos, neg = nx > 0, nx < 0
+        hi = np.min(b[..., pos] / nx[pos], axis=-1, initial=np.inf)
+        lo = np.max(b[..., neg] / nx[neg], axis=-1, initial=-np.inf)
+        ok = np.all(b[..., ~(pos | neg)] >= 0, axis=-1)
+        x = axes.x_um
+        inside = ok[..., None] & (x >= lo[..., None]) & (x <= hi[..., None])
+        return out | inside.ravel()
+
 
 def fit_displacement(
     positions_um: np.ndarray,
@@ -989,7 +1187,7 @@ def fit_displacement(
             lam[:] = float(settings.smoothing)
         elif n >= GCV_MIN_POINTS:
             if basis is not None and n <= settings.gcv_max_points:
-                lam = _gcv_choose(basis.gam, basis.B.T @ U)
+                lam = _gcv_choose(basis.gam, basis.to_modes(U), np.linalg.norm(U, axis=0))
             else:
                 lam = gcv_smoothing(X, U, max_points=settings.gcv_max_points)
             log.debug("GCV smoothing of u_x, u_y, u_z: %.3g, %.3g, %.3g", *lam)
@@ -1120,7 +1318,7 @@ def field_on_grid(
     else:
         u = interpolant(pts).reshape(*shape, 3)
         F, E, e = strain_from_displacement(axes, u)
-    mask = interpolant.supported(pts).reshape(shape)
+    mask = interpolant.supported_on_grid(axes).reshape(shape)
     return GridField(axes.x_um, axes.y_um, axes.z_um, u, F, E, e, mask, **stds)
 
 

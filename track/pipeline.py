@@ -21,12 +21,13 @@ Results folder ``out_dir``::
 
 Every file is written atomically. The volumes may be detected on Dask workers (``parallel``,
 :mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
-the others are still being detected; the results are the same. Resuming: the SHA-256 of
-each volume is recorded and the detection of volumes whose particle table exists with the
-same checksum is skipped; linking and fields are recomputed. A folder made from other inputs
-or detection settings is refused unless ``overwrite`` (which then deletes only files
-``track`` writes); a non-empty folder without a ``summary.json`` written by ``track`` is
-always refused.
+the others are still being detected; the increments' fields are then fitted and gridded on
+the same kind of workers (:func:`track.series.track_series`); the results are the same.
+Resuming: the SHA-256 of each volume is recorded and the detection of volumes whose particle
+table exists with the same checksum is skipped; linking and fields are recomputed. A folder
+made from other inputs or detection settings is refused unless ``overwrite`` (which then
+deletes only files ``track`` writes); a non-empty folder without a ``summary.json`` written
+by ``track`` is always refused.
 
 Failures: a pair that cannot be linked (fewer than ``min_particles`` particles, no
 consistent matches), a field that cannot be gridded or (detection only) a volume without
@@ -49,7 +50,7 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -487,6 +488,14 @@ class _Detections:
         if self._map is not None:
             self._map.close()
 
+    def release(self) -> None:
+        """Once every frame has arrived (linking read them all): end the detection's map, so
+        that its local workers are stopped before the fields start theirs."""
+        if all(c is not None for c in self.clouds):
+            for job, result in self._results:  # nothing left: the map ends
+                self._take(job, result)
+            self.close()
+
     def finish(self) -> list[FrameDetections]:
         """Wait for every detection; record the detection's summary entries."""
         try:
@@ -539,11 +548,15 @@ def _link_and_write(
     progress: bool,
     sigmas: Sequence[np.ndarray | None] | None = None,
     common_sigma_xyz_um=None,
+    parallel=None,
+    after_linking: Callable[[], None] | None = None,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
     """Link ``clouds`` (a list, or :class:`_Detections` arriving), grid and write the fields.
 
     ``sigmas``: the frames' position uncertainties ``(N_i, 3)`` (µm; None items: unknown),
-    a list or ``_Detections.sigmas``; None: the clouds came without.
+    a list or ``_Detections.sigmas``; None: the clouds came without. ``parallel``: the
+    increments' fields on its Dask workers (:func:`track.series.track_series`);
+    ``after_linking`` is called between linking and fields.
     """
     summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
@@ -570,6 +583,8 @@ def _link_and_write(
             common_sigma_xyz_um=common_sigma_xyz_um,
         )
     t1 = time.perf_counter()
+    if after_linking is not None:
+        after_linking()
     floor = noise_floor(pairs, settings.static_frames)
     if floor is not None:
         summary["noise_floor"] = floor.as_dict()
@@ -588,7 +603,12 @@ def _link_and_write(
         )
     with _bar(n_pairs if settings.compute_fields else 0, progress, "fields", "field") as bar:
         res = track_series(
-            clouds, settings, pairs=pairs, on_field=lambda _k: bar.update(), sigmas=sigmas
+            clouds,
+            settings,
+            pairs=pairs,
+            on_field=lambda _k: bar.update(),
+            sigmas=sigmas,
+            parallel=parallel,
         )
     t2 = time.perf_counter()
     increments, outcomes = [], []
@@ -865,6 +885,8 @@ def track_volumes(
             progress,
             sigmas=detections.sigmas,
             common_sigma_xyz_um=common,
+            parallel=parallel,
+            after_linking=detections.release,
         )
     finally:
         detections.close()
@@ -882,6 +904,7 @@ def track_clouds(
     progress: bool = False,
     vti_encoding: str = "binary",
     provenance: Mapping[str, Any] | None = None,
+    parallel=None,
 ) -> TrackResult:
     """Link point clouds (frame 0 first) and grid their displacement and strain fields.
 
@@ -896,6 +919,8 @@ def track_clouds(
         Default ``SeriesSettings()``.
     overwrite, allow_partial, progress, vti_encoding, provenance
         As in :func:`track_volumes`.
+    parallel : hrvbase.parallel.Parallel, optional
+        Fit and grid the increments on Dask workers (same results); default: in this process.
 
     Returns
     -------
@@ -968,6 +993,7 @@ def track_clouds(
         vti_encoding,
         progress,
         sigmas=sigmas if any(sg is not None for sg in sigmas) else None,
+        parallel=parallel,
     )
     return _finish(out, summary, t0, allow_partial, "link", frames, pairs, tracks, grid)
 

@@ -38,6 +38,7 @@ at ``x(X)``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -524,10 +525,11 @@ class EulerianCumulation:
         (:meth:`DisplacementInterpolant.std`).
         """
         x = self._X + self._u
-        self._u, self._F, sup = compose_step(
-            self._X, self._u, self._F, increment, self.axes.spacing_xyz_um
-        )
-        self._mask &= sup
+        u_inc, G_inc = increment.value_and_gradient(x, self.axes.spacing_xyz_um)
+        self._F = np.einsum("pij,pjk->pik", np.eye(3) + G_inc, self._F)  # (compose_step)
+        self._u = self._u + u_inc
+        keep = np.flatnonzero(self._mask)  # a node once unsupported stays so
+        self._mask[keep] = increment.supported(x[keep])
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
         stds = {}
@@ -573,12 +575,14 @@ def _grid_lookup(fld: GridField, xyz_um: np.ndarray) -> tuple[np.ndarray, np.nda
     i0 = np.minimum(np.floor(t).astype(np.int64), shape - 2)
     w = t - i0
     n = t.shape[0]
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    base = i0 @ strides
+    ws = (1.0 - w, w)
     out = np.zeros((n, 12))
     for corner in range(8):
-        d = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
-        wc = np.prod(np.where(d, w, 1.0 - w), axis=1)
-        idx = np.ravel_multi_index((i0 + d).T, tuple(shape))
-        out += wc[:, None] * vals[idx]
+        d = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
+        wc = ws[d[0]][:, 0] * ws[d[1]][:, 1] * ws[d[2]][:, 2]
+        out += wc[:, None] * vals[base + int(np.dot(d, strides))]
     return out[:, :3], out[:, 3:].reshape(n, 3, 3)
 
 
@@ -909,6 +913,7 @@ def track_series(
     on_pair: Callable[[PairResult], None] | None = None,
     on_field: Callable[[int], None] | None = None,
     sigmas: Sequence[np.ndarray | None] | None = None,
+    parallel=None,
 ) -> SeriesResult:
     """Link a series of point clouds and compute trajectories and displacement/strain fields.
 
@@ -928,6 +933,10 @@ def track_series(
     sigmas : sequence of (ndarray, shape (N_i, 3)), optional
         Position uncertainties of each frame (µm), see :func:`link_pairs`; also copied into
         the tracks.
+    parallel : hrvbase.parallel.Parallel, optional
+        Fit and grid the increments on Dask workers (:func:`hrvbase.parallel.frame_map`);
+        the Eulerian cumulation runs here, in order, as they arrive. Default (or one worker):
+        in this process. The results are the same.
 
     Returns
     -------
@@ -967,7 +976,9 @@ def track_series(
         except InputError as exc:
             status = [f"skipped: no reference grid ({exc})"] * n
         if axes is not None:
-            _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field)
+            _fields(
+                pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel
+            )
     return SeriesResult(
         mode=settings.mode,
         pairs=pairs,
@@ -980,7 +991,9 @@ def track_series(
     )
 
 
-def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpolant:
+def _fit_job(pts, pair: PairResult, settings: SeriesSettings):
+    """What an increment's field is fitted to: reference positions (K, 3), displacements
+    (K, 3) and their uncertainties (K, 3) or None; InputError when it cannot be fitted."""
     if not pair.ok:
         raise InputError(pair.status.removeprefix("skipped: "))
     if pair.matches.shape[0] < settings.min_particles:
@@ -993,34 +1006,190 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
     sigma = getattr(pair, "sigma_displacement_um", None)
     if sigma is not None and not np.all(np.isfinite(sigma)):
         sigma = None
-    return fit_displacement(ref, pair.displacement_um, settings.grid, sigma_um=sigma)
+    return ref, pair.displacement_um, sigma
 
 
-def _fields(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field) -> None:
-    done = on_field or (lambda k: None)
-    if settings.mode == "cumulative":
-        for k, pair in enumerate(pairs):
+def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpolant:
+    ref, disp, sigma = _fit_job(pts, pair, settings)
+    return fit_displacement(ref, disp, settings.grid, sigma_um=sigma)
+
+
+_BLAS = []  # [(get, set)] of numpy's OpenBLAS, or [None]: not found
+
+
+def _openblas():
+    """``(get_num_threads, set_num_threads)`` of the OpenBLAS bundled with numpy (its wheels'
+    ``numpy.libs/libscipy_openblas*``), or None (another BLAS, or not found)."""
+    if not _BLAS:
+        import ctypes
+        from pathlib import Path
+
+        found = None
+        libs = Path(np.__file__).resolve().parent.parent / "numpy.libs"
+        for lib in sorted(libs.glob("libscipy_openblas*.so*")) if libs.is_dir() else []:
             try:
-                interp = _fit(pts, pair, settings)
-                lams[k] = interp.smoothing
-                totals[k] = field_on_grid(interp, axes)
-                status[k] = OK
-            except InputError as exc:
-                status[k] = f"skipped: {exc}"
-            done(k)
+                dll = ctypes.CDLL(str(lib))  # the library numpy loaded (same file, same handle)
+                for suffix in ("64_", "", "_64_"):
+                    get = getattr(dll, f"scipy_openblas_get_num_threads{suffix}", None)
+                    put = getattr(dll, f"scipy_openblas_set_num_threads{suffix}", None)
+                    if get is not None and put is not None:
+                        put.argtypes = [ctypes.c_int]
+                        found = (get, put)
+                        break
+            except OSError:
+                continue
+            if found:
+                break
+        if found is None:
+            log.debug("numpy's OpenBLAS not found: BLAS threads left as they are")
+        _BLAS.append(found)
+    return _BLAS[0]
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """Run the block with numpy's BLAS on one thread (as on a Dask worker, whose nanny sets
+    ``OPENBLAS_NUM_THREADS=1``): OpenBLAS's products and eigen-decompositions round
+    differently with other thread counts, and the increments' fields must not depend on
+    where they were computed (:func:`_increments`). For a few hundred particles a second
+    thread gains nothing there (on a busy machine its threads cost four times the CPU time).
+    """
+    blas = _openblas()
+    if blas is None:
+        yield
         return
-    cumulation = EulerianCumulation(axes)
-    broken = None
+    get, put = blas
+    before = int(get())
+    put(1)
+    try:
+        yield
+    finally:
+        put(before)
+
+
+#: glibc ``mallopt`` parameters (malloc.h).
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+@contextlib.contextmanager
+def _heap_kept():
+    """Run the block with glibc's heap kept between the blocks' temporaries (Linux only).
+
+    A Dask worker's nanny starts it with ``MALLOC_TRIM_THRESHOLD_=65536``: every freed
+    temporary above 128 kB is returned to the system and the next one faulted in again, page
+    by page, which made an increment's fit and grid 2.3 times as slow as in this process
+    (measured). Afterwards the worker's own settings are set back.
+    """
+    import ctypes
+    import os
+    import sys
+
+    libc = None
+    if sys.platform.startswith("linux") and os.environ.get("MALLOC_TRIM_THRESHOLD_"):
+        try:
+            libc = ctypes.CDLL("libc.so.6")
+            libc.mallopt(_M_TRIM_THRESHOLD, 256 << 20)
+            libc.mallopt(_M_MMAP_THRESHOLD, 32 << 20)
+        except (OSError, AttributeError):
+            libc = None
+    try:
+        yield
+    finally:
+        if libc is not None:
+            libc.mallopt(_M_TRIM_THRESHOLD, int(os.environ["MALLOC_TRIM_THRESHOLD_"]))
+            libc.mallopt(_M_MMAP_THRESHOLD, 128 << 10)
+            libc.malloc_trim(0)
+
+
+class _NotFitted:
+    """An increment whose field could not be fitted (its InputError's message)."""
+
+    def __init__(self, message: str) -> None:
+        self.message = message
+
+
+def _grid_increment(job, grid: GridSettings, axes: GridAxes):
+    """The interpolant of one increment and its field on ``axes`` (:class:`_NotFitted` when
+    the fit refuses the data), with BLAS on one thread (:func:`_one_blas_thread`)."""
+    with _one_blas_thread():
+        try:
+            interp = fit_displacement(job[0], job[1], grid, sigma_um=job[2])
+        except InputError as exc:
+            return _NotFitted(str(exc))
+        return interp, field_on_grid(interp, axes)
+
+
+def _increment_context(grid: GridSettings, axes: GridAxes, jobs: dict):
+    """Worker context of :func:`_increment_task`: the grid and every increment's data."""
+    return grid, axes, jobs
+
+
+def _increment_task(k: int, ctx):
+    """(On a worker) fit and grid increment ``k``."""
+    grid, axes, jobs = ctx
+    with _heap_kept():
+        return _grid_increment(jobs[k], grid, axes)
+
+
+def _increments(pts, pairs, settings, axes, parallel):
+    """``(k, (interpolant, field) or _NotFitted)`` for every pair, in pair order.
+
+    In this process one at a time (``parallel`` None or one worker); else the fits and grids
+    run on the Dask workers of ``parallel`` (:func:`hrvbase.parallel.frame_map`, the data
+    sent once to each worker) and arrive here in order as they complete. Each worker computes
+    exactly what this process would: the results are the same.
+    """
+    jobs, refused = {}, {}
     for k, pair in enumerate(pairs):
         try:
-            interp = _fit(pts, pair, settings)
+            jobs[k] = _fit_job(pts, pair, settings)
         except InputError as exc:
-            status[k] = f"skipped: {exc}"
-            broken = broken or f"skipped: increment {pair.ref_frame} → {pair.def_frame} missing"
+            refused[k] = _NotFitted(str(exc))
+    if parallel is None or parallel.in_process or len(jobs) < 2:
+        for k in range(len(pairs)):
+            yield k, refused[k] if k in refused else _grid_increment(jobs[k], settings.grid, axes)
+        return
+    from hrvbase.parallel import WorkerContext, frame_map, in_order
+
+    items = sorted(jobs)
+    ctx = WorkerContext(_increment_context, (settings.grid, axes, jobs))
+    with frame_map(
+        _increment_task, items, parallel=parallel, context=ctx, desc="fields", unit="field"
+    ) as fm:
+        arrived = in_order(fm, items)
+        for k in range(len(pairs)):
+            yield k, refused[k] if k in refused else next(arrived)[1]
+
+
+def _fields(
+    pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel=None
+) -> None:
+    with _one_blas_thread():  # faster too: these products are too small for threads
+        _fields_loop(
+            pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel
+        )
+
+
+def _fields_loop(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel):
+    done = on_field or (lambda k: None)
+    cumulation = None if settings.mode == "cumulative" else EulerianCumulation(axes)
+    broken = None
+    for k, got in _increments(pts, pairs, settings, axes, parallel):
+        pair = pairs[k]
+        if isinstance(got, _NotFitted):
+            status[k] = f"skipped: {got.message}"
+            if cumulation is not None:
+                broken = broken or f"skipped: increment {pair.ref_frame} → {pair.def_frame} missing"
             done(k)
             continue
+        interp, fld = got
         lams[k] = interp.smoothing
-        inc_fields[k] = field_on_grid(interp, axes)
+        if cumulation is None:
+            totals[k] = fld
+            status[k] = OK
+            done(k)
+            continue
+        inc_fields[k] = fld
         if broken is not None:
             status[k] = broken
             done(k)

@@ -73,6 +73,23 @@ def test_mask_marks_nodes_far_from_particles():
     assert g.mask[:, :, xs > 200].mean() < 0.3
 
 
+def test_grid_mask_by_lines_equals_the_node_by_node_test():
+    """supported_on_grid (an interval of each line of nodes inside the convex hull) marks the
+    nodes supported() marks, node by node: on random clouds, flat ones, a half-filled box, and
+    grids whose first nodes lie on the hull (the particles' bounding box)."""
+    rng = np.random.default_rng(11)
+    n_in = 0
+    for n, squash, h in ((30, 1.0, 3.0), (200, 0.3, 7.0), (400, 1.0, 5.0), (60, 0.05, 2.0)):
+        X = rng.uniform(0, 100, (n, 3)) * [1.0, 1.0, squash]
+        X = X[X[:, 0] < 60 + 40 * rng.random()]
+        it = fit_displacement(X, rng.normal(size=X.shape), GridSettings(smoothing=1.0))
+        for ax in (grid_axes(X, h), grid_axes(X - 7.3, 0.5 * h)):
+            want = it.supported(ax.points())
+            assert np.array_equal(it.supported_on_grid(ax), want)
+            n_in += int(want.sum())
+    assert n_in > 1000
+
+
 def test_gradient_of_interpolant_and_grid_agree():
     X = _cloud()
     u = np.c_[1e-4 * X[:, 2] ** 2, np.sin(X[:, 0] / 80.0), 0.02 * X[:, 1]]

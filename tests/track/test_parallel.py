@@ -121,3 +121,33 @@ def test_linking_starts_before_the_last_frame_arrives():
     link_pairs(Arriving(), SeriesSettings(), on_pair=lambda p: events.append(f"pair {p.def_frame}"))
     first = {e: events.index(e) for e in reversed(events)}
     assert first["pair 1"] < first["frame 2"] < first["pair 2"] < first["frame 3"]
+
+
+@pytest.mark.slow  # one local cluster: about 30 s on 2 busy cores
+def test_link_fields_on_two_workers_are_the_serial_fields(tmp_path, capsys):
+    """`track link --workers 2` fits and grids the increments on two Dask workers and composes
+    them here: every file (fields with σ, increments, tracks) and record is the serial one's,
+    byte for byte. 300 noisy particles: eigen-decompositions and products large enough for
+    OpenBLAS to thread them in this process (which would round differently from a worker)."""
+    import numpy as np
+
+    from track.synthetic import make_series
+    from track.tables import write_points_csv
+
+    s = make_series("stiff_inclusion", 330, 0.05, 4, seed=3)
+    paths = []
+    for i, c in enumerate(s.frames_xyz_um):
+        paths.append(tmp_path / f"c{i}.csv")
+        write_points_csv(paths[-1], np.asarray(c))
+    assert min(len(c) for c in s.frames_xyz_um) > 250
+    argv = ["-q", "link", *paths, "--nodes-per-spacing", "1.5", "--no-progress"]
+    rc, err = _run([*argv, "-o", tmp_path / "serial"], capsys)
+    assert rc == 0, err
+    rc, err = _run([*argv, "-o", tmp_path / "two", "--workers", "2"], capsys)
+    assert rc == 0, err
+    serial, two = outputs(tmp_path / "serial"), outputs(tmp_path / "two")
+    assert two == serial
+    assert sum(k.startswith("fields/increment_") for k in serial) == 3
+    assert records(tmp_path / "two") == records(tmp_path / "serial")
+    summary = json.loads((tmp_path / "two" / "summary.json").read_text())
+    assert all(len(set(inc["smoothing_xyz"])) == 3 for inc in summary["increments"])  # GCV
