@@ -38,7 +38,6 @@ at ``x(X)``.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -47,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from hrvbase.threads import heap_kept, one_blas_thread
 from hrvbase.validate import points_xyz
 
 from .errors import InputError, TrackError, TrackingError
@@ -1014,93 +1014,6 @@ def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpo
     return fit_displacement(ref, disp, settings.grid, sigma_um=sigma)
 
 
-_BLAS = []  # [(get, set)] of numpy's OpenBLAS, or [None]: not found
-
-
-def _openblas():
-    """``(get_num_threads, set_num_threads)`` of the OpenBLAS bundled with numpy (its wheels'
-    ``numpy.libs/libscipy_openblas*``), or None (another BLAS, or not found)."""
-    if not _BLAS:
-        import ctypes
-        from pathlib import Path
-
-        found = None
-        libs = Path(np.__file__).resolve().parent.parent / "numpy.libs"
-        for lib in sorted(libs.glob("libscipy_openblas*.so*")) if libs.is_dir() else []:
-            try:
-                dll = ctypes.CDLL(str(lib))  # the library numpy loaded (same file, same handle)
-                for suffix in ("64_", "", "_64_"):
-                    get = getattr(dll, f"scipy_openblas_get_num_threads{suffix}", None)
-                    put = getattr(dll, f"scipy_openblas_set_num_threads{suffix}", None)
-                    if get is not None and put is not None:
-                        put.argtypes = [ctypes.c_int]
-                        found = (get, put)
-                        break
-            except OSError:
-                continue
-            if found:
-                break
-        if found is None:
-            log.debug("numpy's OpenBLAS not found: BLAS threads left as they are")
-        _BLAS.append(found)
-    return _BLAS[0]
-
-
-@contextlib.contextmanager
-def _one_blas_thread():
-    """Run the block with numpy's BLAS on one thread (as on a Dask worker, whose nanny sets
-    ``OPENBLAS_NUM_THREADS=1``): OpenBLAS's products and eigen-decompositions round
-    differently with other thread counts, and the increments' fields must not depend on
-    where they were computed (:func:`_increments`). For a few hundred particles a second
-    thread gains nothing there (on a busy machine its threads cost four times the CPU time).
-    """
-    blas = _openblas()
-    if blas is None:
-        yield
-        return
-    get, put = blas
-    before = int(get())
-    put(1)
-    try:
-        yield
-    finally:
-        put(before)
-
-
-#: glibc ``mallopt`` parameters (malloc.h).
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-
-
-@contextlib.contextmanager
-def _heap_kept():
-    """Run the block with glibc's heap kept between the blocks' temporaries (Linux only).
-
-    A Dask worker's nanny starts it with ``MALLOC_TRIM_THRESHOLD_=65536``: every freed
-    temporary above 128 kB is returned to the system and the next one faulted in again, page
-    by page, which made an increment's fit and grid 2.3 times as slow as in this process
-    (measured). Afterwards the worker's own settings are set back.
-    """
-    import ctypes
-    import os
-    import sys
-
-    libc = None
-    if sys.platform.startswith("linux") and os.environ.get("MALLOC_TRIM_THRESHOLD_"):
-        try:
-            libc = ctypes.CDLL("libc.so.6")
-            libc.mallopt(_M_TRIM_THRESHOLD, 256 << 20)
-            libc.mallopt(_M_MMAP_THRESHOLD, 32 << 20)
-        except (OSError, AttributeError):
-            libc = None
-    try:
-        yield
-    finally:
-        if libc is not None:
-            libc.mallopt(_M_TRIM_THRESHOLD, int(os.environ["MALLOC_TRIM_THRESHOLD_"]))
-            libc.mallopt(_M_MMAP_THRESHOLD, 128 << 10)
-            libc.malloc_trim(0)
-
-
 class _NotFitted:
     """An increment whose field could not be fitted (its InputError's message)."""
 
@@ -1110,8 +1023,8 @@ class _NotFitted:
 
 def _grid_increment(job, grid: GridSettings, axes: GridAxes):
     """The interpolant of one increment and its field on ``axes`` (:class:`_NotFitted` when
-    the fit refuses the data), with BLAS on one thread (:func:`_one_blas_thread`)."""
-    with _one_blas_thread():
+    the fit refuses the data), with BLAS on one thread (:func:`one_blas_thread`)."""
+    with one_blas_thread():
         try:
             interp = fit_displacement(job[0], job[1], grid, sigma_um=job[2])
         except InputError as exc:
@@ -1127,7 +1040,7 @@ def _increment_context(grid: GridSettings, axes: GridAxes, jobs: dict):
 def _increment_task(k: int, ctx):
     """(On a worker) fit and grid increment ``k``."""
     grid, axes, jobs = ctx
-    with _heap_kept():
+    with heap_kept():
         return _grid_increment(jobs[k], grid, axes)
 
 
@@ -1164,7 +1077,7 @@ def _increments(pts, pairs, settings, axes, parallel):
 def _fields(
     pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel=None
 ) -> None:
-    with _one_blas_thread():  # faster too: these products are too small for threads
+    with one_blas_thread():  # faster too: these products are too small for threads
         _fields_loop(
             pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel
         )
