@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's packages, as the studies it runs use
 EXPERIMENTS = ROOT / "scenes" / "experiments"
 #: The studies with absolute positions (4a) and displacements (4b: none; 5a: along x and y).
 STUDIES = (
