@@ -399,8 +399,8 @@ def test_resolved_neighbours_are_split_not_rejected(rng):
     vol = render_blobs(shape, close, (2.5, 1.2, 1.2), 100.0, 1.0) + rng.normal(0, 0.5, shape)
     det = detect_particles(vol, (2.0, 1.0, 1.0), DetectSettings(deconvolution_iterations=0))
     assert det.report["split_components"] == 0 and det.n <= 2
-    # as far apart but 0.4 as bright (as a particle's axial side lobe is): not split
-    amps = [100.0, 40.0, 100.0]
+    # as far apart but half as bright (as a particle's axial side lobe is): not split
+    amps = [100.0, 50.0, 100.0]
     vol = render_blobs(shape, truth, (2.5, 1.2, 1.2), amps, 1.0) + rng.normal(0, 0.5, shape)
     det = detect_particles(vol, (2.0, 1.0, 1.0), DetectSettings(deconvolution_iterations=0))
     assert det.report["split_components"] == 0
