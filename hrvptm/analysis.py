@@ -209,11 +209,21 @@ def _displacement_sigma(study, sigma_a, sigma_b, displacement_um) -> np.ndarray:
     )
 
 
-def _uncertainty(errors: list[np.ndarray], sigmas: list[np.ndarray]) -> dict:
-    """Pooled errors and σ (K, 3) for the summary and the plots."""
+def _uncertainty(
+    errors: list[np.ndarray],
+    sigmas: list[np.ndarray],
+    displacements: list[np.ndarray] | None = None,
+) -> dict:
+    """Pooled errors and σ (K, 3) for the summary and the plots, and the measured
+    displacement (K, 3) each σ was computed for (NaN for positions), for recalibration
+    (benchmarks/calibrate_sigma.py)."""
     e = np.concatenate([x.reshape(-1, 3) for x in errors]) if errors else np.zeros((0, 3))
     s = np.concatenate([x.reshape(-1, 3) for x in sigmas]) if sigmas else np.zeros((0, 3))
-    return {"error": e, "sigma": s}
+    if displacements is None:
+        u = np.full(e.shape, np.nan)
+    else:
+        u = np.concatenate([x.reshape(-1, 3) for x in displacements]) if errors else e.copy()
+    return {"error": e, "sigma": s, "displacement": u}
 
 
 def _pooled(errors: list[np.ndarray], prefix: str) -> dict:
@@ -339,7 +349,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
     """
     from track.matching import LinkSettings, link_pair
 
-    rows, errs, hist, failures, sigs = [], [], [], [], []
+    rows, errs, hist, failures, sigs, disp = [], [], [], [], [], []
     group = data.study.study.group_size
     for p, (a, b) in enumerate(_pairs(len(data.detections), group)):
         ca, cb = data.detections[a], data.detections[b]
@@ -348,7 +358,7 @@ def analyse_pairs(data: VariantData) -> Analysis:
         row = {"pair": p, "frame_a": a, "frame_b": b, **data.noise[a], "n_a": len(ca)}
         row["n_b"] = len(cb)
         err = np.zeros((0, 3))
-        sig = np.zeros((0, 3))
+        sig = du = np.zeros((0, 3))
         found = {f: _detection_failure(data, f) for f in (a, b)}
         fails = [(f, r) for f, r in found.items() if r]
         if min(len(ca), len(cb)) >= MIN_PARTICLES:
@@ -365,7 +375,8 @@ def analyse_pairs(data: VariantData) -> Analysis:
             true_u = np.array([tb[i] - ta[i] for i in ida[mk[:, 0]]])
             err = (cb[mk[:, 1]] - ca[mk[:, 0]]) - true_u
             sa, sb = _frame_sigma(data, a)[mk[:, 0]], _frame_sigma(data, b)[mk[:, 1]]
-            sig = _displacement_sigma(data.study, sa, sb, cb[mk[:, 1]] - ca[mk[:, 0]])
+            du = cb[mk[:, 1]] - ca[mk[:, 0]]
+            sig = _displacement_sigma(data.study, sa, sb, du)
         correct = int(np.sum(ida[m[:, 0]] == idb[m[:, 1]]) if len(m) else 0)
         correct -= int(np.sum((ida[m[:, 0]] < 0) & (idb[m[:, 1]] < 0)) if len(m) else 0)
         row.update(
@@ -386,12 +397,13 @@ def analyse_pairs(data: VariantData) -> Analysis:
         errs.append(err)
         hist.append(err)
         sigs.append(sig)
+        disp.append(du)
     summary = _pooled(errs, "pooled_u_")
     for ax in AXES:
         summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_links"] = int(sum(r["n_wrong"] for r in rows))
-    unc = _uncertainty(errs, sigs)
+    unc = _uncertainty(errs, sigs, disp)
     summary.update(coverage(unc["error"], unc["sigma"], "u_"))
     arrays = {"errors": hist, "uncertainty": unc}
     return _with_failures(Analysis(rows, summary, arrays), failures)
@@ -575,7 +587,7 @@ def analyse_series(data: VariantData) -> Analysis:
     tid0_truth = data.associate(0, x0)
     det_ids0 = data.associate(0, data.detections[0])
     rows, errs, strain_err = [], [], {c: [] for c in TENSOR_COMPONENTS}
-    sigs = []
+    sigs, disp = [], []
     s0 = sxyz[at0]
     linked = _track_failures(data.paths)
     failures = []
@@ -603,6 +615,7 @@ def analyse_series(data: VariantData) -> Analysis:
         err = meas_u - true_u
         errs.append(err)
         sigs.append(_displacement_sigma(st, s0[i0], sxyz[atk][ik], xk - x0[i0])[known])
+        disp.append(meas_u)
         correct = int(np.sum((start == end) & known))
         det_idsk = data.associate(k, data.detections[k])
         trackable = len(np.intersect1d(det_ids0[det_ids0 >= 0], det_idsk[det_idsk >= 0]))
@@ -675,7 +688,7 @@ def analyse_series(data: VariantData) -> Analysis:
     _pool_heterogeneous(rows, summary)
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
-    unc = _uncertainty(errs, sigs)
+    unc = _uncertainty(errs, sigs, disp)
     summary.update(coverage(unc["error"], unc["sigma"], "u_"))
     arrays["uncertainty"] = unc
     return _with_failures(Analysis(rows, summary, arrays), failures)

@@ -130,10 +130,12 @@ class DetectSettings:
         median absolute deviation) of that volume before its negative part is cut: a
         threshold set as a fraction of the range (``threshold``) finds blobs in any volume,
         even one of pure noise. Rejections are counted as ``"insignificant"``. 0 = off.
-    sigma_noise_factor : float
-        Factor (> 0) on the voxel-noise σ of :func:`track.localize.localize`, which assumes
-        independent voxel noise: a reconstruction's noise is correlated over several voxels,
-        so the σ it gives is too small by a factor set by the reconstruction. This is the
+    sigma_noise_factor : float or tuple of 3 float
+        Factor (> 0; one for all axes or one per axis ``(z, y, x)``) on the voxel-noise σ
+        of :func:`track.localize.localize`, which assumes independent voxel noise: a
+        reconstruction's noise is correlated over several voxels, so the σ it gives is too
+        small by a factor set by the reconstruction (and differently along z, where the
+        light field samples depth by parallax). This is the
         *random* part of a particle's uncertainty, independent between frames. Default 1.
     sigma_systematic_um : tuple of 3 float
         Per-particle error ``(z, y, x)`` (µm, ≥ 0) that does not change between frames of a
@@ -159,7 +161,7 @@ class DetectSettings:
     method: str = "radial"
     half_box_vox: tuple[int, int, int] | None = None
     localize_on: str = "input"
-    sigma_noise_factor: float = 1.0
+    sigma_noise_factor: float | tuple[float, float, float] = 1.0
     sigma_systematic_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
     smooth_fwhm: float = 0.25
     background_fwhm: float = 1.5
@@ -249,8 +251,21 @@ class DetectSettings:
             raise InputError(f"sigma_systematic_um must be >= 0, got {self.sigma_systematic_um!r}")
         object.__setattr__(self, "sigma_systematic_um", sys_um)
         f = self.sigma_noise_factor
-        if isinstance(f, bool) or not isinstance(f, int | float) or not (0 < f < math.inf):
-            raise InputError(f"sigma_noise_factor must be a finite number > 0, got {f!r}")
+        if isinstance(f, list | tuple | np.ndarray):
+            if len(f) != 3 or any(
+                isinstance(v, bool) or not isinstance(v, int | float | np.number) for v in f
+            ):
+                raise InputError(
+                    f"sigma_noise_factor must be a number or 3 numbers (z, y, x), got {f!r}"
+                )
+            f = tuple(float(v) for v in f)
+            object.__setattr__(self, "sigma_noise_factor", f)
+        elif isinstance(f, bool) or not isinstance(f, int | float):
+            raise InputError(
+                f"sigma_noise_factor must be a number or 3 numbers (z, y, x), got {f!r}"
+            )
+        if not all(0 < v < math.inf for v in np.atleast_1d(f)):
+            raise InputError(f"sigma_noise_factor must be finite and > 0, got {f!r}")
         if self.localize_on not in ("deconvolved", "input"):
             raise InputError(
                 f"localize_on must be 'deconvolved' or 'input', got {self.localize_on!r}"
@@ -470,6 +485,8 @@ def detect_particles(
         seg_vol,
         spacing,
         edge_margin_vox=margin_vox,
+        # particles at least one measured FWHM apart are resolved: split, not rejected
+        split_min_sep_vox=report.get("particle_fwhm_vox"),
         **{name: getattr(settings, name) for name in SEGMENT_SETTINGS},
     )
     timings["segment_s"] = time.perf_counter() - t
@@ -495,6 +512,7 @@ def detect_particles(
             "threshold": seg.threshold,
             "threshold_setting": settings.threshold,
             "size_bounds_vox": list(seg.size_bounds_vox),
+            "split_components": seg.n_split,
             "counts": dict(seg.counts),
             # noise specks (fewer voxels than the automatic-size floor) are only counted
             "rejected": [
@@ -525,7 +543,8 @@ def detect_particles(
         keep = loc.ok
         n_ok = int(keep.sum())
         pos_vox = loc.positions_vox[keep]
-        rand_zyx_um = settings.sigma_noise_factor * loc.sigma_vox[keep] * np.asarray(spacing)
+        factor = np.asarray(settings.sigma_noise_factor, dtype=float)  # scalar or (z, y, x)
+        rand_zyx_um = factor * loc.sigma_vox[keep] * np.asarray(spacing)
         sig_zyx_um = np.hypot(rand_zyx_um, np.asarray(settings.sigma_systematic_um))
         report["noise_sigma_median"] = float(np.nanmedian(loc.noise_sigma)) if n_ok else None
         report["half_box_vox"] = list(half)

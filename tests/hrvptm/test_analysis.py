@@ -345,6 +345,8 @@ def test_coverage_of_right_and_wrong_uncertainties(tmp_path):
     png = plots.plot_uncertainty({"mismatched": a}, tmp_path / "u.png")
     assert png.stat().st_size > 10_000
     e, sg = a.arrays["uncertainty"]["error"], a.arrays["uncertainty"]["sigma"]
+    # positions: no displacement for the moving-bias term (benchmarks/calibrate_sigma.py)
+    assert np.isnan(a.arrays["uncertainty"]["displacement"]).all()
     half = coverage(e, sg / 2)
     assert half["coverage_1sigma_x"] < 0.5 and half["zscore_rms_x"] == pytest.approx(2, rel=0.1)
 
@@ -358,5 +360,8 @@ def test_pairs_coverage_uses_the_displacement_sigma(tmp_path):
     _with_sigma(paths, 4, noise)
     a = analyse_pairs(VariantData.load(study, paths))
     assert a.summary["u_coverage_n"] == 120
+    # the measured displacement each σ was computed for: static particles, noise only
+    u = a.arrays["uncertainty"]["displacement"]
+    assert u.shape == (120, 3) and np.all(np.abs(u) < 6 * np.array(noise))
     assert a.summary["u_sigma_rms_z"] == pytest.approx(np.sqrt(2.0))
     assert a.summary["u_coverage_2sigma_z"] == pytest.approx(0.9545, abs=0.05)

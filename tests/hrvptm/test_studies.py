@@ -143,6 +143,31 @@ def test_fig5a_inplane_translation(reports, axis):
         assert abs(r["u_meas_z"] - r["u_true_z"]) < 2.3
 
 
+def test_uncertainty_coverage_pooled_over_the_studies(reports):
+    """Issue 12 §4: the σ of positions (4a) and of displacements (4b, 5a x and y) hold
+    68 ± 5 % and 95 ± 3 % of the errors per axis, pooled. Calibrated on seed-2 runs
+    (benchmarks/calibrate_sigma.py), measured on these seed-1 frames: x 73 / 94 %,
+    y 66 / 93 %, z 65 / 95 % (358 errors per axis; per study 44–88 % within 1σ)."""
+    pooled = {}
+    for name, prefix in (
+        ("fig4a_localization_snr_test", ""),
+        ("fig4b_zero_displacement_test", "u_"),
+        ("fig5a_translation_x_test", "u_"),
+        ("fig5a_translation_y_test", "u_"),
+    ):
+        s = _v(reports(name))["summary"]
+        n = s[f"{prefix}coverage_n"]
+        assert n >= 60, name
+        for ax in "xyz":
+            for k in (1, 2):
+                key = f"{prefix}coverage_{k}sigma_{ax}"
+                pooled.setdefault((k, ax), []).append((n, s[key]))
+    for (k, ax), vals in pooled.items():
+        frac = sum(n * c for n, c in vals) / sum(n for n, _ in vals)
+        target, tol = (0.6827, 0.05) if k == 1 else (0.9545, 0.03)
+        assert abs(frac - target) <= tol, (ax, k, frac)
+
+
 def test_fig5b_axial_translation_of_a_layer(reports):
     v = _v(reports("fig5b_axial_layer_test"))
     _series_ok(v, min_ratio=0.8)
@@ -185,8 +210,13 @@ def test_fig6c_simple_shear_with_and_without_inverse_crime(reports):
     for v in (mis, mat):
         _series_ok(v)
         _strain_ok(v, "fig6c_simple_shear_test")
-        # γ = 25 %: 2 E_xz measured 24.85 % and 24.83 %, then 24.66 % and 24.56 % with this
-        # session's detector (issue 12 §2) and fields (exact gradients); cause not isolated
+        # γ = 25 %: 2 E_xz measured 24.66 % and 24.56 % (24.85 / 24.83 % before the detector
+        # of issue 12 §2, which also finds the two particles 5 µm under the top of the seeded
+        # box; the exact-gradient fields change nothing). Their z displacement errors (−3.6,
+        # −2.2 µm) pull ∂u_z/∂x at the hull's edge. The scatter of this number from the
+        # localisation errors alone (these particles, the measured error RMS 0.18 / 0.17 /
+        # 1.8 µm, 200 draws, gridded as here) is 0.17 % (mean 25.00 %), and seed 2 measures
+        # 24.95 %: scatter, not a bias. The bound is 3.5 σ of that scatter
         last = v["rows"][-1]
         assert 2 * last["E_meas_xz"] == pytest.approx(2 * last["E_true_xz"], abs=0.006)
     # The glass lenslets barely change the result (the gap the report shows): measured 0.003 µm
