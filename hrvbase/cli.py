@@ -281,6 +281,8 @@ def _default_text(value: Any, derived: str) -> str:
         return derived
     if isinstance(value, float) and value.is_integer():
         return f"{int(value)}"
+    if isinstance(value, tuple | list):  # a per-axis value, typed as A,B,C
+        return ",".join(_default_text(v, derived) for v in value)
     return f"{value}"
 
 

@@ -65,7 +65,7 @@ import argparse
 import logging
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -99,6 +99,29 @@ EXIT_FAILED = 3
 
 _positive_float = number(lambda v: v > 0, "a positive number")
 _non_negative = number(lambda v: v >= 0, "a number >= 0")
+
+
+def _numbers_zyx(*, one: bool, positive: bool) -> Callable[[str], float | tuple]:
+    """Parser of ``Z,Y,X`` (three numbers, array order) or, with ``one``, a single number."""
+    expected = (
+        f"{'one number or ' if one else ''}three numbers Z,Y,X "
+        f"{'> 0' if positive else '>= 0'} separated by commas"
+    )
+
+    def parse(text: str) -> float | tuple:
+        try:
+            vals = [float(v) for v in text.split(",")]
+        except ValueError:
+            vals = []
+        ok = len(vals) == 3 or (one and len(vals) == 1)
+        ok = ok and all(math.isfinite(v) and (v > 0 if positive else v >= 0) for v in vals)
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return vals[0] if len(vals) == 1 else tuple(vals)
+
+    return parse
+
+
 _count = int_in(0)
 _int_in = int_in
 _smoothing = number(lambda v: v >= 0, "a number >= 0", keyword="gcv")
@@ -177,6 +200,23 @@ DETECT_OPTIONS = (
         "K",
     ),
     SettingOption(
+        "sigma_noise_factor",
+        ("--sigma-noise-factor",),
+        "factor on the localiser's voxel-noise σ (the random part of each particle's σ), "
+        "one number or Z,Y,X; calibrate it on simulated data of your setup "
+        "(benchmarks/calibrate_sigma.py)",
+        _numbers_zyx(one=True, positive=True),
+        "F|Z,Y,X",
+    ),
+    SettingOption(
+        "sigma_systematic_um",
+        ("--sigma-systematic-um",),
+        "per-particle systematic error Z,Y,X in µm, added in quadrature to each particle's σ "
+        "(it cancels in displacements)",
+        _numbers_zyx(one=False, positive=False),
+        "Z,Y,X",
+    ),
+    SettingOption(
         "max_rel_aspect",
         ("--max-rel-aspect",),
         "largest aspect ratio of a blob relative to the median blob's (>= 1)",
@@ -225,6 +265,20 @@ GRID_OPTIONS = (
 SERIES_OPTIONS = (
     SettingOption(
         "mode", ("--mode",), "link each frame to the previous one or to frame 0", choices=MODES
+    ),
+    SettingOption(
+        "bias_sigma_um",
+        ("--bias-sigma-um",),
+        "per-match σ: the part Z,Y,X (µm) of a particle's bias that changes as it moves",
+        _numbers_zyx(one=False, positive=False),
+        "Z,Y,X",
+    ),
+    SettingOption(
+        "bias_length_um",
+        ("--bias-length-um",),
+        "displacement (µm; one number or Z,Y,X) over which that bias decorrelates",
+        _numbers_zyx(one=True, positive=True),
+        "L|Z,Y,X",
     ),
     SettingOption(
         "static_frames",

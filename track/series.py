@@ -810,7 +810,17 @@ def link_pairs(
                     d,
                     float(lr.tracking_ratio),
                     int(getattr(lr, "iterations", 0)),
-                    None if sig is None else match_sigma(m, sig[r], sig[i], common_sigma_xyz_um),
+                    None
+                    if sig is None
+                    else match_sigma(
+                        m,
+                        sig[r],
+                        sig[i],
+                        common_sigma_xyz_um,
+                        displacement_um=d,
+                        bias_sigma_xyz_um=settings.bias_sigma_um[::-1],
+                        bias_length_xyz_um=settings.bias_length_um[::-1],
+                    ),
                 )
                 prev_field = getattr(lr, "displacement_field", None)
             except TrackError as exc:

@@ -358,3 +358,30 @@ def test_detector_band_pass_and_significance_options(tmp_path, capsys):
     assert det["min_peak_snr"] == 1e6 and det["smooth_fwhm"] == 0.25
     assert s["frames"][0]["report"]["rejections"]["insignificant"] >= 18
     assert "no particle found" in err
+
+
+def test_uncertainty_model_options(tmp_path, capsys):
+    vols = tmp_path / "vols"
+    _volumes(vols, n_frames=2)
+    out = tmp_path / "res"
+    argv = ["run", vols, "-o", out, "--no-deconvolution", "--no-progress", "--no-fields"]
+    rc, err = _run([*argv, "--sigma-systematic-um", "1,2"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and not out.exists()
+    assert "--sigma-systematic-um: expected three numbers Z,Y,X >= 0 separated by commas" in err
+    rc, err = _run([*argv, "--sigma-noise-factor", "0"], capsys)
+    assert rc == 2 and "expected one number or three numbers Z,Y,X > 0" in err
+    opts = ["--sigma-noise-factor", "3,5,5", "--sigma-systematic-um", "3,0.2,0.2"]
+    opts += ["--bias-sigma-um", "1.5,0.1,0.1", "--bias-length-um", "5"]
+    rc, err = _run([*argv, *opts], capsys)
+    assert rc == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["parameters"]["detect"]["sigma_noise_factor"] == [3.0, 5.0, 5.0]
+    # the σ of a particle holds the systematic part: ≥ 3 µm in z, ≥ 0.2 µm laterally
+    sig = tables.read_point_sigmas(out / "particles" / "000000.csv")  # x, y, z
+    assert np.all(sig >= [0.2, 0.2, 3.0]) and np.all(sig[:, 2] > 5 * sig[:, 0])
+    with_bias = tables.read_match_sigmas(out / "matches_000001.csv")
+    # without the moving-bias term the per-match σ is smaller (the systematic part cancels)
+    rc, err = _run([*argv, *opts[:4], "--overwrite"], capsys)
+    assert rc == 0, err
+    without = tables.read_match_sigmas(out / "matches_000001.csv")
+    assert np.all(with_bias >= without) and np.all(with_bias[:, 2] > without[:, 2])

@@ -246,3 +246,27 @@ def test_series_fields_carry_uncertainties():
     off = SeriesSettings(grid=GridSettings(target_nodes=2000, uncertainty=False))
     res = track_series(clouds, off, linker=_identity_linker)
     assert res.total_fields[-1].u_std is None and res.increment_fields[0].e_std is None
+
+
+def test_match_sigma_holds_the_moving_bias_of_the_settings():
+    """The per-match σ that ``track`` writes holds the settings' moving-bias term (the one
+    the study reports check coverage with), and only the random parts without it."""
+    from dataclasses import replace
+
+    from track.series import match_sigma
+
+    clouds = _series([_shear(0.02)] * 2)
+    sig = [np.tile([0.2, 0.2, 2.0], (len(c), 1)) for c in clouds]
+    biased = replace(SETTINGS, bias_sigma_um=(1.5, 0.1, 0.1), bias_length_um=(5.0, 2.5, 2.5))
+    for settings, bias in ((SETTINGS, None), (biased, (0.1, 0.1, 1.5))):
+        pair = track_series(clouds, settings, linker=_identity_linker, sigmas=sig).pairs[0]
+        want = match_sigma(
+            pair.matches,
+            sig[0],
+            sig[1],
+            displacement_um=pair.displacement_um,
+            bias_sigma_xyz_um=bias,
+            bias_length_xyz_um=(2.5, 2.5, 5.0),
+        )
+        assert np.allclose(pair.sigma_displacement_um, want)
+    assert np.median(want[:, 2]) > np.hypot(2.0, 2.0) + 0.05  # moved particles: bias adds
