@@ -28,9 +28,8 @@ Frames in parallel: ``run``/``detect`` ``--workers N`` detect N volumes at a tim
 Dask worker processes, ``--scheduler ADDRESS`` on the workers of an existing Dask cluster
 (:mod:`hrvbase.parallel`); linking runs in this process and starts on the first frames while
 the others are still being detected. ``run``/``link`` then fit and grid N increments at a time
-on the workers (a local cluster started for the fields once the detection's has stopped, or
-the same ``--scheduler``), the Eulerian cumulation running here as they arrive. The results
-are the same as with one worker.
+on the workers (``run``: the detection's local cluster, or the same ``--scheduler``), the
+Eulerian cumulation running here as they arrive. The results are the same as with one worker.
 
 Resuming: ``run``/``detect`` record each volume's SHA-256 in ``summary.json`` and skip the
 detection of volumes whose particle table exists with the same checksum; linking and fields

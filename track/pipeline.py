@@ -489,8 +489,8 @@ class _Detections:
             self._map.close()
 
     def release(self) -> None:
-        """Once every frame has arrived (linking read them all): end the detection's map, so
-        that its local workers are stopped before the fields start theirs."""
+        """Once every frame has arrived (linking read them all): end the detection's map (its
+        client; the workers stay for the fields when the cluster is shared)."""
         if all(c is not None for c in self.clouds):
             for job, result in self._results:  # nothing left: the map ends
                 self._take(job, result)
@@ -869,28 +869,32 @@ def track_volumes(
     command = "detect" if series is None else "run"
     summary = _new_summary(command, fp, params, provenance)
     out.mkdir(parents=True, exist_ok=True)
-    detections = _Detections(vols, settings, out, summary, prev, progress, parallel)
-    if series is None:
-        return _finish(out, summary, t0, allow_partial, command, detections.finish())
-    common = settings.sigma_systematic_um[::-1]  # shared by a particle's images: cancels
-    try:  # linking starts on the first frames while the others are being detected
-        ids = [v.index for v in vols]
-        pairs, tracks, grid = _link_and_write(
-            series,
-            out,
-            summary,
-            detections,
-            ids,
-            vti_encoding,
-            progress,
-            sigmas=detections.sigmas,
-            common_sigma_xyz_um=common,
-            parallel=parallel,
-            after_linking=detections.release,
-        )
-    finally:
-        detections.close()
-    frames = detections.finish()
+    from hrvbase.parallel import shared_cluster
+
+    # one local cluster for the detection and the increments' fields (not one each)
+    with shared_cluster(parallel) as parallel:
+        detections = _Detections(vols, settings, out, summary, prev, progress, parallel)
+        if series is None:
+            return _finish(out, summary, t0, allow_partial, command, detections.finish())
+        common = settings.sigma_systematic_um[::-1]  # shared by a particle's images: cancels
+        try:  # linking starts on the first frames while the others are being detected
+            ids = [v.index for v in vols]
+            pairs, tracks, grid = _link_and_write(
+                series,
+                out,
+                summary,
+                detections,
+                ids,
+                vti_encoding,
+                progress,
+                sigmas=detections.sigmas,
+                common_sigma_xyz_um=common,
+                parallel=parallel,
+                after_linking=detections.release,
+            )
+        finally:
+            detections.close()
+        frames = detections.finish()
     return _finish(out, summary, t0, allow_partial, command, frames, pairs, tracks, grid)
 
 
