@@ -104,7 +104,7 @@ def _match(det_xyz, truth_xyz, max_um=20.0):
     return np.where(d <= max_um, idx, -1)
 
 
-def analyse_frames(volumes, infos, truths, settings, lenslet_um):
+def analyse_frames(volumes, infos, truths, settings, lenslet_um, redeconvolve=True):
     """Detect + localise every frame; returns {estimator: (F, N_truth, 3) error arrays}."""
     from track.deconvolve import deconvolve
     from track.detect import detect_particles
@@ -136,14 +136,15 @@ def analyse_frames(volumes, infos, truths, settings, lenslet_um):
             ],
             axis=1,
         )
-        dec = deconvolve(vol, psf, settings.deconvolution_iterations)
-        loc_dec = localize(dec, p_vox, vs, half_box_vox=(hz, hy, hx))
+        if redeconvolve:
+            dec = deconvolve(vol, psf, settings.deconvolution_iterations)
+            loc_dec = localize(dec, p_vox, vs, half_box_vox=(hz, hy, hx))
         for n, t in enumerate(idx):
             if t < 0:
                 continue
             e = pos[n] - truth[t]
             errs["radial"][f, t] = e
-            if loc_dec.ok[n]:
+            if redeconvolve and loc_dec.ok[n]:
                 zd = org[2] + loc_dec.positions_vox[n, 0] * vs[0]
                 errs["radial-dec"][f, t] = [e[0], e[1], zd - truth[t, 2]]
             for name, zv in zip(ZFITS, z_estimates(vol, p_vox[n], hz), strict=True):
@@ -156,6 +157,8 @@ def summarise(errs, truths, lenslet_um):
     rows = {}
     tz = truths[0][:, 2]
     for name, e in errs.items():
+        if not np.isfinite(e).any():
+            continue
         ez = e[:, :, 2]
         disp = ez[1:] - ez[:1]  # displacement error vs frame 0
         per_frame = np.sqrt(np.nanmean(disp**2, axis=1))
@@ -277,6 +280,17 @@ def main() -> int:
     ap.add_argument("--lanczos", type=float, nargs="+", default=[2.0])
     ap.add_argument("--z-range", type=float, nargs=2, default=[40.0, 460.0])
     ap.add_argument("--frames", type=int, default=None, help="use the first N frames")
+    ap.add_argument(
+        "--time-only",
+        type=int,
+        default=0,
+        metavar="R",
+        help="only time the reconstructions: every setting R times, interleaved, into fresh "
+        "folders (PSF banks from the cache); prints seconds per frame",
+    )
+    ap.add_argument(
+        "--no-radial-dec", action="store_true", help="skip the deconvolved-volume estimator"
+    )
     ap.add_argument("--psf-box-um", type=float, nargs=3, default=[200.0, 60.0, 60.0])
     args = ap.parse_args()
     if args.phase_scan:
@@ -308,6 +322,35 @@ def main() -> int:
         read_white(args.dataset / "white.tif"), expected_pitch_px=optics.px_per_lenslet
     )
     settings = DetectSettings(psf_box_um=tuple(args.psf_box_um), threshold=0.25)
+    if args.time_only:
+        import shutil
+
+        for rep in range(args.time_only):
+            for it in args.iterations:
+                for dz in args.z_step:
+                    rs = ReconSettings(
+                        z_min_um=args.z_range[0],
+                        z_max_um=args.z_range[1],
+                        z_step_um=dz,
+                        s=args.s[0],
+                        iterations=it,
+                        lanczos_a=args.lanczos[0],
+                    )
+                    out = args.work / f"time_it{it}_dz{dz:g}_{rep}"
+                    shutil.rmtree(out, ignore_errors=True)
+                    t0 = time.perf_counter()
+                    reconstruct_series(
+                        frames,
+                        out,
+                        optics=optics,
+                        grid=grid,
+                        settings=rs,
+                        preprocess=Preprocess(background="auto"),
+                        progress=False,
+                    )
+                    t = (time.perf_counter() - t0) / len(frames)
+                    print(f"run {rep}: {it:3d} iterations, z step {dz:g} µm: {t:7.1f} s per frame")
+        return 0
     print(
         f"{'it':>3s} {'dz':>4s} {'s':>2s} {'filt':>4s} {'t/frame s':>9s} {'n det':>10s} "
         f"{'estimator':>10s} {'pooled':>7s} {'worst':>6s} {'|e|':>5s} {'const':>6s} "
@@ -350,7 +393,9 @@ def main() -> int:
                     lenslet_um = json.loads((out / "recon.json").read_text())["grid"][
                         "lenslet_object_um"
                     ]
-                    errs, counts = analyse_frames(vols, meta, truths, settings, lenslet_um)
+                    errs, counts = analyse_frames(
+                        vols, meta, truths, settings, lenslet_um, not args.no_radial_dec
+                    )
                     rows = summarise(errs, truths, lenslet_um)
                     np.savez(
                         out.parent / f"errors_{out.name}.npz",
