@@ -24,8 +24,7 @@ the particle (a first-harmonic fit in x and y phase) and the mean error per dept
 ``--selfcal REPORT`` tries the simulator calibration of that bias on a finished study
 (:func:`selfcal`). The ``--phase-scan`` mode isolates the reconstruction's own systematic
 part: noise-free spheres rendered through ideal lenslets (no model mismatch) on the small
-scene, shifted
-across one lenslet, per depth.
+scene, shifted across one lenslet, per depth.
 
 Usage::
 
