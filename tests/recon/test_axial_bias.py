@@ -19,7 +19,7 @@ from recon.filters import DepthFilter
 
 DEPTHS_UM = (120.0, 200.0, 240.0, 320.0)  # where 3 iterations are biased most (measured)
 CORNERS_UM = np.array([[-120.0, -120.0], [120.0, -120.0], [-120.0, 120.0], [120.0, 120.0]])
-PHASES_UM = (0.0, 5.0, 10.0, 15.0, 20.0)  # across one 25 µm lenslet (object side)
+PHASES_UM = (0.0, 10.0, 20.0)  # across one 25 µm lenslet (object side)
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def sphere_images(small_optics_):
         img = trace_paraxial(
             small_optics_,
             Sources.spheres(pts, 15.0),
-            RenderSettings(rays_per_particle=200_000, mode="expected", seed=3),
+            RenderSettings(rays_per_particle=100_000, mode="expected", seed=3),
         )
         out.append((pts, img / 2000.0))
     return out
@@ -66,14 +66,14 @@ def test_axial_bias_across_the_lenslet_stays_pinned(
 ):
     """The part of the axial error that changes as a sphere moves across its lenslet (what a
     translation sees), its worst peak-to-peak over one lenslet, and the RMS of the per-depth
-    mean error, at 10 iterations (s = 3, 10 µm steps). Measured: 1.62 µm, 5.9 µm (at 120 µm,
-    near the native plane) and 1.61 µm; the bounds are 25 % above, so that a change of the
+    mean error, at 10 iterations (s = 3, 10 µm steps), three shifts 10 µm apart. Measured:
+    1.01 µm, 2.9 µm (at 200 µm) and 1.50 µm; the bounds are 25 % above, so that a change of the
     reconstruction (PSF bank, depth filter, update) or of the localiser that makes this bias
     grow fails here. (On the s = 5 grid, 3 → 10 iterations shrink the phase-varying part only
     from 1.44 to 1.29 µm: it is a fixed pattern of the optics and the reconstruction.)"""
     e = _axial_errors(sphere_images, small_projector, small_grid, small_optics_, small_bank, 10)
     assert np.all(np.isfinite(e))
     vary_um = float(np.sqrt(np.mean((e - e.mean(axis=0)) ** 2)))
-    assert vary_um <= 2.0
-    assert np.ptp(e, axis=0).max() <= 7.4
-    assert float(np.sqrt(np.mean(e.mean(axis=0) ** 2))) <= 2.0
+    assert vary_um <= 1.3
+    assert np.ptp(e, axis=0).max() <= 3.6
+    assert float(np.sqrt(np.mean(e.mean(axis=0) ** 2))) <= 1.9
