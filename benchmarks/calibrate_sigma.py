@@ -4,8 +4,7 @@
 The σ model (``track.detect`` and ``track.series.match_sigma``), per axis ``a``:
 
 - a position: ``σ² = (f_a σ_loc)² + s_a²``;
-- a displacement: ``σ² = f_a² (σ_loc,1² + σ_loc,2²) + 2 b_a² (1 − ρ_a)``, ``ρ_a`` from
-  ``track.series.bias_decorrelation``;
+- a displacement: ``σ² = f_a² (σ_loc,1² + σ_loc,2²) + 2 b_a² (1 − exp(−½ Σ (u_i / L_i)²))``;
 
 ``σ_loc`` the radial-symmetry fit's σ, ``f`` ``sigma_noise_factor`` (one per axis), ``s``
 ``sigma_systematic_um`` and ``b`` ``bias_sigma_um`` (over ``bias_length_um`` ``L``, kept as the
@@ -117,12 +116,10 @@ def samples(toml: Path, out: Path) -> dict:
 # -- the model ---------------------------------------------------------------------------------
 def _parts(d: dict, j: int):
     """Per sample of axis j: error, σ_loc², position?, 1 − ρ."""
-    from track.series import bias_decorrelation
-
     e, s, u = d["error"][:, j], d["sigma"][:, j], d["u"]
     pos = ~np.all(np.isfinite(u), axis=1)
     uu = np.where(np.isfinite(u), u, 0.0)
-    one_minus_rho = bias_decorrelation(uu, d["length_xyz"])[:, j]
+    one_minus_rho = 1.0 - np.exp(-0.5 * np.sum((uu / d["length_xyz"]) ** 2, axis=1))
     ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
     return e[ok], s[ok] ** 2, pos[ok], one_minus_rho[ok]
 

@@ -102,10 +102,9 @@ class SeriesSettings:
         Standard deviation ``(z, y, x)`` (µm, ≥ 0) of the per-particle localisation bias
         that changes as a particle moves (a light-field reconstruction's error depends on
         where the particle sits under the lenslets): it adds
-        ``2 b_a² (1 − ρ_a)`` to a displacement's variance along axis ``a``, ``ρ_a`` the
-        correlation of the bias before and after the move (:func:`bias_decorrelation`: a
-        lateral bias follows the move along its own axis and in depth, the axial bias every
-        move), with ``L = bias_length_um`` (:func:`match_sigma`). Default 0 (no such term).
+        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ = exp(−½ Σ_a (u_a / L_a)²)``
+        over the axes with ``L = bias_length_um`` and ``u`` the displacement
+        (:func:`match_sigma`). Default 0 (no such term).
     bias_length_um : float or tuple of 3 float
         ``L`` (µm, > 0): the move ``(z, y, x)`` over which the bias changes (one number:
         the same along every axis).
@@ -680,8 +679,7 @@ def match_sigma(
         The displacements, for the moving-bias term.
     bias_sigma_xyz_um : sequence of 3 float, optional
         ``b`` (x, y, z order) of :attr:`SeriesSettings.bias_sigma_um`: adds
-        ``2 b_a² (1 − ρ_a)`` to each displacement's variance along axis ``a``, ``ρ_a`` from
-        :func:`bias_decorrelation`.
+        ``2 b² (1 − exp(−½ Σ_a (u_a / L_a)²))`` to each displacement's variance.
     bias_length_xyz_um : sequence of 3 float
         ``L`` (µm, x, y, z order).
 
@@ -695,40 +693,10 @@ def match_sigma(
     if common_sigma_xyz_um is not None:
         var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
     if bias_sigma_xyz_um is not None and displacement_um is not None:
-        omr = bias_decorrelation(displacement_um, bias_length_xyz_um)
-        var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * omr
+        u = np.asarray(displacement_um, float).reshape(-1, 3)
+        rho = np.exp(-0.5 * np.sum(np.square(u / np.asarray(bias_length_xyz_um, float)), axis=1))
+        var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * (1 - rho)[:, None]
     return np.sqrt(var)
-
-
-def bias_decorrelation(displacement_um, length_xyz_um) -> np.ndarray:
-    """``1 − ρ_a``: how much of a particle's position bias along each axis changed in a move.
-
-    A light-field reconstruction's error at a particle depends on where the particle sits
-    under the lenslets (its lateral phase in the lenslet pitch) and on its depth. The bias of
-    a lateral coordinate follows the particle's own phase along that axis and its depth, not
-    the other lateral phase (measured: a translation along x changes the x bias, not the y
-    bias); the axial bias follows all three. So, with ``q_a = (u_a / L_a)²``,
-
-    - ``ρ_x = exp(−½ (q_x + q_z))``, ``ρ_y = exp(−½ (q_y + q_z))``;
-    - ``ρ_z = exp(−½ (q_x + q_y + q_z))``.
-
-    Parameters
-    ----------
-    displacement_um : array_like, shape (K, 3)
-        Displacements (µm, x, y, z).
-    length_xyz_um : sequence of 3 float
-        ``L`` (µm, x, y, z): the move over which the bias changes
-        (:attr:`SeriesSettings.bias_length_um`, reversed).
-
-    Returns
-    -------
-    ndarray, shape (K, 3)
-        ``1 − ρ`` per displacement and axis (x, y, z), in [0, 1).
-    """
-    u = np.asarray(displacement_um, float).reshape(-1, 3)
-    q = np.square(u / np.asarray(length_xyz_um, float))
-    expo = np.column_stack([q[:, 0] + q[:, 2], q[:, 1] + q[:, 2], q.sum(axis=1)])
-    return -np.expm1(-0.5 * expo)
 
 
 def _skipped(ref: int, dfm: int, reason: str) -> PairResult:
@@ -1164,7 +1132,6 @@ __all__ = [
     "SeriesResult",
     "SeriesSettings",
     "Tracks",
-    "bias_decorrelation",
     "check_grid",
     "compose_step",
     "cumulate_eulerian",
