@@ -13,6 +13,8 @@ preprocessing). Localising each sphere in that reference volume at its own detec
 ``WORK/frames/NNNNNN.tif`` holds the rendered images (``frames.json`` the checksum of the
 positions each was rendered from: a frame whose positions did not change is not rendered
 again) and ``WORK/volumes/`` the reference volumes, which resume as any ``recon run`` does.
+The rays are seeded; ``"expected"`` mode sums them with float atomics, so a re-render may
+differ in the last bits (never re-rendered for unchanged positions).
 """
 
 from __future__ import annotations
