@@ -267,6 +267,8 @@ def track_calibrated(
                 "axial_calibration": str(paths.axial / "axial_calibration.json"),
             },
             parallel=parallel,
+            # as track_volumes links its own detections: the shared σ cancels
+            common_sigma_xyz_um=study.track.detect.sigma_systematic_um[::-1],
         )
     except HrvError as exc:
         raise StageError(f"tracking {paths.axial / 'particles'}: {exc}") from None
