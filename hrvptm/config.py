@@ -35,6 +35,10 @@ are relative to the TOML file's folder. Lengths in µm::
 
     [track.link]                   # track.matching.LinkSettings
 
+    [track.axial]                  # track.axial_bias.AxialCalibration (series only)
+    method = "none"                # "simulated": subtract the reconstruction's bias measured
+                                   # on simulated spheres at the detected positions
+
 Every key of ``[recon]`` and ``[track…]`` is a field of the named settings dataclass, which
 defines its default and its check once for the library, the command line and this file.
 
@@ -68,6 +72,7 @@ import numpy as np
 
 from hrvbase.validate import check_table_keys
 from recon.settings import ReconSettings
+from track.axial_bias import AxialCalibration
 from track.detect import DetectSettings
 from track.fields import GridSettings
 from track.matching import LinkSettings
@@ -127,7 +132,12 @@ class StudySpec:
 
 #: Sub-tables of ``[track]`` and the settings dataclass each one builds (its keys are the
 #: dataclass's fields; ``[track]`` itself holds the scalar fields of SeriesSettings).
-TRACK_TABLES = {"detect": DetectSettings, "grid": GridSettings, "link": LinkSettings}
+TRACK_TABLES = {
+    "detect": DetectSettings,
+    "grid": GridSettings,
+    "link": LinkSettings,
+    "axial": AxialCalibration,
+}
 
 
 @dataclass(frozen=True)
@@ -140,10 +150,14 @@ class TrackSpec:
         ``[track.detect]``.
     series : track.series.SeriesSettings
         ``[track]`` (``mode``, ``min_particles``) with ``[track.grid]`` and ``[track.link]``.
+    axial : track.axial_bias.AxialCalibration
+        ``[track.axial]``: the simulator self-calibration of the reconstruction's bias
+        (default off).
     """
 
     detect: DetectSettings = field(default_factory=DetectSettings)
     series: SeriesSettings = field(default_factory=lambda: SeriesSettings(link=LinkSettings()))
+    axial: AxialCalibration = field(default_factory=AxialCalibration)
 
 
 @dataclass(frozen=True)
@@ -292,6 +306,7 @@ def _track_spec(where: str, table: Mapping | None) -> TrackSpec:
     detect = _settings(DetectSettings, where, "track.detect", sub.get("detect"))
     grid = _settings(GridSettings, where, "track.grid", sub.get("grid"))
     link = _settings(LinkSettings, where, "track.link", sub.get("link"))
+    axial = _settings(AxialCalibration, where, "track.axial", sub.get("axial"))
     series = _settings(
         SeriesSettings,
         where,
@@ -301,7 +316,7 @@ def _track_spec(where: str, table: Mapping | None) -> TrackSpec:
         grid=grid,
         link=link,
     )
-    return TrackSpec(detect=detect, series=series)
+    return TrackSpec(detect=detect, series=series, axial=axial)
 
 
 def study_from_dict(
@@ -331,6 +346,11 @@ def study_from_dict(
         raise StudyConfigError(
             f"{where}: a 'pairs' study needs a multiple of group_size = {st.group_size} frames "
             f"(groups of identical shots), got frames = {exp.frames}"
+        )
+    if tr.axial.enabled and st.kind != "series":
+        raise StudyConfigError(
+            f"{where}: [track.axial] method = {tr.axial.method!r} needs a 'series' study, "
+            f"this one is {st.kind!r}"
         )
     if st.kind == "series" and exp.frames < 2:
         raise StudyConfigError(f"{where}: a 'series' study needs frames >= 2, got {exp.frames}")

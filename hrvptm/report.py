@@ -244,17 +244,22 @@ def markdown(study_dict: dict, result: dict) -> str:
             "met (✗).",
             "",
         ]
+    # the axial self-calibration's own column, only in studies that ran it
+    axial = any("axial_calibration" in v["seconds"] for v in result["variants"].values())
     lines += [
         "## Time per stage (s, this run; resumed stages count only new work)",
         "",
-        "| variant | simulate | reconstruct | track | analyse |",
-        "|---|---|---|---|---|",
+        "| variant | simulate | reconstruct | "
+        + ("axial calibration | " if axial else "")
+        + "track | analyse |",
+        "|---|---|---|---|---|" + ("---|" if axial else ""),
     ]
     for variant, v in result["variants"].items():
         t = v["seconds"]
+        cal = f"{t.get('axial_calibration', 0):.0f} | " if axial else ""
         lines.append(
             f"| {variant} | {t.get('simulate', 0):.0f} | {t.get('reconstruct', 0):.0f} | "
-            f"{t.get('track', 0):.0f} | {t.get('analyse', 0):.1f} |"
+            f"{cal}{t.get('track', 0):.0f} | {t.get('analyse', 0):.1f} |"
         )
     comp = result.get("comparison", [])
     variants = list(result["variants"])

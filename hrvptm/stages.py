@@ -9,6 +9,13 @@ and reconstructed with ``recon_scene``; ``matched``: rendered with ``recon_scene
     REPORT/<variant>/track/     track.pipeline.track_volumes (detection only for localization
                                 and pairs; detect → link → fields for a series)
 
+A series with ``[track.axial] method = "simulated"`` is detected into ``REPORT/<variant>/
+detect/`` (``track_volumes`` without linking), its frames' references rendered and
+reconstructed into ``REPORT/<variant>/axial/`` (:func:`recon.reference.reference_volumes`),
+the corrected particle tables written to ``axial/particles/`` (with ``axial/
+axial_calibration.json``: what was subtracted) and those linked and gridded into ``track/``
+(:func:`track.pipeline.track_clouds`), the layout the analysis reads.
+
 Every stage resumes by itself: lfsim and recon keep per-frame records and fingerprints, and
 ``track`` skips volumes whose checksum it has seen. A stage whose inputs or settings changed
 is redone (each tool replaces only the files it wrote).
@@ -16,10 +23,13 @@ is redone (each tool replaces only the files it wrote).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from .errors import StageError
 
@@ -47,6 +57,24 @@ class VariantPaths:
     @property
     def track(self) -> Path:
         return self.root / "track"
+
+    @property
+    def detect(self) -> Path:
+        """Detections before the axial self-calibration (``[track.axial]`` on only)."""
+        return self.root / "detect"
+
+    @property
+    def axial(self) -> Path:
+        """References and corrected tables of the axial self-calibration."""
+        return self.root / "axial"
+
+
+def frame_preprocess():
+    """The preprocessing of every reconstruction of a study (frames and references): the black
+    level is estimated (median) and modelled, as ``recon run`` does."""
+    from recon.preprocess import Preprocess
+
+    return Preprocess(background="auto")
 
 
 def simulate(experiment, paths: VariantPaths, *, progress: bool = True, parallel=None) -> float:
@@ -84,7 +112,6 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
     from recon.calibration import calibrate_white
     from recon.calibration_file import read_white
     from recon.pipeline import reconstruct_series
-    from recon.preprocess import Preprocess
 
     t0 = time.perf_counter()
     frames = sorted((paths.dataset / "frames").glob("[0-9]*.tif"))
@@ -103,8 +130,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
             optics=optics,
             grid=grid,
             settings=study.recon,
-            # The black level is estimated (median) and modelled, as `recon run` does.
-            preprocess=Preprocess(background="auto"),
+            preprocess=frame_preprocess(),
             overwrite=True,  # inside the report: replace only an outdated run of this study
             progress=progress,
             provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},
@@ -115,14 +141,19 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
     return time.perf_counter() - t0
 
 
-def track_stage(study, paths: VariantPaths, *, progress: bool = True, parallel=None) -> float:
+def track_stage(
+    study, paths: VariantPaths, *, progress: bool = True, parallel=None
+) -> float | dict[str, float]:
     """Detect (and, for a series, link and grid) with :func:`track.pipeline.track_volumes`,
     as ``track detect`` / ``track run`` would, the detection on ``parallel``. Failed frames
     are kept (partial results allowed): the analysis counts them and fails the study. Returns
-    seconds spent."""
+    seconds spent; with ``[track.axial]`` on (:func:`track_calibrated`), seconds per stage
+    (``track``, ``axial_calibration``)."""
     from hrvbase.errors import HrvError
     from track.pipeline import track_volumes
 
+    if study.study.kind == "series" and study.track.axial.enabled:
+        return track_calibrated(study, paths, progress=progress, parallel=parallel)
     t0 = time.perf_counter()
     series = study.track.series if study.study.kind == "series" else None
     try:
@@ -140,3 +171,106 @@ def track_stage(study, paths: VariantPaths, *, progress: bool = True, parallel=N
     except HrvError as exc:
         raise StageError(f"tracking {paths.volumes}: {exc}") from None
     return time.perf_counter() - t0
+
+
+def track_calibrated(
+    study, paths: VariantPaths, *, progress: bool = True, parallel=None
+) -> dict[str, float]:
+    """A series tracked with the simulator self-calibration of the reconstruction's bias
+    (module docstring): detect, reference and correct every frame, link and grid the
+    corrected tables. Returns seconds spent: ``track`` (detection, linking, fields) and
+    ``axial_calibration`` (references and correction)."""
+    from hrvbase.errors import HrvError
+    from hrvbase.io import read_json, write_json
+    from lfsim.scene import read_optics
+    from recon.lenslet_grid import LensletGrid
+    from recon.reference import ReferenceSettings, reference_volumes
+    from track.axial_bias import correct_table, reference_bias
+    from track.pipeline import SUMMARY, track_clouds, track_volumes
+    from track.tables import read_points_csv, write_points_csv
+    from track.volumes import read_volume, scan_volumes
+
+    axial = study.track.axial
+    t0 = time.perf_counter()
+    try:
+        track_volumes(
+            paths.volumes,
+            paths.detect,
+            detect=study.track.detect,
+            series=None,
+            overwrite=True,
+            allow_partial=True,
+            progress=progress,
+            provenance={"caller": "hrvptm", "axial_calibration": axial.method},
+            parallel=parallel,
+        )
+    except HrvError as exc:
+        raise StageError(f"detecting {paths.volumes}: {exc}") from None
+    t1 = time.perf_counter()
+    try:
+        frames = read_json(paths.detect / SUMMARY)["frames"]
+        tables, positions = [], []
+        for k, entry in enumerate(frames):
+            src = paths.detect / entry["particles"] if entry.get("particles") else None
+            if src is None or not src.is_file():  # a failed frame: no particles
+                src = paths.axial / "detected" / f"{k:06d}.csv"
+                write_points_csv(src, np.zeros((0, 3)), overwrite=True)
+            tables.append(src)
+            positions.append(read_points_csv(src))
+        refs = reference_volumes(
+            positions,
+            paths.axial,
+            optics=read_optics(study.recon_scene),
+            grid=LensletGrid.load(paths.calib),
+            recon_settings=study.recon,
+            preprocess=frame_preprocess(),
+            settings=ReferenceSettings(
+                sphere_diameter_um=axial.sphere_diameter_um,
+                rays_per_particle=axial.rays_per_particle,
+            ),
+            progress=progress,
+            parallel=parallel,
+        )
+        corrected, record = [], []
+        for k, (src, pos, info) in enumerate(
+            zip(tables, positions, scan_volumes(refs[0].parent), strict=True)
+        ):
+            half = (frames[k].get("report") or {}).get("half_box_vox")
+            if half is None:
+                half = study.track.detect.half_box_vox
+            if half is None:
+                raise StageError(f"{paths.detect / SUMMARY}: frame {k} records no half_box_vox")
+            bias = reference_bias(
+                read_volume(info), info.voxel_size_um, info.origin_xyz_um, pos, half
+            )
+            dst = paths.axial / "particles" / f"{k:06d}.csv"
+            record.append({"frame": k, **correct_table(src, dst, bias, lateral=axial.lateral)})
+            corrected.append(dst)
+        write_json(
+            paths.axial / "axial_calibration.json",
+            {"settings": dataclasses.asdict(axial), "frames": record},
+            overwrite=True,
+        )
+    except HrvError as exc:
+        raise StageError(f"axial self-calibration in {paths.axial}: {exc}") from None
+    t2 = time.perf_counter()
+    try:
+        track_clouds(
+            corrected,
+            paths.track,
+            series=study.track.series,
+            overwrite=True,
+            allow_partial=True,
+            progress=progress,
+            provenance={
+                "caller": "hrvptm",
+                "axial_calibration": str(paths.axial / "axial_calibration.json"),
+            },
+            parallel=parallel,
+            # as track_volumes links its own detections: the shared σ cancels
+            common_sigma_xyz_um=study.track.detect.sigma_systematic_um[::-1],
+        )
+    except HrvError as exc:
+        raise StageError(f"tracking {paths.axial / 'particles'}: {exc}") from None
+    t3 = time.perf_counter()
+    return {"track": (t1 - t0) + (t3 - t2), "axial_calibration": t2 - t1}

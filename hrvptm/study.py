@@ -145,8 +145,10 @@ def _run_stages(study, report, state, variants, seconds, last, progress, paralle
                 break
             log.info("%s / %s: %s", study.name, variant, stage)
             dt = fn()
-            seconds[variant][stage] = dt
-            totals[stage] = totals.get(stage, 0.0) + dt
+            # a stage may report its parts (the track stage: track, axial_calibration)
+            for name, secs in dt.items() if isinstance(dt, dict) else [(stage, dt)]:
+                seconds[variant][name] = secs
+                totals[name] = totals.get(name, 0.0) + secs
             _save_state(report, state)
 
 

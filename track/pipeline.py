@@ -909,6 +909,7 @@ def track_clouds(
     vti_encoding: str = "binary",
     provenance: Mapping[str, Any] | None = None,
     parallel=None,
+    common_sigma_xyz_um=None,
 ) -> TrackResult:
     """Link point clouds (frame 0 first) and grid their displacement and strain fields.
 
@@ -925,6 +926,10 @@ def track_clouds(
         As in :func:`track_volumes`.
     parallel : hrvbase.parallel.Parallel, optional
         Fit and grid the increments on Dask workers (same results); default: in this process.
+    common_sigma_xyz_um : sequence of 3 float, optional
+        The part of the tables' σ that a particle's images share (µm; x, y, z), which cancels
+        in its displacements: ``DetectSettings.sigma_systematic_um`` reversed for tables that
+        ``track`` detected (as :func:`track_volumes` uses); default none.
 
     Returns
     -------
@@ -997,6 +1002,7 @@ def track_clouds(
         vti_encoding,
         progress,
         sigmas=sigmas if any(sg is not None for sg in sigmas) else None,
+        common_sigma_xyz_um=common_sigma_xyz_um,
         parallel=parallel,
     )
     return _finish(out, summary, t0, allow_partial, "link", frames, pairs, tracks, grid)

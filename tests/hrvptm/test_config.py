@@ -140,4 +140,4 @@ def test_every_section_key_is_a_settings_field():
     from hrvptm import config
 
     assert not hasattr(config, "ReconSpec")
-    assert {f.name for f in dataclasses.fields(config.TrackSpec)} == {"detect", "series"}
+    assert {f.name for f in dataclasses.fields(config.TrackSpec)} == {"detect", "series", "axial"}

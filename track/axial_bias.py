@@ -1,0 +1,173 @@
+"""Correct the reconstruction's position bias with a reference volume.
+
+The reconstruction puts a particle's centre off by a fixed bias that depends on its depth and
+its position under its lenslet (up to 6–7 µm peak to peak in z at 120 µm depth, measured on
+noise-free spheres). A *reference volume* — noise-free spheres rendered at the detected
+positions through the model's ideal lenslets and reconstructed as the frame was
+(:mod:`recon.reference`) — shows the same bias at the same places. :func:`reference_bias`
+localises each sphere of the reference at its own detected position with the detector's
+patch: the offset from that position is the bias there. :func:`apply_bias` subtracts it.
+
+Only the axial offset is applied by default: it is the large one (µm); the lateral offsets
+are a tenth of a voxel, and applying them helps the axis of a lenslet-phase change but not
+always the other (fig5a_x, x/y displacement RMSD: paper size 0.242/0.143 → 0.158/0.142 µm,
+test size 0.243/0.157 → 0.181/0.163 µm, y worse). ``lateral=True`` applies them too
+(``benchmarks/README.md``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .localize import localize
+
+log = logging.getLogger(__name__)
+
+#: Values of :attr:`AxialCalibration.method`.
+METHODS = ("none", "simulated")
+
+
+@dataclass(frozen=True)
+class AxialCalibration:
+    """Self-calibration of the reconstruction's position bias (``[track.axial]`` of a study).
+
+    Attributes
+    ----------
+    method : {"none", "simulated"}
+        ``"simulated"``: subtract the bias measured on a reference volume of every frame
+        (:mod:`recon.reference`); ``"none"``: positions as detected.
+    sphere_diameter_um : float
+        Diameter of the reference spheres (µm).
+    rays_per_particle : int
+        Rays per reference sphere.
+    lateral : bool
+        Subtract the x and y offsets too (default: z only, see the module docstring).
+    """
+
+    method: str = "none"
+    sphere_diameter_um: float = 15.0
+    rays_per_particle: int = 50_000
+    lateral: bool = False
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
+        d = self.sphere_diameter_um
+        if not isinstance(d, int | float) or isinstance(d, bool) or not 0 < d < 1e4:
+            raise InputError(f"sphere_diameter_um must be a number > 0 (µm), got {d!r}")
+        r = self.rays_per_particle
+        if not isinstance(r, int) or isinstance(r, bool) or r < 1000:
+            raise InputError(f"rays_per_particle must be an integer >= 1000, got {r!r}")
+        if not isinstance(self.lateral, bool):
+            raise InputError(f"lateral must be true or false, got {self.lateral!r}")
+
+    @property
+    def enabled(self) -> bool:
+        return self.method != "none"
+
+
+def reference_bias(
+    reference_volume: np.ndarray,
+    voxel_size_um: Sequence[float],
+    origin,
+    positions_xyz_um: np.ndarray,
+    half_box_vox: Sequence[int],
+) -> np.ndarray:
+    """Offsets of a reference volume's spheres from the positions they were rendered at.
+
+    Parameters
+    ----------
+    reference_volume : ndarray, shape (nz, ny, nx)
+        Reconstruction of spheres rendered at ``positions_xyz_um`` (:mod:`recon.reference`).
+    voxel_size_um : sequence of 3 float
+        ``(dz, dy, dx)`` (µm).
+    origin : sequence of 3 float
+        Position of voxel ``(0, 0, 0)`` (µm; x, y, z).
+    positions_xyz_um : ndarray, shape (N, 3)
+        The detected positions (µm; x, y, z).
+    half_box_vox : sequence of 3 int
+        The detector's patch half-size ``(hz, hy, hx)`` (voxels).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        ``localised − rendered`` (µm; x, y, z); NaN where the sphere could not be localised.
+    """
+    pos = np.asarray(positions_xyz_um, dtype=np.float64)
+    if pos.size == 0:
+        return np.zeros((0, 3))
+    if pos.ndim != 2 or pos.shape[1] != 3 or not np.all(np.isfinite(pos)):
+        raise InputError(f"positions must be a finite (N, 3) array (x, y, z µm), got {pos.shape}")
+    org = np.asarray(origin, dtype=np.float64).reshape(3)
+    vs = np.asarray(voxel_size_um, dtype=np.float64).reshape(3)
+    seeds = ((pos - org) / vs[::-1])[:, ::-1]  # (z, y, x) voxels
+    shape = np.asarray(np.shape(reference_volume))
+    seeds = np.clip(seeds, 0, shape - 1)
+    loc = localize(reference_volume, seeds, tuple(vs), half_box_vox=tuple(half_box_vox))
+    found = org + loc.positions_vox[:, ::-1] * vs[::-1]
+    off = found - pos
+    off[~loc.ok] = np.nan
+    return off
+
+
+def apply_bias(positions_xyz_um: np.ndarray, bias_xyz_um: np.ndarray, *, lateral: bool = False):
+    """Positions corrected by a :func:`reference_bias` (unknown offsets: left as detected).
+
+    Parameters
+    ----------
+    positions_xyz_um, bias_xyz_um : ndarray, shape (N, 3)
+        µm; x, y, z.
+    lateral : bool
+        Subtract x and y too (default: z only).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Corrected positions (µm). Their σ are those of the detection (the reference has no
+        noise; its ray noise is small against it).
+    """
+    pos = np.asarray(positions_xyz_um, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(bias_xyz_um, dtype=np.float64).reshape(-1, 3)
+    if b.shape != pos.shape:
+        raise InputError(f"{b.shape[0]} offsets for {pos.shape[0]} positions")
+    use = np.nan_to_num(b, nan=0.0)
+    if not lateral:
+        use[:, :2] = 0.0
+    return pos - use
+
+
+def correct_table(src, dst, bias_xyz_um: np.ndarray, *, lateral: bool = False) -> dict:
+    """Write the particle table ``src`` to ``dst`` with corrected positions (σ kept).
+
+    Returns
+    -------
+    dict
+        What was done, for a summary: particles, corrected, mean and RMS offset (µm; x, y, z).
+    """
+    from .tables import _read_table, read_point_sigmas, read_points_csv, write_points_csv
+
+    pos = read_points_csv(src)
+    sig = read_point_sigmas(src)
+    with open(src, encoding="utf-8") as fh:
+        has_intensity = "intensity" in fh.readline().strip().split(",")
+    inten = _read_table(src, ("intensity",))["intensity"] if has_intensity else None
+    new = apply_bias(pos, bias_xyz_um, lateral=lateral)
+    has_sigma = bool(np.any(np.isfinite(sig)))
+    write_points_csv(dst, new, inten, sigma_xyz_um=sig if has_sigma else None, overwrite=True)
+    b = np.asarray(bias_xyz_um, float).reshape(-1, 3)
+    ok = np.all(np.isfinite(b), axis=1)
+    return {
+        "particles": len(pos),
+        "corrected": int(ok.sum()),
+        "applied_axes": "xyz" if lateral else "z",
+        "mean_offset_xyz_um": np.nanmean(b[ok], axis=0).tolist() if ok.any() else None,
+        "rms_offset_xyz_um": np.sqrt(np.nanmean(b[ok] ** 2, axis=0)).tolist() if ok.any() else None,
+    }
+
+
+__all__ = ["METHODS", "AxialCalibration", "apply_bias", "correct_table", "reference_bias"]
