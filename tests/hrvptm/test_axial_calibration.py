@@ -34,7 +34,7 @@ def _write(tmp_path: Path, extra: str) -> Path:
 def test_axial_option_is_read_and_checked(tmp_path):
     assert not load_study(_write(tmp_path, MOTION)).track.axial.enabled
     on = load_study(_write(tmp_path, MOTION + "[track.axial]\nmethod = 'simulated'\n"))
-    assert on.track.axial.enabled and not on.track.axial.lateral
+    assert on.track.axial.enabled and on.track.axial.lateral
     for extra, match in (
         ("[track.axial]\nmethod = 'fit'\n", r"\[track.axial\] method must be one of"),
         ("[track.axial]\nsphere_diameter_um = -1\n", r"\[track.axial\] sphere_diameter_um"),
@@ -54,7 +54,7 @@ def test_axial_option_is_read_and_checked(tmp_path):
 def test_self_calibration_lowers_the_z_displacement_error(tmp_path):
     """fig5a_x at test size, 3 frames: the same dataset tracked without and with the
     calibration. Measured (seed 1): worst-frame z displacement RMSD 2.48 → 0.95 µm, pooled
-    2.35 → 0.90 µm; x/y identical (only z is applied)."""
+    2.35 → 0.90 µm; x (the axis of the motion) 0.243 → 0.181 µm, y 0.157 → 0.163 µm."""
     text = (EXPERIMENTS / "fig5a_translation_x_test.toml").read_text("utf-8")
     text = text.replace("frames = 5", "frames = 3")
     text = text.replace('"../medium', f'"{(ROOT / "scenes").as_posix()}/medium')
@@ -73,13 +73,13 @@ def test_self_calibration_lowers_the_z_displacement_error(tmp_path):
     assert a["worst_u_rmsd_z"] > 2.0  # the bias is there without the calibration
     assert b["worst_u_rmsd_z"] < 1.3 and b["worst_u_rmsd_z"] < 0.6 * a["worst_u_rmsd_z"]
     assert b["pooled_u_rmsd_z"] < 1.2
-    for ax in "xy":  # not applied: unchanged
-        assert b[f"pooled_u_rmsd_{ax}"] == pytest.approx(a[f"pooled_u_rmsd_{ax}"], rel=1e-9)
+    assert b["pooled_u_rmsd_x"] < 0.85 * a["pooled_u_rmsd_x"]  # the lenslet-phase bias
+    assert b["pooled_u_rmsd_y"] < 1.15 * a["pooled_u_rmsd_y"]  # a little scatter added
     assert s_on["summary"]["wrong_tracks"] == 0
     assert s_on["seconds"]["axial_calibration"] > 0
     assert "axial calibration" in (on / "summary.md").read_text("utf-8")
     record = json.loads((on / "mismatched" / "axial" / "axial_calibration.json").read_text())
-    assert [f["applied_axes"] for f in record["frames"]] == ["z"] * 3
+    assert [f["applied_axes"] for f in record["frames"]] == ["xyz"] * 3
     # resume: unchanged detections are neither rendered nor reconstructed again
     assert main(["study", str(on_toml), "-o", str(on), "-q"]) == 0
     again = json.loads((on / "summary.json").read_text("utf-8"))["variants"]["mismatched"]

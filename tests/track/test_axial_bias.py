@@ -49,12 +49,12 @@ def test_reference_bias_empty_and_bad_positions():
         reference_bias(vol, VOXEL, ORIGIN, np.array([[0.0, np.nan, 100.0]]), (8, 4, 4))
 
 
-def test_apply_bias_z_only_by_default_and_unknown_left_alone():
+def test_apply_bias_every_axis_by_default_and_unknown_left_alone():
     pos = np.array([[1.0, 2.0, 100.0], [3.0, 4.0, 200.0]])
     bias = np.array([[0.5, -0.5, 3.0], [np.nan, np.nan, np.nan]])
-    np.testing.assert_array_equal(apply_bias(pos, bias), [[1.0, 2.0, 97.0], [3.0, 4.0, 200.0]])
+    np.testing.assert_array_equal(apply_bias(pos, bias), [[0.5, 2.5, 97.0], [3.0, 4.0, 200.0]])
     np.testing.assert_array_equal(
-        apply_bias(pos, bias, lateral=True), [[0.5, 2.5, 97.0], [3.0, 4.0, 200.0]]
+        apply_bias(pos, bias, lateral=False), [[1.0, 2.0, 97.0], [3.0, 4.0, 200.0]]
     )
     with pytest.raises(InputError, match="1 offsets for 2 positions"):
         apply_bias(pos, bias[:1])
@@ -68,7 +68,7 @@ def test_correct_table_keeps_sigma_and_intensity(tmp_path):
     np.testing.assert_allclose(read_points_csv(tmp_path / "b.csv")[:, 2], [98.0, 201.0])
     np.testing.assert_array_equal(read_point_sigmas(tmp_path / "b.csv"), sig)
     assert "intensity" in (tmp_path / "b.csv").read_text().splitlines()[0]
-    assert info["corrected"] == 2 and info["applied_axes"] == "z"
+    assert info["corrected"] == 2 and info["applied_axes"] == "xyz"
     assert info["mean_offset_xyz_um"][2] == pytest.approx(0.5)
 
 
