@@ -21,10 +21,11 @@ per-particle axial error ``e`` into its constant part (per-particle mean over fr
 frame-to-frame part, with the share of the latter explained by the lateral lenslet phase of
 the particle (a first-harmonic fit in x and y phase) and the mean error per depth band.
 
-``--selfcal REPORT`` tries the simulator calibration of that bias on a finished study
-(:func:`selfcal`). The ``--phase-scan`` mode isolates the reconstruction's own systematic
-part: noise-free spheres rendered through ideal lenslets (no model mismatch) on the small
-scene, shifted across one lenslet, per depth.
+The simulator calibration of that bias runs in the pipeline (``[track.axial] method =
+"simulated"`` in a study: :mod:`recon.reference`, :mod:`track.axial_bias`). The
+``--phase-scan`` mode isolates the reconstruction's own systematic part: noise-free spheres
+rendered through ideal lenslets (no model mismatch) on the small scene, shifted across one
+lenslet, per depth.
 
 Usage::
 
@@ -265,91 +266,6 @@ def phase_scan(configs, zsets, phases_um, diameter_um, cache):
         )
 
 
-def selfcal(report, recon_scene, iterations, z_step_um, n_frames, work):
-    """Simulator self-calibration of the axial bias on a finished study's detections.
-
-    For every frame, noise-free 15 µm spheres are rendered through IDEAL lenslets (paraxial
-    tracer) at the positions the study detected, reconstructed with the study's settings and
-    the calibration of its (glass) white image, and localised at those same positions with
-    the detector's patch: the axial offset found is the reconstruction's bias there (depth
-    and lenslet phase), which is subtracted from the detected z. Nothing is fitted to the
-    truth; the truth only scores the result. Prints raw and corrected z displacement RMSD
-    (pooled, worst frame) against frame 0."""
-    import tifffile
-
-    from lfsim import init_backend
-    from lfsim.scene import read_optics
-    from lfsim.tracer import RenderSettings, Sources, trace_paraxial
-    from recon.calibration import calibrate_white
-    from recon.calibration_file import read_white
-    from recon.pipeline import reconstruct_series
-    from recon.preprocess import Preprocess
-    from recon.settings import ReconSettings
-    from track.localize import localize
-    from track.volumes import read_volume, scan_volumes
-
-    init_backend()
-    ds, tr = report / "mismatched" / "dataset", report / "mismatched" / "track"
-    summ = json.loads((tr / "summary.json").read_text())
-    optics = read_optics(recon_scene)
-    grid = calibrate_white(read_white(ds / "white.tif"), expected_pitch_px=optics.px_per_lenslet)
-    dets, truths, frames = [], [], []
-    for f in range(n_frames):
-        d = np.loadtxt(tr / "particles" / f"{f:06d}.csv", delimiter=",", skiprows=1)[:, :3]
-        t = np.loadtxt(ds / "truth" / f"{f:06d}.csv", delimiter=",", skiprows=1)[:, 1:4]
-        dets.append(d)
-        truths.append(t)
-        img = trace_paraxial(
-            optics,
-            Sources.spheres(d, 15.0),
-            RenderSettings(rays_per_particle=50_000, mode="expected", seed=5),
-        )
-        path = work / "selfcal_frames" / f"{f:06d}.tif"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tifffile.imwrite(path, (img * 0.02 + 100).astype(np.float32))
-        frames.append(path)
-    out = work / "selfcal_volumes"
-    rs = ReconSettings(z_min_um=40, z_max_um=460, z_step_um=z_step_um, s=5, iterations=iterations)
-    reconstruct_series(
-        frames,
-        out,
-        optics=optics,
-        grid=grid,
-        settings=rs,
-        preprocess=Preprocess(background="auto"),
-        overwrite=True,
-        progress=False,
-    )
-    n = truths[0].shape[0]
-    raw = np.full((n_frames, n, 3), np.nan)
-    cor = raw.copy()
-    for f, v in enumerate(scan_volumes(out)):
-        vol, vs, org, d = read_volume(v), v.voxel_size_um, v.origin_xyz_um, dets[f]
-        half = tuple(summ["frames"][f]["report"]["half_box_vox"])
-        pv = np.stack(
-            [(d[:, 2] - org[2]) / vs[0], (d[:, 1] - org[1]) / vs[1], (d[:, 0] - org[0]) / vs[2]],
-            axis=1,
-        )
-        loc = localize(vol, pv, vs, half_box_vox=half)
-        bias = org[2] + loc.positions_vox[:, 0] * vs[0] - d[:, 2]
-        idx = _match(d, truths[f])
-        for k, t in enumerate(idx):
-            if t >= 0:
-                raw[f, t] = d[k] - truths[f][t]
-                cor[f, t] = raw[f, t] - np.array([0.0, 0.0, bias[k]])
-    for name, arr in (("as detected", raw), ("self-calibrated", cor)):
-        ez = arr[:, :, 2]
-        disp = ez[1:] - ez[:1]
-        per_frame = np.sqrt(np.nanmean(disp**2, axis=1))
-        print(
-            f"{name:>15s}: z displacement RMSD pooled {np.sqrt(np.nanmean(disp**2)):.2f} µm, "
-            f"worst frame {per_frame.max():.2f} µm (per frame {np.round(per_frame, 2)}), "
-            f"mean |z error| {np.nanmean(np.abs(ez)):.2f} µm, "
-            f"particles per frame {np.isfinite(ez).sum(axis=1)}",
-            flush=True,
-        )
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dataset", type=Path, nargs="?", help="a study variant's dataset folder")
@@ -367,13 +283,6 @@ def main() -> int:
     ap.add_argument("--z-range", type=float, nargs=2, default=[40.0, 460.0])
     ap.add_argument("--frames", type=int, default=None, help="use the first N frames")
     ap.add_argument(
-        "--selfcal",
-        type=Path,
-        metavar="REPORT",
-        help="self-calibrate the axial bias of a finished study's detections instead "
-        "(with --recon-scene, --work, one --iterations / --z-step, --frames)",
-    )
-    ap.add_argument(
         "--time-only",
         type=int,
         default=0,
@@ -390,12 +299,6 @@ def main() -> int:
         configs = [(it, dz) for it in args.iterations for dz in args.z_step]
         zsets = [[120.0, 200.0, 280.0, 360.0], [160.0, 240.0, 320.0, 400.0]]
         phase_scan(configs, zsets, np.arange(0.0, 25.0, 5.0), 15.0, args.work or Path("psf"))
-        return 0
-    if args.selfcal is not None:
-        n = args.frames or len(
-            list((args.selfcal / "mismatched" / "dataset" / "truth").glob("*.csv"))
-        )
-        selfcal(args.selfcal, args.recon_scene, args.iterations[0], args.z_step[0], n, args.work)
         return 0
     if args.dataset is None or args.recon_scene is None or args.work is None:
         ap.error("DATASET, --recon-scene and --work are needed (or --phase-scan)")
