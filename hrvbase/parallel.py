@@ -24,11 +24,12 @@ bank reached 2 local workers in 0.8–1.0 s by ``scatter``, against 0.7 s for ea
 from the PSF cache, and it needs neither a cache nor a file system shared with the workers.)
 
 Failures. A worker process that dies (killed, out of memory) has its frames redone on
-another one by the scheduler; an unexpected exception in a frame is retried ``retries``
-times. An error the toolkit raises on purpose (:class:`~hrvbase.errors.HrvError`, e.g. an
-unreadable frame) is not retried: the map stops (frames not started are cancelled, those
-running finish), hands back every frame that finished, then raises that error, as the serial
-loop would.
+another one by the scheduler (a finished frame whose result was lost with it, and which the
+scheduler cancels instead, is submitted again, at most ``retries`` times); an unexpected
+exception in a frame is retried ``retries`` times. An error the toolkit raises on purpose
+(:class:`~hrvbase.errors.HrvError`, e.g. an unreadable frame) is not retried: the map stops
+(frames not started are cancelled, those running finish), hands back every frame that
+finished, then raises that error, as the serial loop would.
 
 Messages. What a frame logs on a worker (the toolkit's loggers, at this process's levels) is
 sent back with its result and logged here, as if the frame had run here.
@@ -46,6 +47,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import CancelledError
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -415,28 +417,51 @@ class FrameMap:
                 [args] = client.scatter([self.context.args], broadcast=True, hash=False)
             levels = {n: logging.getLogger(n).getEffectiveLevel() for n in FORWARDED_LOGGERS}
             futures = {}
-            for i, item in enumerate(self.items):
+            resubmitted: dict[int, int] = {}
+
+            def submit(i: int):
+                n = resubmitted.get(i, 0)
                 fut = client.submit(
                     _run_task,
                     self.func,
-                    item,
+                    self.items[i],
                     key,
                     build,
                     args,
                     levels,
-                    key=f"{self.desc}-{i:06d}-{token}",
+                    key=f"{self.desc}-{i:06d}-{token}" + (f"-r{n}" if n else ""),
                     retries=self.parallel.retries,
                     pure=False,
                 )
-                futures[fut] = item
+                futures[fut] = i
+                return fut
+
+            for i in range(len(self.items)):
+                submit(i)
             with self._bar() as bar:
-                for fut in as_completed(futures, loop=client.loop):
+                completed = as_completed(list(futures), loop=client.loop)
+                for fut in completed:
+                    i = futures[fut]
                     if first_error is not None and fut.status != "finished":
                         continue
                     try:
                         done = fut.result()
                         _replay(done.logs)
                         result = done.result
+                    except CancelledError as exc:
+                        # Not cancelled by this map: the frame finished on a worker that
+                        # died before its result was fetched, and the scheduler dropped it.
+                        # Run it again (a frame writes its output atomically).
+                        if first_error is None and resubmitted.get(i, 0) < self.parallel.retries:
+                            resubmitted[i] = resubmitted.get(i, 0) + 1
+                            log.warning(
+                                "%s %d: its result was lost with its worker; running it again",
+                                self.unit,
+                                i,
+                            )
+                            completed.add(submit(i))
+                            continue
+                        result = _Failed(exc)
                     except Exception as exc:  # an unexpected error, after its retries
                         result = _Failed(exc)
                     if isinstance(result, _Failed):
@@ -445,7 +470,7 @@ class FrameMap:
                             self._stop(futures)
                         continue
                     bar.update(1)
-                    yield futures[fut], result
+                    yield self.items[i], result
             if first_error is not None:
                 raise first_error
             self._collect_peaks()

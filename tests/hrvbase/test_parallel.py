@@ -230,6 +230,67 @@ def test_loopback_cluster_killed_worker_frames_redone(tmp_path):
     assert len(fm.peak_memory_bytes) == 1  # the surviving worker
 
 
+def _pid_frame(k, ctx):
+    Path(ctx["folder"], f"done_{k}_{os.getpid()}").write_text("")
+    return k * k
+
+
+def test_loopback_cluster_results_lost_with_their_worker_are_redone(tmp_path):
+    """Frames that finished on a worker killed before their results were fetched (the caller
+    was busy with an earlier frame) are run again, not reported as cancelled."""
+    n = 6
+    with LoopbackCluster(tmp_path) as cluster:
+        ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
+        par = Parallel(scheduler=cluster.address)
+        got = {}
+        with frame_map(_pid_frame, range(n), parallel=par, context=ctx) as fm:
+            for k, v in fm:
+                if not got:  # slow caller: every frame finishes while it waits
+                    t0 = time.monotonic()
+                    while len(list(tmp_path.glob("done_*"))) < n and time.monotonic() - t0 < 60:
+                        time.sleep(0.05)
+                    cluster.kill_worker(0)
+                got[k] = v
+        assert cluster.workers[0].poll() is not None
+    assert got == {k: k * k for k in range(n)}
+
+
+def test_a_result_cancelled_by_the_scheduler_is_run_again(monkeypatch, caplog, tmp_path):
+    """The scheduler may cancel a finished frame whose worker died while its result was being
+    fetched ("Couldn't gather ... rescheduling", then FutureCancelledError): the map runs that
+    frame again (at most ``retries`` times) instead of failing."""
+    import logging
+
+    from distributed import Future
+    from distributed.client import FutureCancelledError
+
+    real = Future.result
+    lost = []
+
+    def result(self, *a, **k):
+        if "-000002-" in self.key and len(lost) < 2:  # lost twice, then fetched
+            lost.append(self.key)
+            raise FutureCancelledError(self.key, reason="unknown")
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Future, "result", result)
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    ctx = WorkerContext(_build, (1.0, str(tmp_path)))
+    par = Parallel(workers=2, threads=1, retries=2)
+    with frame_map(_frame, range(4), parallel=par, context=ctx) as fm:
+        got = dict(fm)
+    assert sorted(got) == [0, 1, 2, 3]
+    assert [v for v, _ in (got[k] for k in range(4))] == _expected(4, 1.0)
+    assert len(set(lost)) == 2  # a new key each time
+    assert sum("running it again" in r.getMessage() for r in caplog.records) == 2
+    # Beyond the retries: the map fails with the cancellation.
+    lost.clear()
+    par = Parallel(workers=2, threads=1, retries=1)
+    with pytest.raises(FutureCancelledError):
+        with frame_map(_frame, range(4), parallel=par, context=ctx) as fm:
+            dict(fm)
+
+
 def test_worker_messages_are_logged_here(caplog):
     import logging
 
