@@ -23,13 +23,12 @@ is redone (each tool replaces only the files it wrote).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
+from track.calibrated import AXIAL_DIR, DETECT_DIR, TRACK_DIR
 
 from .errors import StageError
 
@@ -56,22 +55,23 @@ class VariantPaths:
 
     @property
     def track(self) -> Path:
-        return self.root / "track"
+        return self.root / TRACK_DIR
 
     @property
     def detect(self) -> Path:
         """Detections before the axial self-calibration (``[track.axial]`` on only)."""
-        return self.root / "detect"
+        return self.root / DETECT_DIR
 
     @property
     def axial(self) -> Path:
         """References and corrected tables of the axial self-calibration."""
-        return self.root / "axial"
+        return self.root / AXIAL_DIR
 
 
 def frame_preprocess():
-    """The preprocessing of every reconstruction of a study (frames and references): the black
-    level is estimated (median) and modelled, as ``recon run`` does."""
+    """The preprocessing of every frame a study reconstructs: the black level is estimated
+    (median) and modelled, as ``recon run`` does (the axial references are prepared alike,
+    :func:`recon.reference.reference_preprocess`)."""
     from recon.preprocess import Preprocess
 
     return Preprocess(background="auto")
@@ -177,100 +177,33 @@ def track_calibrated(
     study, paths: VariantPaths, *, progress: bool = True, parallel=None
 ) -> dict[str, float]:
     """A series tracked with the simulator self-calibration of the reconstruction's bias
-    (module docstring): detect, reference and correct every frame, link and grid the
-    corrected tables. Returns seconds spent: ``track`` (detection, linking, fields) and
-    ``axial_calibration`` (references and correction)."""
+    (:func:`track.calibrated.track_volumes_calibrated`, as ``track run --axial-calibration
+    simulated``): ``detect/``, ``axial/`` and ``track/`` of the variant. Returns seconds
+    spent: ``track`` (detection, linking, fields) and ``axial_calibration`` (references and
+    correction)."""
     from hrvbase.errors import HrvError
-    from hrvbase.io import read_json, write_json
     from lfsim.scene import read_optics
     from recon.lenslet_grid import LensletGrid
-    from recon.reference import ReferenceSettings, reference_volumes
-    from track.axial_bias import correct_table, reference_bias
-    from track.pipeline import SUMMARY, track_clouds, track_volumes
-    from track.tables import read_points_csv, write_points_csv
-    from track.volumes import read_volume, scan_volumes
+    from track.calibrated import ReconModel, track_volumes_calibrated
 
-    axial = study.track.axial
-    t0 = time.perf_counter()
     try:
-        track_volumes(
+        model = ReconModel(
+            read_optics(study.recon_scene), LensletGrid.load(paths.calib), study.recon
+        )
+        _, secs = track_volumes_calibrated(
             paths.volumes,
-            paths.detect,
+            paths.root,
+            model=model,
             detect=study.track.detect,
-            series=None,
-            overwrite=True,
-            allow_partial=True,
-            progress=progress,
-            provenance={"caller": "hrvptm", "axial_calibration": axial.method},
-            parallel=parallel,
-        )
-    except HrvError as exc:
-        raise StageError(f"detecting {paths.volumes}: {exc}") from None
-    t1 = time.perf_counter()
-    try:
-        frames = read_json(paths.detect / SUMMARY)["frames"]
-        tables, positions = [], []
-        for k, entry in enumerate(frames):
-            src = paths.detect / entry["particles"] if entry.get("particles") else None
-            if src is None or not src.is_file():  # a failed frame: no particles
-                src = paths.axial / "detected" / f"{k:06d}.csv"
-                write_points_csv(src, np.zeros((0, 3)), overwrite=True)
-            tables.append(src)
-            positions.append(read_points_csv(src))
-        refs = reference_volumes(
-            positions,
-            paths.axial,
-            optics=read_optics(study.recon_scene),
-            grid=LensletGrid.load(paths.calib),
-            recon_settings=study.recon,
-            preprocess=frame_preprocess(),
-            settings=ReferenceSettings(
-                sphere_diameter_um=axial.sphere_diameter_um,
-                rays_per_particle=axial.rays_per_particle,
-            ),
-            progress=progress,
-            parallel=parallel,
-        )
-        corrected, record = [], []
-        for k, (src, pos, info) in enumerate(
-            zip(tables, positions, scan_volumes(refs[0].parent), strict=True)
-        ):
-            half = (frames[k].get("report") or {}).get("half_box_vox")
-            if half is None:
-                half = study.track.detect.half_box_vox
-            if half is None:
-                raise StageError(f"{paths.detect / SUMMARY}: frame {k} records no half_box_vox")
-            bias = reference_bias(
-                read_volume(info), info.voxel_size_um, info.origin_xyz_um, pos, half
-            )
-            dst = paths.axial / "particles" / f"{k:06d}.csv"
-            record.append({"frame": k, **correct_table(src, dst, bias, lateral=axial.lateral)})
-            corrected.append(dst)
-        write_json(
-            paths.axial / "axial_calibration.json",
-            {"settings": dataclasses.asdict(axial), "frames": record},
-            overwrite=True,
-        )
-    except HrvError as exc:
-        raise StageError(f"axial self-calibration in {paths.axial}: {exc}") from None
-    t2 = time.perf_counter()
-    try:
-        track_clouds(
-            corrected,
-            paths.track,
             series=study.track.series,
-            overwrite=True,
+            axial=study.track.axial,
+            overwrite=True,  # inside the report: replace only an outdated run of this study
             allow_partial=True,
             progress=progress,
-            provenance={
-                "caller": "hrvptm",
-                "axial_calibration": str(paths.axial / "axial_calibration.json"),
-            },
+            provenance={"caller": "hrvptm"},
             parallel=parallel,
-            # as track_volumes links its own detections: the shared σ cancels
-            common_sigma_xyz_um=study.track.detect.sigma_systematic_um[::-1],
+            own_folder=False,  # the variant's folder: dataset, volumes, ...
         )
     except HrvError as exc:
-        raise StageError(f"tracking {paths.axial / 'particles'}: {exc}") from None
-    t3 = time.perf_counter()
-    return {"track": (t1 - t0) + (t3 - t2), "axial_calibration": t2 - t1}
+        raise StageError(f"tracking {paths.volumes} with the axial calibration: {exc}") from None
+    return {"track": secs["detect"] + secs["link"], "axial_calibration": secs["axial_calibration"]}

@@ -125,6 +125,16 @@ def render_reference(
     )
 
 
+def reference_preprocess():
+    """How the rendered images are prepared: their constant black level is estimated (median)
+    and modelled, as ``recon run`` does by default. The frames' own dark frame or hot-pixel
+    filter does not apply to a noise-free rendering; whatever they used, the reference reaches
+    the deconvolution with the same zero floor."""
+    from .preprocess import Preprocess
+
+    return Preprocess(background="auto")
+
+
 def reference_volumes(
     positions_xyz_um,
     work_dir: str | os.PathLike,
@@ -152,7 +162,7 @@ def reference_volumes(
         The calibration the frames were reconstructed with.
     recon_settings : ReconSettings, optional
     preprocess : Preprocess, optional
-        As the frames were reconstructed (:func:`recon.pipeline.reconstruct_series`).
+        Of the rendered images; default :func:`reference_preprocess`.
     settings : ReferenceSettings, optional
     progress : bool
     parallel : hrvbase.parallel.Parallel, optional
@@ -196,7 +206,7 @@ def reference_volumes(
         optics=optics,
         grid=grid,
         settings=recon_settings,
-        preprocess=preprocess,
+        preprocess=preprocess or reference_preprocess(),
         overwrite=True,  # our own folder: replace only what these frames no longer make
         progress=progress,
         provenance={"reference": "simulated spheres at detected positions"},
@@ -205,4 +215,10 @@ def reference_volumes(
     return [res.out_dir / f"{k:06d}.tif" for k in range(len(paths))]
 
 
-__all__ = ["ReferenceSettings", "positions_checksum", "reference_volumes", "render_reference"]
+__all__ = [
+    "ReferenceSettings",
+    "positions_checksum",
+    "reference_preprocess",
+    "reference_volumes",
+    "render_reference",
+]

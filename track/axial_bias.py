@@ -43,31 +43,44 @@ class AxialCalibration:
     method : {"none", "simulated"}
         ``"simulated"``: subtract the bias measured on a reference volume of every frame
         (:mod:`recon.reference`); ``"none"``: positions as detected.
-    sphere_diameter_um : float
-        Diameter of the reference spheres (µm).
-    rays_per_particle : int
-        Rays per reference sphere.
+    sphere_diameter_um : float or None
+        Diameter of the reference spheres (µm): the particles'. None: the default of
+        :class:`recon.reference.ReferenceSettings` (the paper's 15 µm).
+    rays_per_particle : int or None
+        Rays per reference sphere; None: the default of
+        :class:`~recon.reference.ReferenceSettings`.
     lateral : bool
         Subtract the x and y offsets too (default; ``False``: z only, see the module
         docstring).
     """
 
     method: str = "none"
-    sphere_diameter_um: float = 15.0
-    rays_per_particle: int = 50_000
+    sphere_diameter_um: float | None = None
+    rays_per_particle: int | None = None
     lateral: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
         d = self.sphere_diameter_um
-        if not isinstance(d, int | float) or isinstance(d, bool) or not 0 < d < 1e4:
+        if d is not None and (
+            not isinstance(d, int | float) or isinstance(d, bool) or not 0 < d < 1e4
+        ):
             raise InputError(f"sphere_diameter_um must be a number > 0 (µm), got {d!r}")
         r = self.rays_per_particle
-        if not isinstance(r, int) or isinstance(r, bool) or r < 1000:
+        if r is not None and (not isinstance(r, int) or isinstance(r, bool) or r < 1000):
             raise InputError(f"rays_per_particle must be an integer >= 1000, got {r!r}")
         if not isinstance(self.lateral, bool):
             raise InputError(f"lateral must be true or false, got {self.lateral!r}")
+
+    def reference_settings(self):
+        """The :class:`recon.reference.ReferenceSettings` of the references (the values given
+        here, the others at their defaults)."""
+        from recon.reference import ReferenceSettings
+
+        given = {"sphere_diameter_um": self.sphere_diameter_um}
+        given["rays_per_particle"] = self.rays_per_particle
+        return ReferenceSettings(**{k: v for k, v in given.items() if v is not None})
 
     @property
     def enabled(self) -> bool:

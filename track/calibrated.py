@@ -1,0 +1,296 @@
+"""Track a series with the simulator self-calibration of the reconstruction's position bias.
+
+The reconstruction places each particle with a fixed bias that depends on its depth and on
+its position under its lenslet (:mod:`track.axial_bias`). :func:`track_volumes_calibrated`
+measures it on the user's own microscope model and subtracts it, in three steps under one
+folder ``ROOT``:
+
+1. ``ROOT/detect/``: the particles of every volume (:func:`track.pipeline.track_volumes`,
+   detection only);
+2. ``ROOT/axial/``: for every frame, noise-free spheres rendered at the detected positions
+   through the model's ideal lenslets and reconstructed as the frame was
+   (:func:`recon.reference.reference_volumes`, in ``frames/`` and ``volumes/``), the corrected
+   tables (``particles/NNNNNN.csv``) and what was subtracted (``axial_calibration.json``);
+3. ``ROOT/track/``: the corrected tables linked and gridded
+   (:func:`track.pipeline.track_clouds`).
+
+The reconstruction's model (:class:`ReconModel`) comes from the volumes' ``recon.json``
+(``recon run`` records the optics, the lenslet calibration and the settings there), or from
+the caller (``hrvptm study``). A rerun resumes every step: detections of unchanged volumes
+are kept, references of unchanged positions are neither rendered nor reconstructed again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .axial_bias import AxialCalibration, correct_table, reference_bias
+from .errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: Sub-folders of ``ROOT`` (module docstring).
+DETECT_DIR, AXIAL_DIR, TRACK_DIR = "detect", "axial", "track"
+_LAYOUT = (DETECT_DIR, AXIAL_DIR, TRACK_DIR)
+#: What :func:`track_volumes_calibrated` writes in ``axial/``.
+AXIAL_RECORD = "axial_calibration.json"
+
+
+@dataclass(frozen=True)
+class ReconModel:
+    """What the volumes were reconstructed with: the references are reconstructed alike.
+
+    Attributes
+    ----------
+    optics : lfsim.optics.Optics
+        The reconstruction's microscope (its lenslets are rendered as ideal ones).
+    grid : recon.lenslet_grid.LensletGrid
+        The lenslet calibration of the frames.
+    settings : recon.settings.ReconSettings
+        Depths, super-resolution, iterations, filter.
+    """
+
+    optics: Any
+    grid: Any
+    settings: Any
+
+    @classmethod
+    def from_record(cls, volumes: str | os.PathLike) -> ReconModel:
+        """The model recorded in ``VOLUMES/recon.json`` by ``recon run`` (a TIFF folder or an
+        OME-Zarr image).
+
+        Raises
+        ------
+        InputError
+            No ``recon.json`` (volumes that ``recon`` did not make), or one that lacks the
+            optics, the calibration or the settings; the message names the file.
+        """
+        from dataclasses import fields
+
+        from hrvbase.errors import HrvError
+        from hrvbase.io import read_json
+        from lfsim.optics import Optics
+        from recon.lenslet_grid import LensletGrid
+        from recon.settings import ReconSettings
+
+        path = Path(volumes) / "recon.json"
+        if not path.is_file():
+            raise InputError(
+                f"{path} does not exist: the axial self-calibration reconstructs references "
+                "as the volumes were, and needs the record that `recon run` writes with them"
+            )
+        rec = read_json(path)
+        missing = [k for k in ("optics", "calibration", "settings") if k not in rec]
+        if not isinstance(rec, Mapping) or missing:
+            raise InputError(f"{path} lacks {missing or 'a JSON object'} (not a recon record)")
+        try:
+            known = {f.name for f in fields(ReconSettings)}
+            st = {k: v for k, v in rec["settings"].items() if k in known}
+            if st.get("roi_px") is not None:
+                st["roi_px"] = tuple(st["roi_px"])
+            return cls(
+                optics=Optics.from_dict(rec["optics"]),
+                grid=LensletGrid.from_dict(rec["calibration"]),
+                settings=ReconSettings(**st),
+            )
+        except (HrvError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: {exc}") from None
+
+
+def _half_boxes(frames: list, detect) -> list:
+    out = []
+    for k, entry in enumerate(frames):
+        half = (entry.get("report") or {}).get("half_box_vox")
+        if half is None:
+            half = detect.half_box_vox
+        if half is None:
+            raise InputError(f"detections of frame {k} record no half_box_vox")
+        out.append(half)
+    return out
+
+
+def correct_series(
+    detect_dir: str | os.PathLike,
+    axial_dir: str | os.PathLike,
+    *,
+    model: ReconModel,
+    detect,
+    axial: AxialCalibration,
+    progress: bool = False,
+    parallel=None,
+) -> list[Path]:
+    """Step 2 of the module docstring: references of every frame of a ``track detect``
+    folder, and its tables corrected by their bias.
+
+    Returns
+    -------
+    list of Path
+        ``axial_dir/particles/NNNNNN.csv``, one per frame (frames whose detection failed: an
+        empty table).
+    """
+    from hrvbase.io import read_json, write_json
+    from recon.reference import reference_volumes
+
+    from .pipeline import SUMMARY
+    from .tables import read_points_csv, write_points_csv
+    from .volumes import read_volume, scan_volumes
+
+    detect_dir, axial_dir = Path(detect_dir), Path(axial_dir)
+    frames = read_json(detect_dir / SUMMARY)["frames"]
+    tables, positions = [], []
+    for k, entry in enumerate(frames):
+        src = detect_dir / entry["particles"] if entry.get("particles") else None
+        if src is None or not src.is_file():  # a failed frame: no particles
+            src = axial_dir / "detected" / f"{k:06d}.csv"
+            write_points_csv(src, np.zeros((0, 3)), overwrite=True)
+        tables.append(src)
+        positions.append(read_points_csv(src))
+    halves = _half_boxes(frames, detect)
+    refs = reference_volumes(
+        positions,
+        axial_dir,
+        optics=model.optics,
+        grid=model.grid,
+        recon_settings=model.settings,
+        settings=axial.reference_settings(),
+        progress=progress,
+        parallel=parallel,
+    )
+    corrected, record = [], []
+    infos = scan_volumes(refs[0].parent)
+    for k, (src, pos, info) in enumerate(zip(tables, positions, infos, strict=True)):
+        bias = reference_bias(
+            read_volume(info), info.voxel_size_um, info.origin_xyz_um, pos, halves[k]
+        )
+        dst = axial_dir / "particles" / f"{k:06d}.csv"
+        record.append({"frame": k, **correct_table(src, dst, bias, lateral=axial.lateral)})
+        corrected.append(dst)
+    write_json(
+        axial_dir / AXIAL_RECORD,
+        {"settings": dataclasses.asdict(axial), "frames": record},
+        overwrite=True,
+    )
+    return corrected
+
+
+def track_volumes_calibrated(
+    volumes: str | os.PathLike,
+    root: str | os.PathLike,
+    *,
+    model: ReconModel | None = None,
+    detect=None,
+    series=None,
+    axial: AxialCalibration | None = None,
+    overwrite: bool = False,
+    allow_partial: bool = False,
+    progress: bool = False,
+    vti_encoding: str = "binary",
+    provenance: Mapping[str, Any] | None = None,
+    parallel=None,
+    own_folder: bool = True,
+):
+    """Detect, calibrate and track a series of volumes (module docstring).
+
+    Parameters
+    ----------
+    volumes : path
+        As :func:`track.pipeline.track_volumes`.
+    root : path
+        Receives ``detect/``, ``axial/`` and ``track/``.
+    model : ReconModel, optional
+        Default: :meth:`ReconModel.from_record` of ``volumes``.
+    detect : track.detect.DetectSettings, optional
+    series : track.series.SeriesSettings, optional
+    axial : AxialCalibration, optional
+        Default ``AxialCalibration(method="simulated")``.
+    overwrite, allow_partial, progress, vti_encoding, provenance, parallel
+        As :func:`track.pipeline.track_volumes` (``overwrite`` and ``allow_partial`` apply to
+        every step).
+    own_folder : bool
+        ``root`` holds nothing but these three folders: one with other contents is refused
+        (default). ``False``: ``root`` is shared (a study's variant folder).
+
+    Returns
+    -------
+    result : track.pipeline.TrackResult
+        Of the linking (``root/track``).
+    seconds : dict
+        ``detect``, ``axial_calibration`` and ``link`` (s).
+    """
+    from .detect import DetectSettings
+    from .pipeline import track_clouds, track_volumes
+
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise InputError(f"results folder {root} is a file")
+    if root.is_dir() and own_folder:
+        other = sorted(p.name for p in root.iterdir() if p.name not in _LAYOUT)
+        if other:
+            raise InputError(
+                f"results folder {root} holds {', '.join(other[:3])}, not only the "
+                f"{'/, '.join(_LAYOUT)}/ of a calibrated run: use a new folder"
+            )
+    axial = axial or AxialCalibration(method="simulated")
+    if not axial.enabled:
+        raise InputError("the axial calibration method is 'none': nothing to calibrate")
+    detect = detect or DetectSettings()
+    model = model or ReconModel.from_record(volumes)
+    prov = dict(provenance or {})
+    t0 = time.perf_counter()
+    track_volumes(
+        volumes,
+        root / DETECT_DIR,
+        detect=detect,
+        series=None,
+        overwrite=overwrite,
+        allow_partial=allow_partial,
+        progress=progress,
+        provenance={**prov, "axial_calibration": axial.method},
+        parallel=parallel,
+    )
+    t1 = time.perf_counter()
+    corrected = correct_series(
+        root / DETECT_DIR,
+        root / AXIAL_DIR,
+        model=model,
+        detect=detect,
+        axial=axial,
+        progress=progress,
+        parallel=parallel,
+    )
+    t2 = time.perf_counter()
+    result = track_clouds(
+        corrected,
+        root / TRACK_DIR,
+        series=series,
+        overwrite=overwrite,
+        allow_partial=allow_partial,
+        progress=progress,
+        vti_encoding=vti_encoding,
+        provenance={**prov, "axial_calibration": str(root / AXIAL_DIR / AXIAL_RECORD)},
+        parallel=parallel,
+        # as track_volumes links its own detections: the shared σ cancels
+        common_sigma_xyz_um=detect.sigma_systematic_um[::-1],
+    )
+    t3 = time.perf_counter()
+    return result, {"detect": t1 - t0, "axial_calibration": t2 - t1, "link": t3 - t2}
+
+
+__all__ = [
+    "AXIAL_DIR",
+    "AXIAL_RECORD",
+    "DETECT_DIR",
+    "TRACK_DIR",
+    "ReconModel",
+    "correct_series",
+    "track_volumes_calibrated",
+]
