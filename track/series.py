@@ -519,13 +519,29 @@ class EulerianCumulation:
         signs, but drop-outs and each increment's own smoothing keep most of it from
         cancelling: on bench_fields' 11-frame series 61 % / 85 % of the total displacement
         errors fall within 1σ / 2σ (smoothing bias included), against 32 % / 56 % with the
-        last increment's σ alone. ``increment_field``, the increment gridded on the same grid
-        (:func:`field_on_grid`), lends its uncertainties, interpolated (trilinear) at the
-        displaced positions; without it they are computed there
-        (:meth:`DisplacementInterpolant.std`).
+        last increment's σ alone.
+
+        ``increment_field``, the increment gridded on the same grid (:func:`field_on_grid`),
+        lends its values, gradients and uncertainties at the displaced positions
+        (:func:`_grid_lookup`: trilinear gradients and σ, Taylor-corrected values), instead
+        of evaluating the spline there: exact for the first increment and for affine fields;
+        on bench_fields' 41-frame series the last total differs from the spline's by
+        1e-4 RMS in E (its error against the truth: 2.8e-2), for 17 % less CPU in the fields.
+        Without it the spline is evaluated (:meth:`DisplacementInterpolant.value_and_gradient`,
+        :meth:`~DisplacementInterpolant.std`).
         """
         x = self._X + self._u
-        u_inc, G_inc = increment.value_and_gradient(x, self.axes.spacing_xyz_um)
+        self._with_std &= increment.has_uncertainty
+        on_grid = increment_field is not None and increment_field.shape == self.axes.shape
+        u_sd = G_sd = None
+        if on_grid:
+            std = self._with_std and increment_field.u_std is not None
+            got = _grid_lookup(increment_field, x, values=True, std=std)
+            u_inc, G_inc = got[:2]
+            if std:
+                u_sd, G_sd = got[2:]
+        else:
+            u_inc, G_inc = increment.value_and_gradient(x, self.axes.spacing_xyz_um)
         self._F = np.einsum("pij,pjk->pik", np.eye(3) + G_inc, self._F)  # (compose_step)
         self._u = self._u + u_inc
         keep = np.flatnonzero(self._mask)  # a node once unsupported stays so
@@ -533,11 +549,8 @@ class EulerianCumulation:
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
         stds = {}
-        self._with_std &= increment.has_uncertainty
         if self._with_std:
-            if increment_field is not None and increment_field.u_std is not None:
-                u_sd, G_sd = _grid_lookup(increment_field, x)
-            else:
+            if u_sd is None:
                 u_sd, G_sd = increment.std(x)
             var = (u_sd**2, G_sd**2)
             if self._var is not None:
@@ -562,28 +575,55 @@ class EulerianCumulation:
         )
 
 
-def _grid_lookup(fld: GridField, xyz_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``u_std`` (P, 3) and ``F_std`` (P, 3, 3) of ``fld`` at ``xyz_um`` (P, 3): trilinear,
-    the nearest border value outside the grid."""
+def _trilinear(fld: GridField, values: np.ndarray, xyz_um: np.ndarray) -> np.ndarray:
+    """Trilinear interpolation of nodal ``values`` (nodes, C) of ``fld``'s grid at ``xyz_um``
+    (P, 3); outside the grid, the nearest border cell's weights (clamped). Returns (P, C)."""
     shape = np.asarray(fld.shape)
-    vals = np.concatenate(
-        [fld.u_std.reshape(-1, 3), fld.F_std.reshape(-1, 9)], axis=1
-    )  # (nodes, 12)
     h = np.asarray(fld.spacing_xyz_um)[::-1]
     t = (np.asarray(xyz_um, float)[:, ::-1] - np.asarray(fld.origin_xyz_um)[::-1]) / h  # z,y,x
     t = np.clip(t, 0.0, shape - 1.0)
     i0 = np.minimum(np.floor(t).astype(np.int64), shape - 2)
     w = t - i0
-    n = t.shape[0]
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     base = i0 @ strides
     ws = (1.0 - w, w)
-    out = np.zeros((n, 12))
+    out = np.zeros((t.shape[0], values.shape[1]))
     for corner in range(8):
         d = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
         wc = ws[d[0]][:, 0] * ws[d[1]][:, 1] * ws[d[2]][:, 2]
-        out += wc[:, None] * vals[base + int(np.dot(d, strides))]
-    return out[:, :3], out[:, 3:].reshape(n, 3, 3)
+        out += wc[:, None] * values[base + int(np.dot(d, strides))]
+    return out
+
+
+def _grid_lookup(fld: GridField, xyz_um: np.ndarray, *, values: bool = False, std: bool = True):
+    """A gridded field at ``xyz_um`` (P, 3), from its nodes only.
+
+    Returns ``(u, G)`` when ``values`` — the displacement (P, 3) and ``∂u_i/∂x_j`` (P, 3, 3):
+    the gradient trilinear in the nodes' exact gradients (second order in the node spacing),
+    the displacement the same weighting of each corner's first-order Taylor value
+    ``u(c) + G(c) (x − c)``, exact at the nodes and on affine fields (linear extrapolation
+    from the border cells outside the grid) — followed, when ``std``, by ``u_std`` (P, 3) and
+    ``F_std`` (P, 3, 3), trilinear.
+    """
+    n = np.shape(xyz_um)[0]
+    cols = []
+    if values:
+        G = (fld.F - np.eye(3)).reshape(-1, 3, 3)
+        nodes = np.stack(np.meshgrid(fld.x_um, fld.y_um, fld.z_um, indexing="ij"), -1)
+        nodes = nodes.transpose(2, 1, 0, 3).reshape(-1, 3)  # (z, y, x) order, x, y, z
+        # Σ_c w_c (u_c + G_c (x − c)) = Σ_c w_c (u_c − G_c c) + (Σ_c w_c G_c) x
+        cols += [fld.u.reshape(-1, 3) - np.einsum("nij,nj->ni", G, nodes), G.reshape(-1, 9)]
+    if std:
+        cols += [fld.u_std.reshape(-1, 3), fld.F_std.reshape(-1, 9)]
+    out = _trilinear(fld, np.concatenate(cols, axis=1), xyz_um)
+    got = []
+    if values:
+        G = out[:, 3:12].reshape(n, 3, 3)
+        got += [out[:, :3] + np.einsum("pij,pj->pi", G, np.asarray(xyz_um, float)), G]
+        out = out[:, 12:]
+    if std:
+        got += [out[:, :3], out[:, 3:].reshape(n, 3, 3)]
+    return tuple(got)
 
 
 def cumulate_eulerian(

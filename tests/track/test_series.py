@@ -123,6 +123,37 @@ def test_cumulate_eulerian_function_and_displaced_evaluation():
     assert err_right < 0.01 * np.max(np.abs(expect_uy))
 
 
+def test_cumulation_from_the_gridded_increments_matches_the_spline():
+    """The cumulation reads each increment at the displaced nodes from its gridded field
+    (trilinear gradients, Taylor-corrected values) instead of evaluating the spline there:
+    exact for the first increment, close to the spline for a curved one."""
+    from track.fields import field_on_grid, fit_displacement, grid_axes
+    from track.series import EulerianCumulation
+
+    X0 = _cloud(seed=4)
+    u1 = np.c_[0.1 * X0[:, 2], np.zeros(len(X0)), np.zeros(len(X0))]
+    X1 = X0 + u1
+    u2 = np.c_[np.zeros(len(X0)), 1e-3 * X1[:, 0] ** 2, np.zeros(len(X0))]
+    ax = grid_axes(X0, 20.0)
+    inc = [fit_displacement(X0, u1), fit_displacement(X1, u2)]
+    exact = cumulate_eulerian(ax, inc)
+    cum = EulerianCumulation(ax)
+    fast = [cum.add(i, field_on_grid(i, ax)) for i in inc]
+    assert np.allclose(fast[0].u, exact[0].u, rtol=0, atol=1e-12)
+    assert np.allclose(fast[0].F, exact[0].F, rtol=0, atol=1e-12)
+    # Against the truth u_y = 1e-3 x², x = X + 0.1 Z: as close as the spline itself
+    # (measured: u_y RMS error 0.111 vs 0.096 µm, ∂u_y/∂X 0.0118 vs 0.0118).
+    m = exact[-1].mask.ravel()
+    P = ax.points()
+    x = P[m, 0] + 0.1 * P[m, 2]
+    for axis, true in ((None, 1e-3 * x**2), (0, 2e-3 * x), (2, 2e-4 * x)):
+        errs = []
+        for f in (exact[1], fast[1]):
+            got = f.u.reshape(-1, 3)[m, 1] if axis is None else f.F.reshape(-1, 3, 3)[m, 1, axis]
+            errs.append(np.sqrt(np.mean((got - true) ** 2)))
+        assert errs[1] < 1.25 * errs[0], (axis, errs)
+
+
 def test_lagrangian_tracks_persist_through_increments():
     # frame sizes 5, 6, 4 with known matches
     m1 = np.array([[0, 3], [1, 0], [2, 1], [4, 5]])  # particle 3 of frame 0 is lost
