@@ -49,22 +49,31 @@ def test_axial_option_is_read_and_checked(tmp_path):
         load_study(_write(tmp_path, "[track.axial]\nmethod = 'simulated'\n"))
 
 
-@pytest.mark.slow
-@pytest.mark.studies
-def test_self_calibration_lowers_the_z_displacement_error(tmp_path):
-    """fig5a_x at test size, 3 frames: the same dataset tracked without and with the
-    calibration. Measured (seed 1): worst-frame z displacement RMSD 2.48 → 0.95 µm, pooled
-    2.35 → 0.90 µm; x (the axis of the motion) 0.243 → 0.181 µm, y 0.157 → 0.163 µm."""
-    text = (EXPERIMENTS / "fig5a_translation_x_test.toml").read_text("utf-8")
-    text = text.replace("frames = 5", "frames = 3")
+def _off_and_on(tmp_path: Path, name: str, edit=lambda t: t) -> tuple[Path, Path]:
+    """The test-size study ``name`` run without, then (on a copy of that report: the same
+    dataset and volumes) with the calibration; the two report folders."""
+    text = edit((EXPERIMENTS / f"{name}.toml").read_text("utf-8"))
     text = text.replace('"../medium', f'"{(ROOT / "scenes").as_posix()}/medium')
     off_toml, on_toml = tmp_path / "off.toml", tmp_path / "on.toml"
     off_toml.write_text(text, "utf-8")
     on_toml.write_text(text + "\n[track.axial]\nmethod = 'simulated'\n", "utf-8")
     off, on = tmp_path / "off", tmp_path / "on"
     assert main(["study", str(off_toml), "-o", str(off), "-q"]) == 0
-    shutil.copytree(off, on)  # the same dataset and volumes (resumed): only tracking differs
+    shutil.copytree(off, on)  # only tracking differs
     assert main(["study", str(on_toml), "-o", str(on), "-q", "--overwrite"]) == 0
+    return off, on
+
+
+@pytest.mark.slow
+@pytest.mark.studies
+def test_self_calibration_lowers_the_z_displacement_error(tmp_path):
+    """fig5a_x at test size, 3 frames: the same dataset tracked without and with the
+    calibration. Measured (seed 1): worst-frame z displacement RMSD 2.48 → 0.95 µm, pooled
+    2.35 → 0.90 µm; x (the axis of the motion) 0.243 → 0.181 µm, y 0.157 → 0.163 µm."""
+    off, on = _off_and_on(
+        tmp_path, "fig5a_translation_x_test", lambda t: t.replace("frames = 5", "frames = 3")
+    )
+    on_toml = tmp_path / "on.toml"
     s_off, s_on = (
         json.loads((r / "summary.json").read_text("utf-8"))["variants"]["mismatched"]
         for r in (off, on)
@@ -96,15 +105,7 @@ def test_self_calibration_on_a_heterogeneous_motion(tmp_path):
     y 0.207 -> 0.184 µm; strain RMSD E_zz 2.37 -> 1.96 %, E_xz 1.41 -> 0.95 %, E_yz 1.23 ->
     0.85 % (the ideal of the detected particles: 1.64 / 0.98 / 0.78 %), E_xx, E_yy, E_xy
     unchanged; every particle tracked, none wrongly."""
-    text = (EXPERIMENTS / "inclusion_stretch_test.toml").read_text("utf-8")
-    text = text.replace('"../medium', f'"{(ROOT / "scenes").as_posix()}/medium')
-    off_toml, on_toml = tmp_path / "off.toml", tmp_path / "on.toml"
-    off_toml.write_text(text, "utf-8")
-    on_toml.write_text(text + "\n[track.axial]\nmethod = 'simulated'\n", "utf-8")
-    off, on = tmp_path / "off", tmp_path / "on"
-    assert main(["study", str(off_toml), "-o", str(off), "-q"]) == 0
-    shutil.copytree(off, on)
-    assert main(["study", str(on_toml), "-o", str(on), "-q", "--overwrite"]) == 0
+    off, on = _off_and_on(tmp_path, "inclusion_stretch_test")
     a, b = (
         json.loads((r / "summary.json").read_text("utf-8"))["variants"]["mismatched"]["summary"]
         for r in (off, on)

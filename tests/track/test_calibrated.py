@@ -15,23 +15,11 @@ from scipy.spatial import cKDTree
 from track.cli import main
 from track.tables import read_points_csv
 
-from ..helpers import experiment_toml
+from ..recon.test_pipeline import EXPERIMENT as _RECON_EXPERIMENT
 
 ROOT = Path(__file__).resolve().parents[2]
-EXPERIMENT = experiment_toml(
-    experiment={"name": "axial_cli", "scene": "{scene}", "seed": 3, "frames": 2},
-    particles={
-        "kind": "box",
-        "count": 8,
-        "box_um": ((-180, 160), (-180, 160), (150, 350)),
-        "min_spacing_um": 60,
-        "diameter_um": 15,
-    },
-    motion={"type": "translation", "step_um": (5.0, 0.0, 0.0)},
-    render={"rays_per_particle": 30000},
-    noise={"model": "gaussian", "snr": 30},
-    white={"rays_per_lenslet": 3000},
-)
+# The recon tests' scene, with 8 particles over 2 frames.
+EXPERIMENT = _RECON_EXPERIMENT.replace("count = 6", "count = 8").replace("frames = 3", "frames = 2")
 RECON = ["--z-range", "100:400", "--z-step", "10", "-s", "3", "--iterations", "5"]
 
 
@@ -45,6 +33,7 @@ def volumes(backend, tmp_path_factory):
 
     d = tmp_path_factory.mktemp("axial_cli")
     toml = d / "exp.toml"
+    assert "count = 8" in EXPERIMENT and "frames = 2" in EXPERIMENT
     toml.write_text(EXPERIMENT.format(scene=(ROOT / "scenes" / "small_glass.xml").as_posix()))
     generate_dataset(load_experiment(toml), d / "ds", progress=False)
     scene = str(ROOT / "scenes" / "small.xml")
