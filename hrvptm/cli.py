@@ -6,14 +6,22 @@ Commands::
                  [--workers N | --scheduler ADDRESS]
     hrvptm demo -o DIR [--overwrite] [-q | -v] [--workers N | --scheduler ADDRESS]
     hrvptm collect REPORT [REPORT ...] -o validation.md [--preamble INTRO.md]
+    hrvptm axial VOLDIR -o RESULTS [--track-config TRACK.toml] [--sphere-diameter-um D]
+                 [--reference-rays N] [--z-only] [--overwrite] [--allow-partial]
+                 [--workers N | --scheduler ADDRESS]
 
 ``study`` simulates the experiment with lfsim, reconstructs it with recon, tracks it with
 track and compares every frame with the truth (:mod:`hrvptm.study`); a rerun resumes.
 ``demo`` runs the built-in small study (simple shear at test size, a few minutes on 2 cores)
 and prints its summary. ``collect`` gathers finished reports into one Markdown page (the
-project's ``docs/validation.md``). ``--workers`` / ``--scheduler`` run the frames of the
-simulation, reconstruction and detection stages on Dask workers (:mod:`hrvbase.parallel`),
-with the same results.
+project's ``docs/validation.md``). ``axial`` tracks real volumes (``recon run``'s folder
+or OME-Zarr image) with the simulator self-calibration of the reconstruction's position bias
+(:mod:`hrvptm.calibrated`: the microscope model from ``VOLDIR/recon.json``; detection and
+linking settings from the ``[track]`` tables of ``--track-config``, as in a study file);
+``RESULTS`` receives ``detect/``, ``axial/`` and ``track/`` (the results, as ``track run``
+writes them), and a failed frame exits with 3 as ``track run`` does. ``--workers`` /
+``--scheduler`` run the frames of the simulation, reconstruction and detection stages on Dask
+workers (:mod:`hrvbase.parallel`), with the same results.
 
 Errors a user can cause print one line ``hrvptm: error: <message>`` and exit with status 2.
 So does a study whose frames failed (not tracked, far too few particles detected, tracking
@@ -125,7 +133,131 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace a page an earlier collect wrote (default: refuse an existing page)",
     )
+    ax = command(
+        "axial",
+        "track volumes with the simulator self-calibration of their position bias",
+        "Detect the particles of VOLDIR, render noise-free spheres at the detections through "
+        "the microscope model of VOLDIR/recon.json, reconstruct them as the volumes were, "
+        "subtract each sphere's offset, then link and grid (RESULTS/track).",
+        cmd_axial,
+    )
+    ax.add_argument(
+        "voldir", type=Path, metavar="VOLDIR", help="volumes of `recon run` (folder or .zarr)"
+    )
+    ax.add_argument(
+        "-o", "--output", required=True, type=Path, metavar="RESULTS", help="results folder"
+    )
+    ax.add_argument(
+        "--track-config",
+        type=Path,
+        default=None,
+        metavar="TRACK.toml",
+        help="[track], [track.detect], [track.grid], [track.link], [track.axial] tables as in a "
+        "study file (default: the settings' defaults)",
+    )
+    ax.add_argument(
+        "--sphere-diameter-um",
+        type=float,
+        default=None,
+        metavar="D",
+        help="diameter of the reference spheres, the particles' (µm; default: "
+        "[track.axial] sphere_diameter_um, else 15)",
+    )
+    ax.add_argument(
+        "--reference-rays",
+        type=int,
+        default=None,
+        metavar="N",
+        help="rays per reference sphere (default: [track.axial] rays_per_particle, else 50000)",
+    )
+    ax.add_argument(
+        "--z-only", action="store_true", help="subtract the z offset only (default: x, y and z)"
+    )
+    ax.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace results made from other inputs or settings (default: refuse)",
+    )
+    ax.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="exit 0 when frames failed (their failures are warnings)",
+    )
+    add_parallel_options(ax)
     return p
+
+
+def _track_config(path: Path | None):
+    """The :class:`~hrvptm.config.TrackSpec` of the ``[track]`` tables of ``path``."""
+    import tomllib
+
+    from .config import TrackSpec, _track_spec
+
+    if path is None:
+        return TrackSpec()
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise StudyConfigError(f"track config {path} does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise StudyConfigError(f"{path}: not a readable TOML file ({exc})") from None
+    other = sorted(set(data) - {"track"})
+    if other:
+        raise StudyConfigError(f"{path}: only [track] tables belong here, not {other}")
+    return _track_spec(str(path), data.get("track"))
+
+
+def cmd_axial(args) -> int:
+    """``hrvptm axial``: detect, calibrate, link and grid real volumes."""
+    import dataclasses
+
+    from hrvbase.cli import parallel_from_args
+    from hrvbase.io import check_output_folder, guard_output
+    from track.errors import FailedFramesError
+    from track.pipeline import failure_message
+
+    from .calibrated import ReconModel, track_volumes_calibrated
+
+    spec = _track_config(args.track_config)
+    given = {"method": "simulated", "lateral": not args.z_only and spec.axial.lateral}
+    if args.sphere_diameter_um is not None:
+        given["sphere_diameter_um"] = args.sphere_diameter_um
+    if args.reference_rays is not None:
+        given["rays_per_particle"] = args.reference_rays
+    from hrvbase.errors import HrvError
+
+    try:
+        axial = dataclasses.replace(spec.axial, **given)
+    except HrvError as exc:  # the dataclass's one-line message, with the option's name
+        msg = str(exc).replace("sphere_diameter_um", "--sphere-diameter-um")
+        raise StudyConfigError(msg.replace("rays_per_particle", "--reference-rays")) from None
+    parallel = parallel_from_args(args)
+    guard_output(args.output, [args.voldir])
+    check_output_folder(args.output)
+    model = ReconModel.from_record(args.voldir)
+    try:
+        result, secs = track_volumes_calibrated(
+            args.voldir,
+            args.output,
+            model=model,
+            detect=spec.detect,
+            series=spec.series,
+            axial=axial,
+            overwrite=args.overwrite,
+            allow_partial=args.allow_partial,
+            progress=not args.quiet,
+            provenance={"argv": list(args.argv)},
+            parallel=parallel,
+        )
+    except FailedFramesError as exc:
+        line = failure_message(exc.failures, hint="--allow-partial")
+        sys.stderr.write(f"hrvptm: error: {line}\n")
+        return 3
+    if not args.quiet:
+        sys.stdout.write(
+            f"{result.results_line()} (axial calibration {secs['axial_calibration']:.1f} s)\n"
+        )
+    return 0
 
 
 def _run(path: Path, args, command: str) -> dict:

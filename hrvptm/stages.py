@@ -28,8 +28,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from track.calibrated import AXIAL_DIR, DETECT_DIR, TRACK_DIR
-
+from .calibrated import AXIAL_DIR, DETECT_DIR, TRACK_DIR
 from .errors import StageError
 
 log = logging.getLogger(__name__)
@@ -177,14 +176,14 @@ def track_calibrated(
     study, paths: VariantPaths, *, progress: bool = True, parallel=None
 ) -> dict[str, float]:
     """A series tracked with the simulator self-calibration of the reconstruction's bias
-    (:func:`track.calibrated.track_volumes_calibrated`, as ``track run --axial-calibration
-    simulated``): ``detect/``, ``axial/`` and ``track/`` of the variant. Returns seconds
-    spent: ``track`` (detection, linking, fields) and ``axial_calibration`` (references and
-    correction)."""
+    (:func:`hrvptm.calibrated.track_volumes_calibrated`, as ``hrvptm axial``): ``detect/``,
+    ``axial/`` and ``track/`` of the variant. Returns seconds spent: ``track`` (detection,
+    linking, fields) and ``axial_calibration`` (references and correction)."""
     from hrvbase.errors import HrvError
     from lfsim.scene import read_optics
     from recon.lenslet_grid import LensletGrid
-    from track.calibrated import ReconModel, track_volumes_calibrated
+
+    from .calibrated import ReconModel, track_volumes_calibrated
 
     try:
         model = ReconModel(

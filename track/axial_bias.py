@@ -45,10 +45,10 @@ class AxialCalibration:
         (:mod:`recon.reference`); ``"none"``: positions as detected.
     sphere_diameter_um : float or None
         Diameter of the reference spheres (µm): the particles'. None: the default of
-        :class:`recon.reference.ReferenceSettings` (the paper's 15 µm).
+        ``recon.reference.ReferenceSettings`` (the paper's 15 µm; see
+        :func:`hrvptm.calibrated.reference_settings`).
     rays_per_particle : int or None
-        Rays per reference sphere; None: the default of
-        :class:`~recon.reference.ReferenceSettings`.
+        Rays per reference sphere; None: the default of ``ReferenceSettings``.
     lateral : bool
         Subtract the x and y offsets too (default; ``False``: z only, see the module
         docstring).
@@ -72,15 +72,6 @@ class AxialCalibration:
             raise InputError(f"rays_per_particle must be an integer >= 1000, got {r!r}")
         if not isinstance(self.lateral, bool):
             raise InputError(f"lateral must be true or false, got {self.lateral!r}")
-
-    def reference_settings(self):
-        """The :class:`recon.reference.ReferenceSettings` of the references (the values given
-        here, the others at their defaults)."""
-        from recon.reference import ReferenceSettings
-
-        given = {"sphere_diameter_um": self.sphere_diameter_um}
-        given["rays_per_particle"] = self.rays_per_particle
-        return ReferenceSettings(**{k: v for k, v in given.items() if v is not None})
 
     @property
     def enabled(self) -> bool:

@@ -7,8 +7,7 @@ options' defaults) → pipeline → exit status and a one-line summary.
 Commands::
 
     track run VOLDIR -o RESULTS [--mode incremental|cumulative] [--grid-spacing-um X]
-              [--threshold auto|F] [--no-deconvolution] [--overwrite]
-              [--axial-calibration simulated [--sphere-diameter-um D]] ...
+              [--threshold auto|F] [--no-deconvolution] [--overwrite] ...
     track detect VOLDIR -o RESULTS [detection options] [--overwrite]
     track link A.csv B.csv [C.csv ...] -o RESULTS [--mode ...] [--grid-spacing-um X] ...
 
@@ -24,12 +23,6 @@ frame 0 first.
 field from frame 0 to frame ``NNNNNN`` on the reference grid; incremental mode also
 ``fields/increment_NNNNNN.npz``) and ``summary.json`` (parameters, input checksums, counts,
 tracking ratio and status of every pair, timings). Every file is written atomically.
-
-``run --axial-calibration simulated`` subtracts the reconstruction's position bias, measured
-on noise-free spheres rendered at the detections through the microscope model that
-``VOLDIR/recon.json`` records and reconstructed alike (:mod:`track.calibrated`): ``RESULTS``
-then holds ``detect/`` (the raw detections), ``axial/`` (references, corrected tables) and
-``track/`` (the results above).
 
 Frames in parallel: ``run``/``detect`` ``--workers N`` detect N volumes at a time on local
 Dask worker processes, ``--scheduler ADDRESS`` on the workers of an existing Dask cluster
@@ -296,36 +289,6 @@ SERIES_OPTIONS = (
     ),
 )
 
-#: Options of the axial self-calibration (:class:`track.axial_bias.AxialCalibration`).
-AXIAL_OPTIONS = (
-    SettingOption(
-        "method",
-        ("--axial-calibration",),
-        "'simulated': subtract the reconstruction's position bias, measured on noise-free "
-        "spheres rendered at the detections through the volumes' microscope model and "
-        "reconstructed as they were (from VOLDIR/recon.json); RESULTS then holds detect/, "
-        "axial/ and track/ (the results)",
-        choices=("none", "simulated"),
-    ),
-)
-#: Sizes of the reference spheres (:class:`recon.reference.ReferenceSettings` defaults).
-REFERENCE_OPTIONS = (
-    SettingOption(
-        "sphere_diameter_um",
-        ("--sphere-diameter-um",),
-        "--axial-calibration: diameter of the reference spheres, the particles' (µm)",
-        _positive_float,
-        "D",
-    ),
-    SettingOption(
-        "rays_per_particle",
-        ("--reference-rays",),
-        "--axial-calibration: rays per reference sphere",
-        int_in(1000),
-        "N",
-    ),
-)
-
 #: Options of the linker (:class:`track.matching.LinkSettings`).
 LINK_OPTIONS = (SettingOption("seed", ("--seed",), "seed of the linker's RANSAC", _count, "N"),)
 
@@ -367,25 +330,6 @@ def _link_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _axial_options(p: argparse.ArgumentParser) -> None:
-    from recon.reference import ReferenceSettings
-
-    from .axial_bias import AxialCalibration
-
-    g = p.add_argument_group("axial self-calibration (track.calibrated)")
-    add_setting_options(g, AxialCalibration, AXIAL_OPTIONS, prefix="axial_")
-    ref = ReferenceSettings()
-    for opt in REFERENCE_OPTIONS:
-        add_setting_options(
-            g, AxialCalibration, (opt,), prefix="axial_", derived=f"{getattr(ref, opt.field):g}"
-        )
-    g.add_argument(
-        "--axial-z-only",
-        action="store_true",
-        help="--axial-calibration: subtract the z offset only (default: x, y and z)",
-    )
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The ``track`` argument parser."""
     p = Parser(
@@ -408,7 +352,6 @@ def build_parser() -> argparse.ArgumentParser:
     _common(r)
     _detect_options(r)
     _link_options(r)
-    _axial_options(r)
     add_parallel_options(r.add_argument_group("frames in parallel (detection and fields)"))
     r.set_defaults(func=cmd_run)
     d = sub.add_parser("detect", parents=[common], help="detect particles in a folder of volumes")
@@ -464,23 +407,6 @@ def series_settings(args: argparse.Namespace) -> SeriesSettings:
         },
         prefix="series_",
     )
-
-
-def axial_settings(args: argparse.Namespace):
-    """The :class:`~track.axial_bias.AxialCalibration` of parsed ``run`` options."""
-    from hrvbase.errors import InputError
-
-    from .axial_bias import AxialCalibration
-
-    options = AXIAL_OPTIONS + REFERENCE_OPTIONS
-    extra = {"lateral": not args.axial_z_only}
-    axial = settings_from_args(AxialCalibration, args, options, extra=extra, prefix="axial_")
-    if not axial.enabled:
-        given = [o.flags[0] for o in REFERENCE_OPTIONS if getattr(args, f"axial_{o.field}")]
-        given += ["--axial-z-only"] if args.axial_z_only else []
-        if given:
-            raise InputError(f"{given[0]} needs --axial-calibration simulated")
-    return axial
 
 
 def _check_grid_option(args, extent_xyz_um, where: str) -> None:
@@ -572,29 +498,10 @@ def cmd_run(args) -> int:
     from .pipeline import track_volumes, volume_extent_um
 
     detect, series = detect_settings(args), series_settings(args)  # validate before any work
-    axial = axial_settings(args)
     parallel = parallel_from_args(args)
     vols = scan_volumes(args.voldir)
     _check_edge_margin(detect, vols[0])
     _check_grid_option(args, volume_extent_um(vols[0]), "the volume")
-    if axial.enabled:
-        from .calibrated import ReconModel, track_volumes_calibrated
-
-        model = ReconModel.from_record(args.voldir)
-        return _report(
-            args,
-            lambda: track_volumes_calibrated(
-                args.voldir,
-                args.output,
-                model=model,
-                detect=detect,
-                series=series,
-                axial=axial,
-                vti_encoding=args.vti_encoding,
-                parallel=parallel,
-                **_common_kwargs(args),
-            )[0],
-        )
     return _report(
         args,
         lambda: track_volumes(

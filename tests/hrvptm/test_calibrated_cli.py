@@ -1,6 +1,6 @@
-"""``track run --axial-calibration simulated`` (track.calibrated) on volumes that ``recon run``
-made from a glass-lenslet rendering with an ideal-lenslet model: the layout, the correction
-against the truth, resume, and the refusals."""
+"""``hrvptm axial`` (hrvptm.calibrated) on volumes that ``recon run`` made from a glass-lenslet
+rendering with an ideal-lenslet model: the layout, the correction against the truth, resume,
+and the refusals."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from track.cli import main
+from hrvptm.cli import main
 from track.tables import read_points_csv
 
 from ..recon.test_pipeline import EXPERIMENT as _RECON_EXPERIMENT
@@ -60,7 +60,7 @@ def _errors(truth_dir: Path, tables: list[Path]) -> np.ndarray:
 
 def test_calibrated_run_lowers_the_position_bias(volumes, tmp_path, capsys):
     out = tmp_path / "res"
-    rc, _, err = run(capsys, "run", volumes / "vol", "--axial-calibration", "simulated", "-o", out)
+    rc, _, err = run(capsys, "axial", volumes / "vol", "-o", out)
     assert rc == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["axial", "detect", "track"]
     raw = sorted((out / "detect" / "particles").glob("*.csv"))
@@ -83,14 +83,16 @@ def test_calibrated_run_lowers_the_position_bias(volumes, tmp_path, capsys):
     # Resume: nothing is rendered again; the corrected tables are the same.
     stamps = {p: p.stat().st_mtime_ns for p in (out / "axial" / "frames").glob("*.tif")}
     before = [p.read_bytes() for p in fixed]
-    rc, _, err = run(capsys, "run", volumes / "vol", "--axial-calibration", "simulated", "-o", out)
+    rc, _, err = run(capsys, "axial", volumes / "vol", "-o", out)
     assert rc == 0, err
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
     assert [p.read_bytes() for p in fixed] == before
-    # z only: x and y as detected.
+    # z only: x and y as detected (and a track config: no fields).
+    cfg = tmp_path / "track.toml"
+    cfg.write_text("[track.grid]\ntarget_nodes = 500\n", "utf-8")
     rc, _, err = run(
-        capsys, "run", volumes / "vol", "--axial-calibration", "simulated", "--axial-z-only",
-        "-o", tmp_path / "z", "--no-fields",
+        capsys, "axial", volumes / "vol", "--z-only", "-o", tmp_path / "z",
+        "--track-config", cfg,
     )  # fmt: skip
     assert rc == 0, err
     z_only = sorted((tmp_path / "z" / "axial" / "particles").glob("*.csv"))
@@ -101,28 +103,26 @@ def test_calibrated_run_lowers_the_position_bias(volumes, tmp_path, capsys):
 
 def test_calibrated_run_refusals(volumes, tmp_path, capsys):
     vol = volumes / "vol"
-    # the reference options without the calibration
-    rc, _, err = run(capsys, "run", vol, "--sphere-diameter-um", "10", "-o", tmp_path / "a")
-    assert rc == 2
-    assert err.strip().endswith("--sphere-diameter-um needs --axial-calibration simulated")
     # volumes without their recon record
     bare = tmp_path / "bare"
     bare.mkdir()
     for p in vol.glob("*.tif"):
         shutil.copy(p, bare / p.name)
-    rc, _, err = run(capsys, "run", bare, "--axial-calibration", "simulated", "-o", tmp_path / "b")
+    rc, _, err = run(capsys, "axial", bare, "-o", tmp_path / "b")
     assert rc == 2 and "recon.json does not exist" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "b").exists()
     # a results folder of something else: refused, untouched
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("keep")
-    rc, _, err = run(capsys, "run", vol, "--axial-calibration", "simulated", "-o", mine)
+    rc, _, err = run(capsys, "axial", vol, "-o", mine)
     assert rc == 2 and "holds notes.txt" in err
     assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
-    # a bad sphere diameter names the option
-    rc, _, err = run(
-        capsys, "run", vol, "--axial-calibration", "simulated", "--reference-rays", "10",
-        "-o", tmp_path / "c",
-    )  # fmt: skip
-    assert rc == 2 and "--reference-rays" in err
+    # bad values name the option or the file
+    rc, _, err = run(capsys, "axial", vol, "--reference-rays", "10", "-o", tmp_path / "c")
+    assert rc == 2 and "--reference-rays must be an integer >= 1000" in err
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[track.detect]\nthreshold = 3\n[recon]\ns = 3\n", "utf-8")
+    rc, _, err = run(capsys, "axial", vol, "--track-config", cfg, "-o", tmp_path / "d")
+    assert rc == 2 and "bad.toml" in err and "[track] tables" in err
+    assert not (tmp_path / "d").exists()

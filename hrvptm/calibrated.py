@@ -1,7 +1,10 @@
 """Track a series with the simulator self-calibration of the reconstruction's position bias.
 
-The reconstruction places each particle with a fixed bias that depends on its depth and on
-its position under its lenslet (:mod:`track.axial_bias`). :func:`track_volumes_calibrated`
+It needs the three lower packages (lfsim renders, recon reconstructs, track detects and
+links), so it lives here, above them; ``hrvptm axial`` is its command line and ``hrvptm
+study`` its ``[track.axial]`` stage. The reconstruction places each particle with a fixed
+bias that depends on its depth and on its position under its lenslet
+(:mod:`track.axial_bias`). :func:`track_volumes_calibrated`
 measures it on the user's own microscope model and subtracts it, in three steps under one
 folder ``ROOT``:
 
@@ -33,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from .axial_bias import AxialCalibration, correct_table, reference_bias
-from .errors import InputError
+from hrvbase.errors import InputError
+from track.axial_bias import AxialCalibration, correct_table, reference_bias
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +109,16 @@ class ReconModel:
             raise InputError(f"{path}: {exc}") from None
 
 
+def reference_settings(axial: AxialCalibration):
+    """The :class:`recon.reference.ReferenceSettings` of ``axial`` (the values it gives, the
+    others at their defaults: the one place they are defined)."""
+    from recon.reference import ReferenceSettings
+
+    given = {"sphere_diameter_um": axial.sphere_diameter_um}
+    given["rays_per_particle"] = axial.rays_per_particle
+    return ReferenceSettings(**{k: v for k, v in given.items() if v is not None})
+
+
 def _half_boxes(frames: list, detect) -> list:
     out = []
     for k, entry in enumerate(frames):
@@ -139,10 +152,9 @@ def correct_series(
     """
     from hrvbase.io import read_json, write_json
     from recon.reference import reference_volumes
-
-    from .pipeline import SUMMARY
-    from .tables import read_points_csv, write_points_csv
-    from .volumes import read_volume, scan_volumes
+    from track.pipeline import SUMMARY
+    from track.tables import read_points_csv, write_points_csv
+    from track.volumes import read_volume, scan_volumes
 
     detect_dir, axial_dir = Path(detect_dir), Path(axial_dir)
     frames = read_json(detect_dir / SUMMARY)["frames"]
@@ -161,7 +173,7 @@ def correct_series(
         optics=model.optics,
         grid=model.grid,
         recon_settings=model.settings,
-        settings=axial.reference_settings(),
+        settings=reference_settings(axial),
         progress=progress,
         parallel=parallel,
     )
@@ -226,8 +238,8 @@ def track_volumes_calibrated(
     seconds : dict
         ``detect``, ``axial_calibration`` and ``link`` (s).
     """
-    from .detect import DetectSettings
-    from .pipeline import track_clouds, track_volumes
+    from track.detect import DetectSettings
+    from track.pipeline import track_clouds, track_volumes
 
     root = Path(root)
     if root.exists() and not root.is_dir():
@@ -292,5 +304,6 @@ __all__ = [
     "TRACK_DIR",
     "ReconModel",
     "correct_series",
+    "reference_settings",
     "track_volumes_calibrated",
 ]
