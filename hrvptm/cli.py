@@ -187,26 +187,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _track_config(path: Path | None):
-    """The :class:`~hrvptm.config.TrackSpec` of the ``[track]`` tables of ``path``."""
-    import tomllib
-
-    from .config import TrackSpec, _track_spec
-
-    if path is None:
-        return TrackSpec()
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise StudyConfigError(f"track config {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise StudyConfigError(f"{path}: not a readable TOML file ({exc})") from None
-    other = sorted(set(data) - {"track"})
-    if other:
-        raise StudyConfigError(f"{path}: only [track] tables belong here, not {other}")
-    return _track_spec(str(path), data.get("track"))
-
-
 def cmd_axial(args) -> int:
     """``hrvptm axial``: detect, calibrate, link and grid real volumes."""
     import dataclasses
@@ -217,8 +197,9 @@ def cmd_axial(args) -> int:
     from track.pipeline import failure_message
 
     from .calibrated import ReconModel, track_volumes_calibrated
+    from .config import load_track_config
 
-    spec = _track_config(args.track_config)
+    spec = load_track_config(args.track_config)
     given = {"method": "simulated", "lateral": not args.z_only and spec.axial.lateral}
     if args.sphere_diameter_um is not None:
         given["sphere_diameter_um"] = args.sphere_diameter_um

@@ -412,10 +412,34 @@ def load_study(path: str | os.PathLike) -> Study:
         the file, the section and what was expected).
     """
     path = Path(path)
+    data = _read_toml(path, "study file")
+    return study_from_dict(data, base_dir=path.parent.resolve(), source=str(path))
+
+
+def _read_toml(path: Path, what: str) -> dict:
     if not path.is_file():
-        raise StudyConfigError(f"study file {str(path)!r} does not exist")
+        raise StudyConfigError(f"{what} {str(path)!r} does not exist")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise StudyConfigError(f"{path}: not valid TOML: {exc}") from None
-    return study_from_dict(data, base_dir=path.parent.resolve(), source=str(path))
+
+
+def load_track_config(path: str | os.PathLike | None) -> TrackSpec:
+    """The track settings of a file holding only ``[track]`` tables, as in a study file
+    (``hrvptm axial --track-config``); None: the defaults.
+
+    Raises
+    ------
+    StudyConfigError
+        Missing or invalid file, a table other than ``[track]``, or an invalid value (the
+        message names the file and the section).
+    """
+    if path is None:
+        return TrackSpec()
+    path = Path(path)
+    data = _read_toml(path, "track config")
+    other = sorted(set(data) - {"track"})
+    if other:
+        raise StudyConfigError(f"{path}: only [track] tables belong here, not {other}")
+    return _track_spec(str(path), data.get("track"))
