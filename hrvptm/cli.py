@@ -63,16 +63,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", parser_class=Parser)
     shared = common_options(suppress=True)
 
-    def common(q: argparse.ArgumentParser) -> None:
-        q.add_argument(
-            "--overwrite",
-            action="store_true",
-            help="reuse a report folder of another study (default: refuse)",
-        )
+    def common(
+        q: argparse.ArgumentParser,
+        overwrite: str = "reuse a report folder of another study",
+        partial: str = "the report still says FAILED",
+    ) -> None:
+        q.add_argument("--overwrite", action="store_true", help=f"{overwrite} (default: refuse)")
         q.add_argument(
             "--allow-partial",
             action="store_true",
-            help="exit 0 when frames failed (the report still says FAILED)",
+            help=f"exit 0 when frames failed ({partial})",
         )
         add_parallel_options(q)
 
@@ -133,6 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace a page an earlier collect wrote (default: refuse an existing page)",
     )
+    from recon.reference import ReferenceSettings
+
+    ref = ReferenceSettings()  # the references' defaults, defined there once
     ax = command(
         "axial",
         "track volumes with the simulator self-calibration of their position bias",
@@ -161,29 +164,24 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="D",
         help="diameter of the reference spheres, the particles' (µm; default: "
-        "[track.axial] sphere_diameter_um, else 15)",
+        f"[track.axial] sphere_diameter_um, else {ref.sphere_diameter_um:g})",
     )
     ax.add_argument(
         "--reference-rays",
         type=int,
         default=None,
         metavar="N",
-        help="rays per reference sphere (default: [track.axial] rays_per_particle, else 50000)",
+        help="rays per reference sphere (default: [track.axial] rays_per_particle, else "
+        f"{ref.rays_per_particle})",
     )
     ax.add_argument(
         "--z-only", action="store_true", help="subtract the z offset only (default: x, y and z)"
     )
-    ax.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace results made from other inputs or settings (default: refuse)",
+    common(
+        ax,
+        overwrite="replace results made from other inputs or settings",
+        partial="their failures are warnings",
     )
-    ax.add_argument(
-        "--allow-partial",
-        action="store_true",
-        help="exit 0 when frames failed (their failures are warnings)",
-    )
-    add_parallel_options(ax)
     return p
 
 
