@@ -609,8 +609,7 @@ def _grid_lookup(fld: GridField, xyz_um: np.ndarray, *, values: bool = False, st
     cols = []
     if values:
         G = (fld.F - np.eye(3)).reshape(-1, 3, 3)
-        nodes = np.stack(np.meshgrid(fld.x_um, fld.y_um, fld.z_um, indexing="ij"), -1)
-        nodes = nodes.transpose(2, 1, 0, 3).reshape(-1, 3)  # (z, y, x) order, x, y, z
+        nodes = fld.axes.points()
         # Σ_c w_c (u_c + G_c (x − c)) = Σ_c w_c (u_c − G_c c) + (Σ_c w_c G_c) x
         cols += [fld.u.reshape(-1, 3) - np.einsum("nij,nj->ni", G, nodes), G.reshape(-1, 9)]
     if std:
