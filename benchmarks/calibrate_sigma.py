@@ -60,9 +60,14 @@ COVER = (0.6827, 0.9545)
 
 
 # -- the runs ----------------------------------------------------------------------------------
-def raw_toml(src: Path, seed: int | None) -> str:
-    """``src``'s text with absolute scene paths, ``seed`` (None: kept) and no σ settings."""
+def raw_toml(src: Path, seed: int | None, *, single: bool = False, no_axial: bool = False) -> str:
+    """``src``'s text with absolute scene paths, ``seed`` (None: kept) and no σ settings;
+    ``single``: without the matched-model variant; ``no_axial``: without ``[track.axial]``."""
     text = src.read_text(encoding="utf-8")
+    if single:
+        text = re.sub(r"^matched\s*=.*\n", "", text, flags=re.M)
+    if no_axial:
+        text = re.sub(r"^\[track\.axial\]\n(?:[^\[].*\n|\n)*", "", text, flags=re.M)
     for key in ("scene", "recon_scene"):
         text = re.sub(
             rf'^({key}\s*=\s*")([^"]+)(")',
@@ -77,15 +82,19 @@ def raw_toml(src: Path, seed: int | None) -> str:
     return re.sub(rf"^({'|'.join(SIGMA_KEYS)})\s*=.*\n", "", text, flags=re.M)
 
 
-def run(src: Path, seed: int | None, work: Path, retrack: bool) -> tuple[str, Path, Path]:
+def run(
+    src: Path, seed: int | None, work: Path, retrack: bool, *, single=False, no_axial=False
+) -> tuple[str, Path, Path]:
     """Run the raw copy of study ``src`` into ``work``; returns (label, toml, report)."""
     label = f"{src.stem}_seed{seed}" if seed is not None else src.stem
+    label += "_noaxial" if no_axial else ""
     toml = work / f"{label}.toml"
-    toml.write_text(raw_toml(src, seed), encoding="utf-8")
+    toml.write_text(raw_toml(src, seed, single=single, no_axial=no_axial), encoding="utf-8")
     out = work / label
     if retrack:
         for variant in ("mismatched", "matched"):
-            shutil.rmtree(out / variant / "track", ignore_errors=True)
+            for stage in ("detect", "axial", "track"):
+                shutil.rmtree(out / variant / stage, ignore_errors=True)
     print(f"# {label}: hrvptm study {toml} -o {out}", flush=True)
     cmd = [sys.executable, "-m", "hrvptm.cli", "study", str(toml), "-o", str(out), "-q"]
     rc = subprocess.run(cmd, cwd=ROOT).returncode
@@ -240,7 +249,18 @@ def main(argv=None) -> int:
     ap.add_argument("--axes", default="xyz", help="axes to fit (others keep the shipped numbers)")
     ap.add_argument("--keep-tracks", action="store_true", help="do not redo detection")
     ap.add_argument("--write", action="store_true", help="update scenes/experiments/*_test.toml")
+    ap.add_argument(
+        "--single", action="store_true", help="run the studies without their matched variant"
+    )
+    ap.add_argument("--no-axial", action="store_true", help="run the studies without [track.axial]")
+    ap.add_argument(
+        "--no-validation",
+        action="store_true",
+        help="calibrate only (the validation is the study reports themselves, e.g. at paper size)",
+    )
     args = ap.parse_args(argv)
+    if args.write and (args.single or args.no_axial):
+        ap.error("--write fits the test-size files as shipped: not with --single or --no-axial")
     if args.seed == args.validation_seed and not args.calibration_toml:
         ap.error("the calibration seed must differ from the validation seed")
     if set(args.axes) - set(AXES):
@@ -248,11 +268,16 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     retrack = not args.keep_tracks
     srcs = [EXPERIMENTS / f"{s}.toml" for s in args.studies]
+    opts = {"single": args.single, "no_axial": args.no_axial}
     if args.calibration_toml:
-        calib_runs = [run(p, None, args.work, retrack) for p in args.calibration_toml]
+        calib_runs = [run(p, None, args.work, retrack, **opts) for p in args.calibration_toml]
     else:
-        calib_runs = [run(p, args.seed, args.work, retrack) for p in srcs]
-    valid_runs = [run(p, args.validation_seed, args.work, retrack) for p in srcs]
+        calib_runs = [run(p, args.seed, args.work, retrack, **opts) for p in srcs]
+    valid_runs = (
+        []
+        if args.no_validation
+        else [run(p, args.validation_seed, args.work, retrack, **opts) for p in srcs]
+    )
     calib = {label: samples(t, o) for label, t, o in calib_runs}
     valid = {label: samples(t, o) for label, t, o in valid_runs}
     overlap = {label for label, *_ in calib_runs} & {label for label, *_ in valid_runs}
@@ -274,8 +299,9 @@ def main(argv=None) -> int:
         a, b = shipped[ax], fitted[ax]
         print(f"| {ax} | " + " | ".join(f"{_fmt(a[i])} → {_fmt(b[i])}" for i in range(3)) + " |")
     table("Calibration runs, fitted numbers:", calib, fitted)
-    table("Validation (shipped seed), shipped numbers:", valid, shipped)
-    table("Validation (shipped seed), fitted numbers:", valid, fitted)
+    if valid:
+        table("Validation (shipped seed), shipped numbers:", valid, shipped)
+        table("Validation (shipped seed), fitted numbers:", valid, fitted)
     if args.write:
         for path in write_params(fitted):
             print(f"updated {path.relative_to(ROOT)}")
