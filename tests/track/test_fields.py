@@ -173,6 +173,37 @@ def test_gcv_residual_formula_matches_scipy_smoothing_fit():
         assert np.allclose(r, Y - fit(X), atol=1e-8 * np.abs(Y).max())
 
 
+@pytest.mark.parametrize("n", [4, 5, 6, 7, 120])
+def test_spline_basis_equals_eigh_of_the_projected_kernel(n):
+    """The basis's eigen-decomposition (dsytrd + dstevd, V never formed) is numpy's eigh of
+    Q₂ᵀ K Q₂: the same γ, the same modes (up to sign), B orthonormal and orthogonal to P, and
+    to_modes / from_modes / columns are Bᵀ, B and B's columns; from 4 particles up."""
+    from scipy.spatial.distance import cdist
+
+    from track.fields import _ThinPlateBasis, _tps_kernel
+
+    X = _cloud(seed=n, n=n)
+    b = _ThinPlateBasis(X)
+    P = np.c_[np.ones(n), X - X.mean(axis=0)]
+    Q2 = np.linalg.qr(P, mode="complete")[0][:, 4:]
+    gam, V = np.linalg.eigh(Q2.T @ _tps_kernel(cdist(X, X)) @ Q2)
+    top = max(float(np.abs(gam).max(initial=0.0)), 1.0)
+    assert b.gam.shape == (n - 4,)
+    assert np.allclose(b.gam, np.maximum(gam, 0.0), rtol=0, atol=1e-12 * top)
+    B = b.B
+    assert B.shape == (n, n - 4)
+    assert np.allclose(B.T @ B, np.eye(n - 4), atol=1e-12)
+    assert np.allclose(P.T @ B, 0.0, atol=1e-9)
+    # same modes: |Bᵀ (Q₂ V)| = I (distinct eigenvalues of a random cloud)
+    assert np.allclose(np.abs(B.T @ (Q2 @ V)), np.eye(n - 4), atol=1e-8)
+    Y = np.random.default_rng(n).normal(size=(n, 3))
+    assert np.allclose(b.to_modes(Y), B.T @ Y, atol=1e-12)
+    Z = np.random.default_rng(n + 1).normal(size=(n - 4, 2))
+    assert np.allclose(b.from_modes(Z), B @ Z, atol=1e-12)
+    keep = np.arange(n - 4)[::2]
+    assert np.allclose(b.columns(keep), B[:, keep], atol=1e-12)
+
+
 def test_gcv_is_close_to_the_oracle_smoothing_per_component():
     """Without the truth, GCV's λ gives within 15 % of the best error any λ gives (oracle
     scan against the truth), and far less than exact interpolation of the noise."""
