@@ -525,7 +525,10 @@ class _ThinPlateBasis:
             return Y
         from scipy.linalg import lapack
 
-        lwork = 64 * max(Y.shape[1], 1) + 65 * 64
+        # up to ~30 columns LAPACK's unblocked code (a workspace of one row) is the faster:
+        # the blocked one builds a 64 × 64 triangular factor per block of reflectors
+        k = Y.shape[1]
+        lwork = k if k <= 32 else 64 * k + 65 * 64
         out, _, info = lapack.dormqr(
             "L", "T" if transpose else "N", self._zr, self._ztau, Y[1:], lwork, overwrite_c=1
         )

@@ -67,8 +67,10 @@ def green_lagrange(F: np.ndarray) -> np.ndarray:
         Symmetric strain tensor; NaN where ``F`` is NaN.
     """
     F = _as_tensor(F, "F")
-    C = np.einsum("...ki,...kj->...ij", F, F)
-    return 0.5 * (C - np.eye(3))
+    C = np.matmul(np.swapaxes(F, -1, -2), F)  # (faster than einsum on many small tensors)
+    C -= np.eye(3)
+    C *= 0.5
+    return C
 
 
 def infinitesimal(F: np.ndarray) -> np.ndarray:
@@ -86,7 +88,9 @@ def infinitesimal(F: np.ndarray) -> np.ndarray:
     """
     F = _as_tensor(F, "F")
     H = F - np.eye(3)
-    return 0.5 * (H + np.swapaxes(H, -1, -2))
+    e = H + np.swapaxes(H, -1, -2)
+    e *= 0.5
+    return e
 
 
 def engineering_shear(strain: np.ndarray, component: str = "xz") -> np.ndarray:
