@@ -1113,11 +1113,22 @@ class DisplacementInterpolant:
     def supported(self, xyz_um: np.ndarray) -> np.ndarray:
         """``True`` for positions inside the particles' hull or near a particle, shape (P,)."""
         q = np.asarray(xyz_um, dtype=float).reshape(-1, 3)
+        out = np.zeros(q.shape[0], dtype=bool)
+        if self._hull is not None:
+            # inside a ball about the particles' centroid that the hull contains (every
+            # facet's plane farther than its radius): inside the hull, no test needed
+            eq = self._hull.equations  # unit outward normals n, offsets c: n·x + c <= 0
+            centre = self.positions_um.mean(axis=0)
+            r_in = float(np.min(-(eq[:, :3] @ centre + eq[:, 3]))) * (1.0 - 1e-9)
+            if r_in > 0:
+                dc = q - centre
+                out = np.einsum("ij,ij->i", dc, dc) < r_in * r_in
         # near a particle (the search stops at the radius), else inside the hull
         bound = np.nextafter(float(self.support_radius_um), np.inf)
-        d, _ = self._tree.query(q, k=1, distance_upper_bound=bound)
-        out = d <= self.support_radius_um
         rest = np.flatnonzero(~out)
+        d, _ = self._tree.query(q[rest], k=1, distance_upper_bound=bound)
+        out[rest] = d <= self.support_radius_um
+        rest = rest[~out[rest]]
         if self._hull is not None and rest.size:
             eq = self._hull.equations  # outward facet normals n and offsets c: n·x + c <= 0
             tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
@@ -1134,10 +1145,9 @@ class DisplacementInterpolant:
         facet."""
         pts = axes.points()
         bound = np.nextafter(float(self.support_radius_um), np.inf)
-        d, _ = self._tree.query(pts, k=1, distance_upper_bound=bound)
-        out = d <= self.support_radius_um
         if self._hull is None:
-            return out
+            d, _ = self._tree.query(pts, k=1, distance_upper_bound=bound)
+            return d <= self.support_radius_um
         eq = self._hull.equations  # n·x + c <= 0 inside
         tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
         Z, Y = np.meshgrid(axes.z_um, axes.y_um, indexing="ij")
@@ -1149,8 +1159,12 @@ class DisplacementInterpolant:
         lo = np.max(b[..., neg] / nx[neg], axis=-1, initial=-np.inf)
         ok = np.all(b[..., ~(pos | neg)] >= 0, axis=-1)
         x = axes.x_um
-        inside = ok[..., None] & (x >= lo[..., None]) & (x <= hi[..., None])
-        return out | inside.ravel()
+        out = (ok[..., None] & (x >= lo[..., None]) & (x <= hi[..., None])).ravel()
+        # near a particle: searched only outside the hull (most nodes are inside)
+        rest = np.flatnonzero(~out)
+        d, _ = self._tree.query(pts[rest], k=1, distance_upper_bound=bound)
+        out[rest] = d <= self.support_radius_um
+        return out
 
 
 def fit_displacement(

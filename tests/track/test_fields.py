@@ -76,17 +76,27 @@ def test_mask_marks_nodes_far_from_particles():
 def test_grid_mask_by_lines_equals_the_node_by_node_test():
     """supported_on_grid (an interval of each line of nodes inside the convex hull) marks the
     nodes supported() marks, node by node: on random clouds, flat ones, a half-filled box, and
-    grids whose first nodes lie on the hull (the particles' bounding box)."""
+    grids whose first nodes lie on the hull (the particles' bounding box); both mark what a
+    brute-force test marks (every facet, every particle) away from the hull's surface."""
+    from scipy.spatial import ConvexHull
+
     rng = np.random.default_rng(11)
     n_in = 0
     for n, squash, h in ((30, 1.0, 3.0), (200, 0.3, 7.0), (400, 1.0, 5.0), (60, 0.05, 2.0)):
         X = rng.uniform(0, 100, (n, 3)) * [1.0, 1.0, squash]
         X = X[X[:, 0] < 60 + 40 * rng.random()]
         it = fit_displacement(X, rng.normal(size=X.shape), GridSettings(smoothing=1.0))
+        eq = ConvexHull(X).equations
         for ax in (grid_axes(X, h), grid_axes(X - 7.3, 0.5 * h)):
-            want = it.supported(ax.points())
+            P = ax.points()
+            want = it.supported(P)
             assert np.array_equal(it.supported_on_grid(ax), want)
             n_in += int(want.sum())
+            side = np.max(P @ eq[:, :3].T + eq[:, 3], axis=1)  # <= 0 inside
+            near = np.min(np.linalg.norm(P[:, None] - X[None], axis=2), axis=1)
+            near = near - it.support_radius_um
+            clear = (np.abs(side) > 1e-6) & (np.abs(near) > 1e-6)
+            assert np.array_equal(want[clear], ((side <= 0) | (near <= 0))[clear])
     assert n_in > 1000
 
 
