@@ -1356,11 +1356,12 @@ def strain_std(G_std: np.ndarray) -> np.ndarray:
     ``G_ij`` and ``G_ji`` (i ≠ j) come from different displacement components, taken as
     independent: ``var e_ij = (var G_ij + var G_ji) / 4``, ``var e_ii = var G_ii``.
     """
-    v = np.asarray(G_std, dtype=float) ** 2
-    out = 0.25 * (v + np.swapaxes(v, -1, -2))
+    v = np.square(np.asarray(G_std, dtype=float))
+    out = v + np.swapaxes(v, -1, -2)
+    out *= 0.25
     i = np.arange(3)
     out[..., i, i] = v[..., i, i]
-    return np.sqrt(out)
+    return np.sqrt(out, out=out)
 
 
 def field_on_grid(
