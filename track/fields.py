@@ -737,8 +737,8 @@ class _ThinPlateFit:
         A[:, 3] = 1.0
         A[:, 4] = np.einsum("ij,ij->i", dq, dq)
         L = np.empty((dq.shape[0], self._Xaug.shape[1]), dtype=np.float32)
-        np.matmul(A, self._Xaug, out=L, casting="same_kind")
-        np.maximum(L, self._floor32, out=L)
+        # floored in double and cast in one pass (the floor is a float32 value: the same L)
+        np.maximum(A @ self._Xaug, float(self._floor32), out=L, casting="same_kind")
         np.log(L, out=L)
         return dq, L
 
@@ -845,7 +845,7 @@ class _ThinPlateFit:
         modes above ``cutoff`` (:meth:`_modes`); ``single``: see :meth:`_kernels`."""
         q = np.asarray(q, dtype=float).reshape(-1, 3)
         nc = self.C.shape[1]
-        setup = self._std_setup(cutoff)
+        setup = self._std_features(cutoff) if single else self._std_setup(cutoff)
         u_sd = np.empty((q.shape[0], nc))
         G_sd = np.empty((q.shape[0], nc, 3)) if gradient else None
         for s in range(0, q.shape[0], _BLOCK_ROWS):
@@ -899,25 +899,30 @@ class _ThinPlateFit:
         ``∂(Bₖᵀ k)/∂q_j = q̃_j (2 M_b + Σ Bₖ) − (2 M_j + Σ x̃_j Bₖ)``."""
         keep, _, H, R1inv, quad, Wb, Wb_sum = setup
         dq, L = logs
-        r = keep.size
+        n, r = dq.shape[0], keep.size
         M = self._log_r_product(L, Wb, Wb_sum)  # (P, 5 r)
         Mb, Ms = M[:, :r], M[:, r : 2 * r]
-        p = np.c_[np.ones(dq.shape[0]), dq]
-        a = np.einsum("ij,ij->i", dq, dq)[:, None] * Mb + Ms - p @ H.T
+        p = np.c_[np.ones(n), dq]
+        # features of u and of its three derivatives, stacked: one variance product for all
+        a = np.empty((4 if gradient else 1, n, r))
+        pt = np.empty((a.shape[0], n, 4))
+        np.subtract(Ms, p @ H.T, out=a[0])
+        a[0] += np.einsum("ij,ij->i", dq, dq)[:, None] * Mb
+        pt[0] = p @ R1inv
         for j in range(3):
-            a -= 2.0 * dq[:, [j]] * M[:, (2 + j) * r : (3 + j) * r]
-        u_sd = np.sqrt(self._var(a, p @ R1inv, keep, quad))
+            Mj = M[:, (2 + j) * r : (3 + j) * r]
+            a[0] -= 2.0 * dq[:, [j]] * Mj
+            if gradient:
+                np.multiply(dq[:, [j]], 2.0 * Mb + Wb_sum[:r], out=a[1 + j])
+                a[1 + j] -= 2.0 * Mj + Wb_sum[(2 + j) * r : (3 + j) * r]
+                a[1 + j] -= H[:, 1 + j]
+                pt[1 + j] = R1inv[1 + j]
+        m = a.shape[0] * n
+        sd = np.sqrt(self._var(a.reshape(m, r), pt.reshape(m, 4), keep, quad))
+        sd = sd.reshape(a.shape[0], n, sd.shape[1])
         if not gradient:
-            return u_sd, None
-        G_sd = np.empty((dq.shape[0], self.C.shape[1], 3))
-        phi_b = 2.0 * Mb + Wb_sum[:r]
-        for j in range(3):
-            da = dq[:, [j]] * phi_b
-            da -= 2.0 * M[:, (2 + j) * r : (3 + j) * r] + Wb_sum[(2 + j) * r : (3 + j) * r]
-            da -= H[:, 1 + j]
-            dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
-            G_sd[:, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
-        return u_sd, G_sd
+            return sd[0], None
+        return sd[0], np.moveaxis(sd[1:], 0, -1)
 
     def on_grid(self, axes: GridAxes, with_std: bool, stride: int | None = None):
         """Values, exact gradients and (``with_std``) standard uncertainties on a grid.

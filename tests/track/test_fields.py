@@ -423,6 +423,10 @@ def test_std_is_the_propagated_particle_noise():
     u_sd, G_sd = fit.std(Q)
     assert np.allclose(u_sd, np.sqrt(np.einsum("qcj,jc->qc", W**2, sigma**2)), rtol=1e-6)
     assert np.allclose(G_sd, np.sqrt(np.einsum("qcdj,jc->qcd", Wg**2, sigma**2)), rtol=1e-6)
+    # the single-precision path of the gridded fields (float32 log r and weights)
+    u32, G32 = fit._tps.std(Q, gradient=True, single=True)
+    assert np.allclose(u32, u_sd, rtol=1e-4) and np.allclose(G32, G_sd, rtol=1e-4)
+    assert fit._tps.std(Q, gradient=False, single=True)[1] is None
     g = field_on_grid(fit, ax)
     assert np.allclose(g.u_std.reshape(-1, 3)[::7], u_sd, rtol=1e-3)
     rel = np.abs(g.F_std.reshape(-1, 3, 3)[::7] / G_sd - 1)
