@@ -756,9 +756,13 @@ class _ThinPlateFit:
         ``r² = |q̃|² + |x̃|² − 2 q̃·x̃`` (``~``: minus the centre),
         ``Σ c r² log r = |q̃|² (L c) + L (|x̃|² c) − 2 Σ_j q̃_j L (x̃_j c)`` and
         ``∂/∂q_j Σ c r² log r = q̃_j (2 L c + Σ c) − (2 L (x̃_j c) + Σ x̃_j c)``."""
-        nc = self.C.shape[1]
         dq, L = self._logs(q) if logs is None else logs
-        M = self._log_r_product(L, self._W, self._W_sum)  # (P, 5 C)
+        return self._from_products(dq, self._log_r_product(L, self._W, self._W_sum))
+
+    def _from_products(self, dq: np.ndarray, M: np.ndarray):
+        """:meth:`_value_gradient` from ``q̃`` (P, 3) and the products ``M = log r @ W``
+        (P, 5 C)."""
+        nc = self.C.shape[1]
         M0, M1 = M[:, :nc], M[:, nc : 2 * nc]
         Mx = M[:, 2 * nc :].reshape(-1, 3, nc)  # (P, j, c)
         u = np.einsum("ij,ij->i", dq, dq)[:, None] * M0 + M1
@@ -940,8 +944,7 @@ class _ThinPlateFit:
         pts = axes.points()
         shape = axes.shape
         nc = self.C.shape[1]
-        u = np.empty((pts.shape[0], nc))
-        G = np.empty((pts.shape[0], nc, 3))
+        M = np.empty((pts.shape[0], self._W.shape[1]))  # log r @ W of every node
         rest = np.arange(pts.shape[0])
         if with_std:  # the sub-grid's nodes first: their log r blocks serve both
             if stride is None:
@@ -955,13 +958,15 @@ class _ThinPlateFit:
             for s in range(0, first.size, _BLOCK_ROWS):
                 idx = first[s : s + _BLOCK_ROWS]
                 logs = self._logs(pts[idx])
-                u[idx], G[idx] = self._value_gradient(None, logs)
+                M[idx] = self._log_r_product(logs[1], self._W, self._W_sum)
                 u_sd[s : s + _BLOCK_ROWS], G_sd[s : s + _BLOCK_ROWS] = self._std_from_logs(
                     logs, setup
                 )
         for s in range(0, rest.size, _BLOCK_ROWS):
             idx = rest[s : s + _BLOCK_ROWS] if with_std else slice(s, s + _BLOCK_ROWS)
-            u[idx], G[idx] = self._value_gradient(pts[idx])
+            M[idx] = self._log_r_product(self._logs(pts[idx])[1], self._W, self._W_sum)
+        # values and gradients of all nodes at once (:meth:`_value_gradient`)
+        u, G = self._from_products(pts - self.basis.centre, M)
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
         if not with_std:
             return u, G, None, None
