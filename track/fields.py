@@ -501,19 +501,27 @@ class _ThinPlateBasis:
         for j in range(4):
             vs[j, j] = 1.0
             vs[j, j + 1 :] = h[j + 1 :, j]
-        self._v, self._tau = vs, np.asarray(tau, dtype=float)
+        tau = np.asarray(tau, dtype=float)
+        # Q = H₀ H₁ H₂ H₃ = I − V T Vᵀ (compact WY form, T upper triangular 4 × 4)
+        V = np.ascontiguousarray(vs.T)
+        T = np.zeros((4, 4))
+        for j in range(4):
+            T[j, j] = tau[j]
+            T[:j, j] = -tau[j] * (T[:j, :j] @ (V[:, :j].T @ V[:, j]))
+        self._V4, self._T4 = V, T
         self.R1 = np.triu(R[:4, :4])
         self.K = _tps_kernel_sq(cdist(self.Xc, self.Xc, "sqeuclidean"))
-        M = self.K.copy()
-        for v, t in zip(vs, self._tau, strict=True):  # M ← H M H, H = I − τ v vᵀ
-            w = M @ v
-            p = t * w - (0.5 * t * t * float(v @ w)) * v
-            M -= np.outer(v, p)
-            M -= np.outer(p, v)
+        # Qᵀ K Q = K − Z Vᵀ − V Zᵀ, Z = K V T − V Tᵀ (Vᵀ K V T) / 2: one rank-8 product, of
+        # the rows and columns 4: only
+        Y = (self.K @ V) @ T
+        Z = Y - 0.5 * V @ (T.T @ (V.T @ Y))
+        M2 = (
+            self.K[4:, 4:]
+            - np.concatenate([Z[4:], V[4:]], axis=1) @ np.concatenate([V[4:], Z[4:]], axis=1).T
+        )
         e = np.zeros((m, 4))
         e[:4, :4] = np.eye(4)
         self.Q1 = self._apply_q(e)
-        M2 = M[4:, 4:]
         gam, self._S, self._zr, self._ztau = _eigh_reflected(0.5 * (M2 + M2.T))
         self.gam = np.maximum(gam, 0.0)
 
@@ -543,18 +551,14 @@ class _ThinPlateBasis:
         return self._z(self._S)
 
     def _apply_q(self, Y: np.ndarray) -> np.ndarray:
-        """``Q Y`` (N, C) for ``Y`` (N, C)."""
-        Y = np.array(Y, dtype=float)
-        for v, t in zip(self._v[::-1], self._tau[::-1], strict=True):
-            Y -= np.outer(t * v, v @ Y)
-        return Y
+        """``Q Y = Y − V (T (Vᵀ Y))`` (N, C) for ``Y`` (N, C)."""
+        Y = np.asarray(Y, dtype=float)
+        return Y - self._V4 @ (self._T4 @ (self._V4.T @ Y))
 
     def _apply_qt(self, Y: np.ndarray) -> np.ndarray:
-        """``Qᵀ Y`` (N, C) for ``Y`` (N, C)."""
-        Y = np.array(Y, dtype=float)
-        for v, t in zip(self._v, self._tau, strict=True):
-            Y -= np.outer(t * v, v @ Y)
-        return Y
+        """``Qᵀ Y = Y − V (Tᵀ (Vᵀ Y))`` (N, C) for ``Y`` (N, C)."""
+        Y = np.asarray(Y, dtype=float)
+        return Y - self._V4 @ (self._T4.T @ (self._V4.T @ Y))
 
     def to_modes(self, Y: np.ndarray) -> np.ndarray:
         """``Bᵀ Y`` (N − 4, C) for ``Y`` (N, C)."""
