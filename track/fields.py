@@ -476,8 +476,8 @@ class _ThinPlateBasis:
     orthogonal to ``Q₁``). Every smoothing parameter λ reuses it (:func:`gcv_smoothing`,
     :class:`_ThinPlateFit`).
 
-    ``Qᵀ K Q`` is formed with the four reflectors (rank-2 updates, O(N²)) and ``B`` is applied
-    through them (:meth:`to_modes`, :meth:`from_modes`) instead of as dense N × N products:
+    ``Qᵀ K Q`` is formed with the four reflectors (compact WY form ``Q = I − V T Vᵀ``: one
+    rank-8 update, O(N²)) and ``B`` is applied through them (:meth:`to_modes`, :meth:`from_modes`) instead of as dense N × N products:
     the eigen-decomposition is then most of the cost.
 
     The eigen-decomposition is LAPACK's ``dsyevd`` (what :func:`numpy.linalg.eigh` calls)
