@@ -477,8 +477,9 @@ class _ThinPlateBasis:
     :class:`_ThinPlateFit`).
 
     ``Qᵀ K Q`` is formed with the four reflectors (compact WY form ``Q = I − V T Vᵀ``: one
-    rank-8 update, O(N²)) and ``B`` is applied through them (:meth:`to_modes`, :meth:`from_modes`) instead of as dense N × N products:
-    the eigen-decomposition is then most of the cost.
+    rank-8 update, O(N²)) and ``B`` is applied through them (:meth:`to_modes`,
+    :meth:`from_modes`) instead of as dense N × N products: the eigen-decomposition is then
+    most of the cost.
 
     The eigen-decomposition is LAPACK's ``dsyevd`` (what :func:`numpy.linalg.eigh` calls)
     without its last step: ``Q₂ᵀ K Q₂ = Z T Zᵀ`` (``dsytrd``, ``T`` tridiagonal, ``Z`` kept as
@@ -814,13 +815,15 @@ class _ThinPlateFit:
         Bk = b.columns(keep)
         R1inv = np.linalg.inv(b.R1)  # (4, 4)
         H = (Bk.T @ (b.K @ b.Q1)) @ R1inv.T  # (r, 4): a(q) = Bₖᵀ k(q) − H p(q)
-        Ob = np.concatenate([Bk, b.Q1], axis=1)  # (N, r + 4), orthonormal columns
+        Ob = None  # [Bₖ, Q₁] (N, r + 4), orthonormal columns (formed when needed)
         quads = []  # None: one σ for the column ([B, Q₁] orthogonal: fᵀ Obᵀ σ² Ob f = σ² |f|²)
         for c in range(self.C.shape[1]):
             sc = self.sigma[:, c]
             if np.all(sc == sc[0]):
                 quads.append(None)
             else:
+                if Ob is None:
+                    Ob = np.concatenate([Bk, b.Q1], axis=1)
                 S = Ob.T @ (Ob * (sc**2)[:, None])
                 quads.append(lambda f, S=S: np.einsum("ij,ij->i", f @ S, f))
         return keep, Bk, H, R1inv, quads
@@ -871,10 +874,16 @@ class _ThinPlateFit:
         (:meth:`_std_from_logs`): ``[Bₖ, |x̃|² Bₖ, x̃_x Bₖ, x̃_y Bₖ, x̃_z Bₖ]`` (N, 5 r)."""
         keep, Bk, H, R1inv, quads = self._std_setup(cutoff)
         Xc = self.basis.Xc
-        Wb = np.concatenate([Bk, self._xsq[:, None] * Bk] + [Xc[:, [j]] * Bk for j in range(3)], 1)
+        r = keep.size
         # float32 weights: the product is the largest of the grid (P × N × 5 r) and variances
-        # need no more (measured on bench_fields' series: 2e-6 of u_std and F_std)
-        return keep, Bk, H, R1inv, quads, Wb.astype(np.float32), Wb.sum(axis=0)
+        # need no more (measured on bench_fields' series: 2e-6 of u_std and F_std); each
+        # block computed in double and rounded once
+        scales = np.vstack([np.ones(Xc.shape[0]), self._xsq, Xc.T])  # (5, N)
+        Wb = np.empty((Xc.shape[0], 5 * r), dtype=np.float32)
+        Wb[:, :r] = Bk
+        for s in range(1, 5):
+            np.multiply(scales[s][:, None], Bk, out=Wb[:, s * r : (s + 1) * r], casting="same_kind")
+        return keep, Bk, H, R1inv, quads, Wb, (scales @ Bk).ravel()
 
     def _std_block(self, q, setup, gradient):
         """:meth:`std` in double precision for one block of points."""
@@ -908,22 +917,25 @@ class _ThinPlateFit:
         keep, _, H, R1inv, quad, Wb, Wb_sum = setup
         dq, L = logs
         n, r = dq.shape[0], keep.size
-        M = self._log_r_product(L, Wb, Wb_sum)  # (P, 5 r)
-        Mb, Ms = M[:, :r], M[:, r : 2 * r]
+        M = self._log_r_product(L, Wb, Wb_sum).reshape(n, 5, r)  # M_b, M_s, M_x, M_y, M_z
         p = np.c_[np.ones(n), dq]
         # features of u and of its three derivatives, stacked: one variance product for all
         a = np.empty((4 if gradient else 1, n, r))
         pt = np.empty((a.shape[0], n, 4))
-        np.subtract(Ms, p @ H.T, out=a[0])
-        a[0] += np.einsum("ij,ij->i", dq, dq)[:, None] * Mb
+        coef = np.empty((n, 5))  # a = Σ_t coef_t M_t − p Hᵀ
+        coef[:, 0] = np.einsum("ij,ij->i", dq, dq)
+        coef[:, 1] = 1.0
+        np.multiply(dq, -2.0, out=coef[:, 2:])
+        np.einsum("pt,ptk->pk", coef, M, out=a[0])
+        a[0] -= p @ H.T
         pt[0] = p @ R1inv
-        for j in range(3):
-            Mj = M[:, (2 + j) * r : (3 + j) * r]
-            a[0] -= 2.0 * dq[:, [j]] * Mj
-            if gradient:
-                np.multiply(dq[:, [j]], 2.0 * Mb + Wb_sum[:r], out=a[1 + j])
-                a[1 + j] -= 2.0 * Mj + Wb_sum[(2 + j) * r : (3 + j) * r]
-                a[1 + j] -= H[:, 1 + j]
+        if gradient:
+            phi_b = 2.0 * M[:, 0]
+            phi_b += Wb_sum[:r]
+            for j in range(3):
+                np.multiply(dq[:, [j]], phi_b, out=a[1 + j])
+                a[1 + j] -= 2.0 * M[:, 2 + j]
+                a[1 + j] -= Wb_sum[(2 + j) * r : (3 + j) * r] + H[:, 1 + j]
                 pt[1 + j] = R1inv[1 + j]
         m = a.shape[0] * n
         sd = np.sqrt(self._var(a.reshape(m, r), pt.reshape(m, 4), keep, quad))
