@@ -476,9 +476,17 @@ class _ThinPlateBasis:
     orthogonal to ``Q₁``). Every smoothing parameter λ reuses it (:func:`gcv_smoothing`,
     :class:`_ThinPlateFit`).
 
-    ``Qᵀ K Q`` is formed with the four reflectors (rank-2 updates, O(N²)) and ``B`` is applied
-    through them (:meth:`to_modes`, :meth:`from_modes`) instead of as dense N × N products:
-    the eigen-decomposition is then most of the cost.
+    ``Qᵀ K Q`` is formed with the four reflectors (compact WY form ``Q = I − V T Vᵀ``: one
+    rank-8 update, O(N²)) and ``B`` is applied through them (:meth:`to_modes`,
+    :meth:`from_modes`) instead of as dense N × N products: the eigen-decomposition is then
+    most of the cost.
+
+    The eigen-decomposition is LAPACK's ``dsyevd`` (what :func:`numpy.linalg.eigh` calls)
+    without its last step: ``Q₂ᵀ K Q₂ = Z T Zᵀ`` (``dsytrd``, ``T`` tridiagonal, ``Z`` kept as
+    its Householder reflectors), ``T = S diag(γ) Sᵀ`` (``dstevd``, divide and conquer), and
+    ``V = Z S`` is never formed: ``Z`` is applied to the few vectors that need it (``dormqr``,
+    :meth:`_z`). The same γ and ``V`` as ``eigh`` (bit for bit on bench_fields' series) for
+    about 60 % of its time (the N × N back-transformation was 40 % of it).
     """
 
     def __init__(self, X: np.ndarray) -> None:
@@ -494,56 +502,105 @@ class _ThinPlateBasis:
         for j in range(4):
             vs[j, j] = 1.0
             vs[j, j + 1 :] = h[j + 1 :, j]
-        self._v, self._tau = vs, np.asarray(tau, dtype=float)
+        tau = np.asarray(tau, dtype=float)
+        # Q = H₀ H₁ H₂ H₃ = I − V T Vᵀ (compact WY form, T upper triangular 4 × 4)
+        V = np.ascontiguousarray(vs.T)
+        T = np.zeros((4, 4))
+        for j in range(4):
+            T[j, j] = tau[j]
+            T[:j, j] = -tau[j] * (T[:j, :j] @ (V[:, :j].T @ V[:, j]))
+        self._V4, self._T4 = V, T
         self.R1 = np.triu(R[:4, :4])
         self.K = _tps_kernel_sq(cdist(self.Xc, self.Xc, "sqeuclidean"))
-        M = self.K.copy()
-        for v, t in zip(vs, self._tau, strict=True):  # M ← H M H, H = I − τ v vᵀ
-            w = M @ v
-            p = t * w - (0.5 * t * t * float(v @ w)) * v
-            M -= np.outer(v, p)
-            M -= np.outer(p, v)
+        # Qᵀ K Q = K − Z Vᵀ − V Zᵀ, Z = K V T − V Tᵀ (Vᵀ K V T) / 2: one rank-8 product, of
+        # the rows and columns 4: only
+        Y = (self.K @ V) @ T
+        Z = Y - 0.5 * V @ (T.T @ (V.T @ Y))
+        M2 = (
+            self.K[4:, 4:]
+            - np.concatenate([Z[4:], V[4:]], axis=1) @ np.concatenate([V[4:], Z[4:]], axis=1).T
+        )
         e = np.zeros((m, 4))
         e[:4, :4] = np.eye(4)
         self.Q1 = self._apply_q(e)
-        M2 = M[4:, 4:]
-        gam, self.V = np.linalg.eigh(0.5 * (M2 + M2.T))
+        gam, self._S, self._zr, self._ztau = _eigh_reflected(0.5 * (M2 + M2.T))
         self.gam = np.maximum(gam, 0.0)
 
-    def _apply_q(self, Y: np.ndarray) -> np.ndarray:
-        """``Q Y`` (N, C) for ``Y`` (N, C)."""
-        Y = np.array(Y, dtype=float)
-        for v, t in zip(self._v[::-1], self._tau[::-1], strict=True):
-            Y -= np.outer(t * v, v @ Y)
+    def _z(self, Y: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``Z Y`` (``Zᵀ Y`` with ``transpose``) for ``Y`` (N − 4, C): ``dsytrd``'s reflectors,
+        as ``dormtr`` applies them (``dormqr`` on all rows but the first)."""
+        Y = np.array(Y, dtype=float, order="F")
+        if self._ztau.size == 0 or Y.shape[1] == 0:
+            return Y
+        from scipy.linalg import lapack
+
+        # up to ~30 columns LAPACK's unblocked code (a workspace of one row) is the faster:
+        # the blocked one builds a 64 × 64 triangular factor per block of reflectors
+        k = Y.shape[1]
+        lwork = k if k <= 32 else 64 * k + 65 * 64
+        out, _, info = lapack.dormqr(
+            "L", "T" if transpose else "N", self._zr, self._ztau, Y[1:], lwork, overwrite_c=1
+        )
+        if info != 0:
+            raise np.linalg.LinAlgError(f"dormqr failed (info {info})")
+        Y[1:] = out
         return Y
 
+    @property
+    def V(self) -> np.ndarray:
+        """The eigenvectors ``V`` (N − 4, N − 4), formed (for tests and checks)."""
+        return self._z(self._S)
+
+    def _apply_q(self, Y: np.ndarray) -> np.ndarray:
+        """``Q Y = Y − V (T (Vᵀ Y))`` (N, C) for ``Y`` (N, C)."""
+        Y = np.asarray(Y, dtype=float)
+        return Y - self._V4 @ (self._T4 @ (self._V4.T @ Y))
+
     def _apply_qt(self, Y: np.ndarray) -> np.ndarray:
-        """``Qᵀ Y`` (N, C) for ``Y`` (N, C)."""
-        Y = np.array(Y, dtype=float)
-        for v, t in zip(self._v, self._tau, strict=True):
-            Y -= np.outer(t * v, v @ Y)
-        return Y
+        """``Qᵀ Y = Y − V (Tᵀ (Vᵀ Y))`` (N, C) for ``Y`` (N, C)."""
+        Y = np.asarray(Y, dtype=float)
+        return Y - self._V4 @ (self._T4.T @ (self._V4.T @ Y))
 
     def to_modes(self, Y: np.ndarray) -> np.ndarray:
         """``Bᵀ Y`` (N − 4, C) for ``Y`` (N, C)."""
-        return self.V.T @ self._apply_qt(Y)[4:]
+        return self._S.T @ self._z(self._apply_qt(Y)[4:], transpose=True)
 
     def from_modes(self, Z: np.ndarray) -> np.ndarray:
         """``B Z`` (N, C) for ``Z`` (N − 4, C)."""
         W = np.zeros((Z.shape[0] + 4, Z.shape[1]))
-        W[4:] = self.V @ Z
+        W[4:] = self._z(self._S @ Z)
         return self._apply_q(W)
 
     def columns(self, keep: np.ndarray) -> np.ndarray:
         """The columns ``B[:, keep]`` (N, r)."""
-        W = np.zeros((self.V.shape[0] + 4, keep.size))
-        W[4:] = self.V[:, keep]
+        W = np.zeros((self._S.shape[0] + 4, keep.size))
+        W[4:] = self._z(self._S[:, keep])
         return self._apply_q(W)
 
     @property
     def B(self) -> np.ndarray:
         """``B`` (N, N − 4), formed (for tests and checks; the fits use :meth:`to_modes`)."""
-        return self.columns(np.arange(self.V.shape[1]))
+        return self.columns(np.arange(self._S.shape[1]))
+
+
+def _eigh_reflected(A: np.ndarray):
+    """``A = Z S diag(γ) Sᵀ Zᵀ`` for a symmetric ``A`` (n, n): ``γ`` ascending (n,), ``S``
+    (n, n) and ``dsytrd``'s reflectors of ``Z`` (``(n − 1, n − 1)`` and ``τ`` (n − 1,), empty
+    for n < 2), see :class:`_ThinPlateBasis`. Raises :class:`numpy.linalg.LinAlgError`."""
+    n = A.shape[0]
+    if n < 2:
+        gam, S = np.linalg.eigh(A)
+        return gam, S, np.zeros((0, 0), order="F"), np.zeros(0)
+    from scipy.linalg import lapack
+
+    lwork, info = lapack.dsytrd_lwork(n, lower=1)
+    c, d, e, tau, info = lapack.dsytrd(A, lower=1, lwork=int(lwork), overwrite_a=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dsytrd failed (info {info})")
+    gam, S, info = lapack.dstevd(d, e, compute_v=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"the eigenvalues did not converge (dstevd info {info})")
+    return gam, S, np.asfortranarray(c[1:, :-1]), tau
 
 
 #: Modes of the spline whose filter factor γ/(γ + λ) is below this are left out of the
@@ -685,8 +742,8 @@ class _ThinPlateFit:
         A[:, 3] = 1.0
         A[:, 4] = np.einsum("ij,ij->i", dq, dq)
         L = np.empty((dq.shape[0], self._Xaug.shape[1]), dtype=np.float32)
-        np.matmul(A, self._Xaug, out=L, casting="same_kind")
-        np.maximum(L, self._floor32, out=L)
+        # floored in double and cast in one pass (the floor is a float32 value: the same L)
+        np.maximum(A @ self._Xaug, float(self._floor32), out=L, casting="same_kind")
         np.log(L, out=L)
         return dq, L
 
@@ -704,9 +761,13 @@ class _ThinPlateFit:
         ``r² = |q̃|² + |x̃|² − 2 q̃·x̃`` (``~``: minus the centre),
         ``Σ c r² log r = |q̃|² (L c) + L (|x̃|² c) − 2 Σ_j q̃_j L (x̃_j c)`` and
         ``∂/∂q_j Σ c r² log r = q̃_j (2 L c + Σ c) − (2 L (x̃_j c) + Σ x̃_j c)``."""
-        nc = self.C.shape[1]
         dq, L = self._logs(q) if logs is None else logs
-        M = self._log_r_product(L, self._W, self._W_sum)  # (P, 5 C)
+        return self._from_products(dq, self._log_r_product(L, self._W, self._W_sum))
+
+    def _from_products(self, dq: np.ndarray, M: np.ndarray):
+        """:meth:`_value_gradient` from ``q̃`` (P, 3) and the products ``M = log r @ W``
+        (P, 5 C)."""
+        nc = self.C.shape[1]
         M0, M1 = M[:, :nc], M[:, nc : 2 * nc]
         Mx = M[:, 2 * nc :].reshape(-1, 3, nc)  # (P, j, c)
         u = np.einsum("ij,ij->i", dq, dq)[:, None] * M0 + M1
@@ -754,13 +815,15 @@ class _ThinPlateFit:
         Bk = b.columns(keep)
         R1inv = np.linalg.inv(b.R1)  # (4, 4)
         H = (Bk.T @ (b.K @ b.Q1)) @ R1inv.T  # (r, 4): a(q) = Bₖᵀ k(q) − H p(q)
-        Ob = np.concatenate([Bk, b.Q1], axis=1)  # (N, r + 4), orthonormal columns
+        Ob = None  # [Bₖ, Q₁] (N, r + 4), orthonormal columns (formed when needed)
         quads = []  # None: one σ for the column ([B, Q₁] orthogonal: fᵀ Obᵀ σ² Ob f = σ² |f|²)
         for c in range(self.C.shape[1]):
             sc = self.sigma[:, c]
             if np.all(sc == sc[0]):
                 quads.append(None)
             else:
+                if Ob is None:
+                    Ob = np.concatenate([Bk, b.Q1], axis=1)
                 S = Ob.T @ (Ob * (sc**2)[:, None])
                 quads.append(lambda f, S=S: np.einsum("ij,ij->i", f @ S, f))
         return keep, Bk, H, R1inv, quads
@@ -793,7 +856,7 @@ class _ThinPlateFit:
         modes above ``cutoff`` (:meth:`_modes`); ``single``: see :meth:`_kernels`."""
         q = np.asarray(q, dtype=float).reshape(-1, 3)
         nc = self.C.shape[1]
-        setup = self._std_setup(cutoff)
+        setup = self._std_features(cutoff) if single else self._std_setup(cutoff)
         u_sd = np.empty((q.shape[0], nc))
         G_sd = np.empty((q.shape[0], nc, 3)) if gradient else None
         for s in range(0, q.shape[0], _BLOCK_ROWS):
@@ -811,10 +874,16 @@ class _ThinPlateFit:
         (:meth:`_std_from_logs`): ``[Bₖ, |x̃|² Bₖ, x̃_x Bₖ, x̃_y Bₖ, x̃_z Bₖ]`` (N, 5 r)."""
         keep, Bk, H, R1inv, quads = self._std_setup(cutoff)
         Xc = self.basis.Xc
-        Wb = np.concatenate([Bk, self._xsq[:, None] * Bk] + [Xc[:, [j]] * Bk for j in range(3)], 1)
+        r = keep.size
         # float32 weights: the product is the largest of the grid (P × N × 5 r) and variances
-        # need no more (measured on bench_fields' series: 2e-6 of u_std and F_std)
-        return keep, Bk, H, R1inv, quads, Wb.astype(np.float32), Wb.sum(axis=0)
+        # need no more (measured on bench_fields' series: 2e-6 of u_std and F_std); each
+        # block computed in double and rounded once
+        scales = np.vstack([np.ones(Xc.shape[0]), self._xsq, Xc.T])  # (5, N)
+        Wb = np.empty((Xc.shape[0], 5 * r), dtype=np.float32)
+        Wb[:, :r] = Bk
+        for s in range(1, 5):
+            np.multiply(scales[s][:, None], Bk, out=Wb[:, s * r : (s + 1) * r], casting="same_kind")
+        return keep, Bk, H, R1inv, quads, Wb, (scales @ Bk).ravel()
 
     def _std_block(self, q, setup, gradient):
         """:meth:`std` in double precision for one block of points."""
@@ -847,25 +916,33 @@ class _ThinPlateFit:
         ``∂(Bₖᵀ k)/∂q_j = q̃_j (2 M_b + Σ Bₖ) − (2 M_j + Σ x̃_j Bₖ)``."""
         keep, _, H, R1inv, quad, Wb, Wb_sum = setup
         dq, L = logs
-        r = keep.size
-        M = self._log_r_product(L, Wb, Wb_sum)  # (P, 5 r)
-        Mb, Ms = M[:, :r], M[:, r : 2 * r]
-        p = np.c_[np.ones(dq.shape[0]), dq]
-        a = np.einsum("ij,ij->i", dq, dq)[:, None] * Mb + Ms - p @ H.T
-        for j in range(3):
-            a -= 2.0 * dq[:, [j]] * M[:, (2 + j) * r : (3 + j) * r]
-        u_sd = np.sqrt(self._var(a, p @ R1inv, keep, quad))
+        n, r = dq.shape[0], keep.size
+        M = self._log_r_product(L, Wb, Wb_sum).reshape(n, 5, r)  # M_b, M_s, M_x, M_y, M_z
+        p = np.c_[np.ones(n), dq]
+        # features of u and of its three derivatives, stacked: one variance product for all
+        a = np.empty((4 if gradient else 1, n, r))
+        pt = np.empty((a.shape[0], n, 4))
+        coef = np.empty((n, 5))  # a = Σ_t coef_t M_t − p Hᵀ
+        coef[:, 0] = np.einsum("ij,ij->i", dq, dq)
+        coef[:, 1] = 1.0
+        np.multiply(dq, -2.0, out=coef[:, 2:])
+        np.einsum("pt,ptk->pk", coef, M, out=a[0])
+        a[0] -= p @ H.T
+        pt[0] = p @ R1inv
+        if gradient:
+            phi_b = 2.0 * M[:, 0]
+            phi_b += Wb_sum[:r]
+            for j in range(3):
+                np.multiply(dq[:, [j]], phi_b, out=a[1 + j])
+                a[1 + j] -= 2.0 * M[:, 2 + j]
+                a[1 + j] -= Wb_sum[(2 + j) * r : (3 + j) * r] + H[:, 1 + j]
+                pt[1 + j] = R1inv[1 + j]
+        m = a.shape[0] * n
+        sd = np.sqrt(self._var(a.reshape(m, r), pt.reshape(m, 4), keep, quad))
+        sd = sd.reshape(a.shape[0], n, sd.shape[1])
         if not gradient:
-            return u_sd, None
-        G_sd = np.empty((dq.shape[0], self.C.shape[1], 3))
-        phi_b = 2.0 * Mb + Wb_sum[:r]
-        for j in range(3):
-            da = dq[:, [j]] * phi_b
-            da -= 2.0 * M[:, (2 + j) * r : (3 + j) * r] + Wb_sum[(2 + j) * r : (3 + j) * r]
-            da -= H[:, 1 + j]
-            dpt = np.broadcast_to(R1inv[1 + j], (dq.shape[0], 4))
-            G_sd[:, :, j] = np.sqrt(self._var(da, dpt, keep, quad))
-        return u_sd, G_sd
+            return sd[0], None
+        return sd[0], np.moveaxis(sd[1:], 0, -1)
 
     def on_grid(self, axes: GridAxes, with_std: bool, stride: int | None = None):
         """Values, exact gradients and (``with_std``) standard uncertainties on a grid.
@@ -883,8 +960,7 @@ class _ThinPlateFit:
         pts = axes.points()
         shape = axes.shape
         nc = self.C.shape[1]
-        u = np.empty((pts.shape[0], nc))
-        G = np.empty((pts.shape[0], nc, 3))
+        M = np.empty((pts.shape[0], self._W.shape[1]))  # log r @ W of every node
         rest = np.arange(pts.shape[0])
         if with_std:  # the sub-grid's nodes first: their log r blocks serve both
             if stride is None:
@@ -898,13 +974,15 @@ class _ThinPlateFit:
             for s in range(0, first.size, _BLOCK_ROWS):
                 idx = first[s : s + _BLOCK_ROWS]
                 logs = self._logs(pts[idx])
-                u[idx], G[idx] = self._value_gradient(None, logs)
+                M[idx] = self._log_r_product(logs[1], self._W, self._W_sum)
                 u_sd[s : s + _BLOCK_ROWS], G_sd[s : s + _BLOCK_ROWS] = self._std_from_logs(
                     logs, setup
                 )
         for s in range(0, rest.size, _BLOCK_ROWS):
             idx = rest[s : s + _BLOCK_ROWS] if with_std else slice(s, s + _BLOCK_ROWS)
-            u[idx], G[idx] = self._value_gradient(pts[idx])
+            M[idx] = self._log_r_product(self._logs(pts[idx])[1], self._W, self._W_sum)
+        # values and gradients of all nodes at once (:meth:`_value_gradient`)
+        u, G = self._from_products(pts - self.basis.centre, M)
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
         if not with_std:
             return u, G, None, None
@@ -1061,11 +1139,22 @@ class DisplacementInterpolant:
     def supported(self, xyz_um: np.ndarray) -> np.ndarray:
         """``True`` for positions inside the particles' hull or near a particle, shape (P,)."""
         q = np.asarray(xyz_um, dtype=float).reshape(-1, 3)
+        out = np.zeros(q.shape[0], dtype=bool)
+        if self._hull is not None:
+            # inside a ball about the particles' centroid that the hull contains (every
+            # facet's plane farther than its radius): inside the hull, no test needed
+            eq = self._hull.equations  # unit outward normals n, offsets c: n·x + c <= 0
+            centre = self.positions_um.mean(axis=0)
+            r_in = float(np.min(-(eq[:, :3] @ centre + eq[:, 3]))) * (1.0 - 1e-9)
+            if r_in > 0:
+                dc = q - centre
+                out = np.einsum("ij,ij->i", dc, dc) < r_in * r_in
         # near a particle (the search stops at the radius), else inside the hull
         bound = np.nextafter(float(self.support_radius_um), np.inf)
-        d, _ = self._tree.query(q, k=1, distance_upper_bound=bound)
-        out = d <= self.support_radius_um
         rest = np.flatnonzero(~out)
+        d, _ = self._tree.query(q[rest], k=1, distance_upper_bound=bound)
+        out[rest] = d <= self.support_radius_um
+        rest = rest[~out[rest]]
         if self._hull is not None and rest.size:
             eq = self._hull.equations  # outward facet normals n and offsets c: n·x + c <= 0
             tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
@@ -1082,10 +1171,9 @@ class DisplacementInterpolant:
         facet."""
         pts = axes.points()
         bound = np.nextafter(float(self.support_radius_um), np.inf)
-        d, _ = self._tree.query(pts, k=1, distance_upper_bound=bound)
-        out = d <= self.support_radius_um
         if self._hull is None:
-            return out
+            d, _ = self._tree.query(pts, k=1, distance_upper_bound=bound)
+            return d <= self.support_radius_um
         eq = self._hull.equations  # n·x + c <= 0 inside
         tol = 1e-9 * max(1.0, float(np.max(np.abs(self.positions_um))))
         Z, Y = np.meshgrid(axes.z_um, axes.y_um, indexing="ij")
@@ -1097,8 +1185,12 @@ class DisplacementInterpolant:
         lo = np.max(b[..., neg] / nx[neg], axis=-1, initial=-np.inf)
         ok = np.all(b[..., ~(pos | neg)] >= 0, axis=-1)
         x = axes.x_um
-        inside = ok[..., None] & (x >= lo[..., None]) & (x <= hi[..., None])
-        return out | inside.ravel()
+        out = (ok[..., None] & (x >= lo[..., None]) & (x <= hi[..., None])).ravel()
+        # near a particle: searched only outside the hull (most nodes are inside)
+        rest = np.flatnonzero(~out)
+        d, _ = self._tree.query(pts[rest], k=1, distance_upper_bound=bound)
+        out[rest] = d <= self.support_radius_um
+        return out
 
 
 def fit_displacement(
@@ -1139,7 +1231,6 @@ def fit_displacement(
     (``kernel="thin_plate_spline"``, ``degree=1``, ``smoothing=λ``) to round-off and is
     evaluated with one kernel block for all three components and their gradients.
     """
-    from scipy.interpolate import RBFInterpolator
     from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
     settings = settings or GridSettings()
@@ -1196,6 +1287,10 @@ def fit_displacement(
         if basis is not None:
             tps = _ThinPlateFit(basis, U, lam, sig)
         else:
+            # (imported here: scipy.interpolate takes 0.4 s to import, and the global spline
+            # above does not need it)
+            from scipy.interpolate import RBFInterpolator
+
             fn = _local_rbf(X, U, lam, settings, RBFInterpolator)
     else:
         if hull is None:
@@ -1287,11 +1382,12 @@ def strain_std(G_std: np.ndarray) -> np.ndarray:
     ``G_ij`` and ``G_ji`` (i ≠ j) come from different displacement components, taken as
     independent: ``var e_ij = (var G_ij + var G_ji) / 4``, ``var e_ii = var G_ii``.
     """
-    v = np.asarray(G_std, dtype=float) ** 2
-    out = 0.25 * (v + np.swapaxes(v, -1, -2))
+    v = np.square(np.asarray(G_std, dtype=float))
+    out = v + np.swapaxes(v, -1, -2)
+    out *= 0.25
     i = np.arange(3)
     out[..., i, i] = v[..., i, i]
-    return np.sqrt(out)
+    return np.sqrt(out, out=out)
 
 
 def field_on_grid(

@@ -76,17 +76,27 @@ def test_mask_marks_nodes_far_from_particles():
 def test_grid_mask_by_lines_equals_the_node_by_node_test():
     """supported_on_grid (an interval of each line of nodes inside the convex hull) marks the
     nodes supported() marks, node by node: on random clouds, flat ones, a half-filled box, and
-    grids whose first nodes lie on the hull (the particles' bounding box)."""
+    grids whose first nodes lie on the hull (the particles' bounding box); both mark what a
+    brute-force test marks (every facet, every particle) away from the hull's surface."""
+    from scipy.spatial import ConvexHull
+
     rng = np.random.default_rng(11)
     n_in = 0
     for n, squash, h in ((30, 1.0, 3.0), (200, 0.3, 7.0), (400, 1.0, 5.0), (60, 0.05, 2.0)):
         X = rng.uniform(0, 100, (n, 3)) * [1.0, 1.0, squash]
         X = X[X[:, 0] < 60 + 40 * rng.random()]
         it = fit_displacement(X, rng.normal(size=X.shape), GridSettings(smoothing=1.0))
+        eq = ConvexHull(X).equations
         for ax in (grid_axes(X, h), grid_axes(X - 7.3, 0.5 * h)):
-            want = it.supported(ax.points())
+            P = ax.points()
+            want = it.supported(P)
             assert np.array_equal(it.supported_on_grid(ax), want)
             n_in += int(want.sum())
+            side = np.max(P @ eq[:, :3].T + eq[:, 3], axis=1)  # <= 0 inside
+            near = np.min(np.linalg.norm(P[:, None] - X[None], axis=2), axis=1)
+            near = near - it.support_radius_um
+            clear = (np.abs(side) > 1e-6) & (np.abs(near) > 1e-6)
+            assert np.array_equal(want[clear], ((side <= 0) | (near <= 0))[clear])
     assert n_in > 1000
 
 
@@ -171,6 +181,37 @@ def test_gcv_residual_formula_matches_scipy_smoothing_fit():
         r = Q2 @ V @ np.diag(lam / (gam + lam)) @ V.T @ Q2.T @ Y
         fit = RBFInterpolator(X, Y, kernel="thin_plate_spline", degree=1, smoothing=lam)
         assert np.allclose(r, Y - fit(X), atol=1e-8 * np.abs(Y).max())
+
+
+@pytest.mark.parametrize("n", [4, 5, 6, 7, 120])
+def test_spline_basis_equals_eigh_of_the_projected_kernel(n):
+    """The basis's eigen-decomposition (dsytrd + dstevd, V never formed) is numpy's eigh of
+    Q₂ᵀ K Q₂: the same γ, the same modes (up to sign), B orthonormal and orthogonal to P, and
+    to_modes / from_modes / columns are Bᵀ, B and B's columns; from 4 particles up."""
+    from scipy.spatial.distance import cdist
+
+    from track.fields import _ThinPlateBasis, _tps_kernel
+
+    X = _cloud(seed=n, n=n)
+    b = _ThinPlateBasis(X)
+    P = np.c_[np.ones(n), X - X.mean(axis=0)]
+    Q2 = np.linalg.qr(P, mode="complete")[0][:, 4:]
+    gam, V = np.linalg.eigh(Q2.T @ _tps_kernel(cdist(X, X)) @ Q2)
+    top = max(float(np.abs(gam).max(initial=0.0)), 1.0)
+    assert b.gam.shape == (n - 4,)
+    assert np.allclose(b.gam, np.maximum(gam, 0.0), rtol=0, atol=1e-12 * top)
+    B = b.B
+    assert B.shape == (n, n - 4)
+    assert np.allclose(B.T @ B, np.eye(n - 4), atol=1e-12)
+    assert np.allclose(P.T @ B, 0.0, atol=1e-9)
+    # same modes: |Bᵀ (Q₂ V)| = I (distinct eigenvalues of a random cloud)
+    assert np.allclose(np.abs(B.T @ (Q2 @ V)), np.eye(n - 4), atol=1e-8)
+    Y = np.random.default_rng(n).normal(size=(n, 3))
+    assert np.allclose(b.to_modes(Y), B.T @ Y, atol=1e-12)
+    Z = np.random.default_rng(n + 1).normal(size=(n - 4, 2))
+    assert np.allclose(b.from_modes(Z), B @ Z, atol=1e-12)
+    keep = np.arange(n - 4)[::2]
+    assert np.allclose(b.columns(keep), B[:, keep], atol=1e-12)
 
 
 def test_gcv_is_close_to_the_oracle_smoothing_per_component():
@@ -382,6 +423,10 @@ def test_std_is_the_propagated_particle_noise():
     u_sd, G_sd = fit.std(Q)
     assert np.allclose(u_sd, np.sqrt(np.einsum("qcj,jc->qc", W**2, sigma**2)), rtol=1e-6)
     assert np.allclose(G_sd, np.sqrt(np.einsum("qcdj,jc->qcd", Wg**2, sigma**2)), rtol=1e-6)
+    # the single-precision path of the gridded fields (float32 log r and weights)
+    u32, G32 = fit._tps.std(Q, gradient=True, single=True)
+    assert np.allclose(u32, u_sd, rtol=1e-4) and np.allclose(G32, G_sd, rtol=1e-4)
+    assert fit._tps.std(Q, gradient=False, single=True)[1] is None
     g = field_on_grid(fit, ax)
     assert np.allclose(g.u_std.reshape(-1, 3)[::7], u_sd, rtol=1e-3)
     rel = np.abs(g.F_std.reshape(-1, 3, 3)[::7] / G_sd - 1)
