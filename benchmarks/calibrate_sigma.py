@@ -254,6 +254,12 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--no-axial", action="store_true", help="run the studies without [track.axial]")
     ap.add_argument(
+        "--lateral",
+        action="store_true",
+        help="fit x and y together (one lateral model: the calibration runs' motions need not "
+        "be symmetric in x and y)",
+    )
+    ap.add_argument(
         "--no-validation",
         action="store_true",
         help="calibrate only (the validation is the study reports themselves, e.g. at paper size)",
@@ -286,11 +292,14 @@ def main(argv=None) -> int:
 
     shipped = shipped_params(srcs[0])
     fitted = dict(shipped)
-    for j, ax in enumerate(AXES):
-        if ax in args.axes:
-            parts = [_parts(d, j) for d in calib.values()]
+    # x and y pooled with --lateral: the optics is symmetric in them, a study's motion is not
+    groups = [("x", "y")] + [(a,) for a in AXES if a not in "xy"] if args.lateral else AXES
+    for group in groups:
+        if set(group) & set(args.axes):
+            parts = [_parts(d, AXES.index(a)) for d in calib.values() for a in group]
             pooled = tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
-            fitted[ax] = fit_axis(pooled)
+            for ax in group:
+                fitted[ax] = fit_axis(pooled)
     print(
         "\n| axis | sigma_noise_factor | sigma_systematic_um | bias_sigma_um |  (shipped → fitted)"
     )
