@@ -93,8 +93,63 @@ def _overview(loaded) -> list[str]:
         lines += rows
         times += timings
     lines += ["", "✓/✗: within / beyond the paper's figure.", ""]
+    lines += _coverage_overview(loaded)
     lines += ["### Time on this machine (all runs of the stage, resumed ones included)"]
     return lines + times + [""]
+
+
+def _coverage_of(summary: dict) -> tuple[int, dict] | None:
+    """(n, {(axis, k): fraction}) of a variant's uncertainty coverage (k = 1, 2), or None
+    when its tables carry no σ (:func:`hrvptm.analysis.coverage`)."""
+    prefix = "u_" if "u_coverage_n" in summary else ""
+    n = summary.get(f"{prefix}coverage_n")
+    if not isinstance(n, int | float) or not n > 0:
+        return None
+    cov = {}
+    for ax in "xyz":
+        for k in (1, 2):
+            v = summary.get(f"{prefix}coverage_{k}sigma_{ax}")
+            cov[ax, k] = float(v) if isinstance(v, int | float) else float("nan")
+    return int(n), cov
+
+
+def _coverage_overview(loaded) -> list[str]:
+    """The uncertainty coverage of every report's variants side by side, and pooled over the
+    studies (each variant weighted by its number of errors): the fraction of errors within
+    1σ and 2σ per axis, 68.3 % and 95.4 % for a right σ (issue 12 §4)."""
+    rows, pooled = [], {}
+    for _report, _md, data in loaded:
+        name = data["study"]["experiment"]["experiment"]["name"]
+        for variant, v in data["variants"].items():
+            got = _coverage_of(v.get("summary") or {})
+            if got is None:
+                continue
+            n, cov = got
+            cells = [f"{100 * cov[ax, 1]:.0f} / {100 * cov[ax, 2]:.0f}" for ax in "xyz"]
+            rows.append(f"| {name} ({variant}) | {n} | " + " | ".join(cells) + " |")
+            for key, frac in cov.items():
+                if frac == frac:  # not NaN
+                    s, w = pooled.get(key, (0.0, 0))
+                    pooled[key] = (s + frac * n, w + n)
+    if not rows:
+        return []
+    total = [
+        f"{100 * pooled[ax, 1][0] / pooled[ax, 1][1]:.0f} / "
+        f"{100 * pooled[ax, 2][0] / pooled[ax, 2][1]:.0f}"
+        if (ax, 1) in pooled and (ax, 2) in pooled
+        else "–"
+        for ax in "xyz"
+    ]
+    n_all = max((w for _, w in pooled.values()), default=0)
+    return [
+        "### Uncertainty coverage (% of errors within 1σ / 2σ; a right σ gives 68 / 95)",
+        "",
+        "| study | errors | x | y | z |",
+        "|---|---|---|---|---|",
+        *rows,
+        f"| **all studies** | {n_all} | " + " | ".join(f"**{c}**" for c in total) + " |",
+        "",
+    ]
 
 
 def _overview_rows(data: dict) -> tuple[list[str], list[str]]:
