@@ -25,7 +25,8 @@ from the PSF cache, and it needs neither a cache nor a file system shared with t
 
 Failures. A worker process that dies (killed, out of memory) has its frames redone on
 another one by the scheduler (a finished frame whose result was lost with it, and which the
-scheduler cancels instead, is submitted again, at most ``retries`` times); an unexpected
+scheduler cancels instead, is submitted again, at most ``retries`` times, and the context's
+arguments are sent again if every copy of them went with the dead workers); an unexpected
 exception in a frame is retried ``retries`` times. An error the toolkit raises on purpose
 (:class:`~hrvbase.errors.HrvError`, e.g. an unreadable frame) is not retried: the map stops
 (frames not started are cancelled, those running finish), hands back every frame that
@@ -410,11 +411,16 @@ class FrameMap:
         token = uuid.uuid4().hex[:8]
         first_error: BaseException | None = None
         try:
-            key = build = args = None
+            key = build = None
+            shared = [None]  # the context's arguments on the workers (sent again if lost)
+
+            def share():
+                # One copy on every worker, sent once (not once per frame).
+                [shared[0]] = client.scatter([self.context.args], broadcast=True, hash=False)
+
             if self.context is not None:
                 key, build = self.context.key, self.context.build
-                # One copy on every worker, sent once (not once per frame).
-                [args] = client.scatter([self.context.args], broadcast=True, hash=False)
+                share()
             levels = {n: logging.getLogger(n).getEffectiveLevel() for n in FORWARDED_LOGGERS}
             futures = {}
             resubmitted: dict[int, int] = {}
@@ -427,7 +433,7 @@ class FrameMap:
                     self.items[i],
                     key,
                     build,
-                    args,
+                    shared[0],
                     levels,
                     key=f"{self.desc}-{i:06d}-{token}" + (f"-r{n}" if n else ""),
                     retries=self.parallel.retries,
@@ -454,6 +460,11 @@ class FrameMap:
                         # Run it again (a frame writes its output atomically).
                         if first_error is None and resubmitted.get(i, 0) < self.parallel.retries:
                             resubmitted[i] = resubmitted.get(i, 0) + 1
+                            if shared[0] is not None and shared[0].status != "finished":
+                                # The context went with its worker(s) ("lost dependencies"):
+                                # frames depending on it cannot run until it is sent again.
+                                log.warning("the frames' shared context was lost; sending it again")
+                                share()
                             log.warning(
                                 "%s %d: its result was lost with its worker; running it again",
                                 self.unit,

@@ -291,6 +291,40 @@ def test_a_result_cancelled_by_the_scheduler_is_run_again(monkeypatch, caplog, t
             dict(fm)
 
 
+def test_a_shared_context_lost_with_its_workers_is_sent_again(monkeypatch, caplog, tmp_path):
+    """The frames depend on the context's arguments scattered to the workers; when every copy
+    went with the workers that held it, the scheduler cancels the frames waiting on them
+    ("lost dependencies"). The map sends the arguments again and reruns those frames, instead
+    of resubmitting them onto the lost copy until the retries run out (CI, session 8)."""
+    import logging
+
+    from distributed import Future
+    from distributed.client import FutureCancelledError
+
+    real = Future.result
+    lost = []
+
+    def result(self, *a, **k):
+        if "-000002-" in self.key and not lost:
+            lost.append(self.key)
+            shared = [key for key in self.client.futures if not str(key).startswith("frames-")]
+            assert shared  # the scattered context
+            self.client.cancel([Future(key, self.client) for key in shared])
+            raise FutureCancelledError(self.key, reason="lost dependencies")
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Future, "result", result)
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    ctx = WorkerContext(_build, (1.0, str(tmp_path)))
+    par = Parallel(workers=2, threads=1, retries=1)
+    with frame_map(_frame, range(6), parallel=par, context=ctx) as fm:
+        got = dict(fm)
+    assert [got[k][0] for k in range(6)] == _expected(6, 1.0)
+    assert lost
+    messages = [r.getMessage() for r in caplog.records]
+    assert any("shared context was lost" in m for m in messages)
+
+
 def test_worker_messages_are_logged_here(caplog):
     import logging
 
