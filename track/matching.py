@@ -136,6 +136,11 @@ class LinkSettings:
     guess_min_fraction : float
         Fraction of the particles an ``initial_guess`` must link consistently to replace
         the bootstrap (0 ≤ f ≤ 1).
+    guess_confirm_fraction : float
+        When the matches grown from an ``initial_guess`` are fewer than this fraction of
+        the particles, the bootstrap is run as well and the result with more matches kept
+        (0 ≤ f ≤ 1): a predictor extrapolated off its data (a thin layer moving along z,
+        Fig. 5b) can start a consistent but partial set that growth cannot complete.
     polish_iterations : int
         Iterations predicting relative to the regularised field of all matches (≥ 0).
     """
@@ -165,6 +170,7 @@ class LinkSettings:
     growth_passes: int = 8
     growth_q: float = 0.5
     guess_min_fraction: float = 0.3
+    guess_confirm_fraction: float = 0.9
     polish_iterations: int = 2
 
     def __post_init__(self) -> None:
@@ -181,8 +187,10 @@ class LinkSettings:
             v = getattr(self, name)
             if not 0 < v <= 1:
                 raise InputError(f"{name} must be in (0, 1], got {v}")
-        if not 0 <= self.guess_min_fraction <= 1:
-            raise InputError(f"guess_min_fraction must be in [0, 1], got {self.guess_min_fraction}")
+        for name in ("guess_min_fraction", "guess_confirm_fraction"):
+            v = getattr(self, name)
+            if not 0 <= v <= 1:
+                raise InputError(f"{name} must be in [0, 1], got {v}")
         for name in ("outlier_threshold", "tolerance_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
@@ -965,6 +973,68 @@ def increment_predictor(
     return guess
 
 
+def _bootstrap_and_fit(ref, dfm, settings, spacing, eps_boot, eps_fixed, history):
+    """The global bootstrap, then :func:`_grow_and_fit`; None when the bootstrap fails."""
+    ts = time.perf_counter()
+    boot = _bootstrap(ref, dfm, settings, spacing, eps_boot)
+    if boot is None:
+        return None
+    aff, pairs, n_cand, label = boot
+    u_base = aff(ref)
+    resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - u_base[pairs[:, 0]]
+    history.append(
+        IterationRecord(
+            len(history) + 1,
+            label,
+            settings.n_neighbors_max,
+            n_cand,
+            int(pairs.shape[0]),
+            n_cand - int(pairs.shape[0]),
+            float("nan"),
+            _robust_rms(resid),
+            time.perf_counter() - ts,
+        )
+    )
+    return _grow_and_fit(ref, dfm, pairs, u_base, True, settings, spacing, eps_fixed, history)
+
+
+def _grow_and_fit(ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history):
+    """Grow the matches from ``pairs``, fit the field and polish; (pairs, field), where
+    the field is None with fewer than 4 matches."""
+    pairs = _grow(
+        ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history, len(history) + 1
+    )
+    if pairs.shape[0] < 4:
+        return pairs, None
+    fld = fit_link_field(ref, dfm, pairs, settings)
+    if settings.polish_iterations and pairs.shape[0] >= 8:
+        # Polish: the local predictions relative to the regularised field of all matches
+        # rather than to the starting field (an affine map or the previous increment),
+        # which leaves the local fits only what that field misses.
+        before = _pair_keys(pairs, dfm.shape[0])
+        start = len(history) + 1
+        polished = _grow(
+            ref,
+            dfm,
+            pairs,
+            np.asarray(fld(ref), dtype=float),
+            False,
+            settings,
+            spacing,
+            eps_fixed,
+            history,
+            start,
+            stop=start + settings.polish_iterations - 1,
+            label="polish",
+            grow=False,
+        )
+        changed = not np.array_equal(before, _pair_keys(polished, dfm.shape[0]))
+        if polished.shape[0] >= 4 and changed:
+            pairs = polished
+            fld = fit_link_field(ref, dfm, pairs, settings)
+    return pairs, fld
+
+
 def link_pair(
     ref_xyz,
     def_xyz,
@@ -1054,60 +1124,36 @@ def link_pair(
                 guess_pairs.shape[0],
                 n_min,
             )
-    if pairs is None:
-        ts = time.perf_counter()
-        boot = _bootstrap(ref, dfm, settings, spacing, eps_boot)
-        if boot is None:
+    if pairs is not None:
+        guessed = _grow_and_fit(
+            ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history
+        )
+        if guessed[0].shape[0] >= settings.guess_confirm_fraction * n_min:
+            pairs, fld = guessed
+        else:
+            logger.info(
+                "the matches grown from initial_guess link %d of %d particles; "
+                "running the bootstrap as well",
+                guessed[0].shape[0],
+                n_min,
+            )
+            boot_history = list(history)
+            booted = _bootstrap_and_fit(
+                ref, dfm, settings, spacing, eps_boot, eps_fixed, boot_history
+            )
+            if booted is not None and booted[0].shape[0] > guessed[0].shape[0]:
+                (pairs, fld), history = booted, boot_history
+            else:
+                pairs, fld = guessed
+    else:
+        booted = _bootstrap_and_fit(ref, dfm, settings, spacing, eps_boot, eps_fixed, history)
+        if booted is None:
             return _failed(
                 "no consistent set of topology matches (bootstrap failed)", spacing, history, t0
             )
-        aff, pairs, n_cand, label = boot
-        u_base, refit = aff(ref), True
-        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - u_base[pairs[:, 0]]
-        history.append(
-            IterationRecord(
-                len(history) + 1,
-                label,
-                settings.n_neighbors_max,
-                n_cand,
-                int(pairs.shape[0]),
-                n_cand - int(pairs.shape[0]),
-                float("nan"),
-                _robust_rms(resid),
-                time.perf_counter() - ts,
-            )
-        )
-    pairs = _grow(
-        ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history, len(history) + 1
-    )
+        pairs, fld = booted
     if pairs.shape[0] < 4:
         return _failed(f"only {pairs.shape[0]} consistent matches", spacing, history, t0)
-    fld = fit_link_field(ref, dfm, pairs, settings)
-    if settings.polish_iterations and pairs.shape[0] >= 8:
-        # Polish: the local predictions relative to the regularised field of all matches
-        # rather than to the starting field (an affine map or the previous increment),
-        # which leaves the local fits only what that field misses.
-        before = _pair_keys(pairs, dfm.shape[0])
-        start = len(history) + 1
-        polished = _grow(
-            ref,
-            dfm,
-            pairs,
-            np.asarray(fld(ref), dtype=float),
-            False,
-            settings,
-            spacing,
-            eps_fixed,
-            history,
-            start,
-            stop=start + settings.polish_iterations - 1,
-            label="polish",
-            grow=False,
-        )
-        changed = not np.array_equal(before, _pair_keys(polished, dfm.shape[0]))
-        if polished.shape[0] >= 4 and changed:
-            pairs = polished
-            fld = fit_link_field(ref, dfm, pairs, settings)
     pairs = pairs[np.argsort(pairs[:, 0])]
     return LinkResult(
         matches=pairs.astype(np.int64),
