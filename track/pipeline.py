@@ -58,7 +58,14 @@ from typing import Any
 import numpy as np
 
 from hrvbase.errors import HrvError
-from hrvbase.io import file_record, read_json, sha256_file, verify_record, write_json
+from hrvbase.io import (
+    ConcurrentWrites,
+    file_record,
+    read_json,
+    sha256_file,
+    verify_record,
+    write_json,
+)
 
 from .errors import FailedFramesError, InputError, TrackingError
 from .field_files import write_field_npz, write_field_vti
@@ -612,10 +619,52 @@ def _link_and_write(
         )
     t2 = time.perf_counter()
     increments, outcomes = [], []
+    # The files are independent: their fsync waits overlap in a few writer threads.
+    with ConcurrentWrites() as writes:
+        _write_increments(
+            out, res, clouds, frame_ids, settings, vti_encoding, writes, increments, outcomes
+        )
+    ids = np.asarray(frame_ids, dtype=np.int64)
+    tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
+    write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
+    summary["increments"] = increments
+    summary["counts"] = {
+        "frames": len(clouds),
+        "particles_per_frame": [int(c.shape[0]) for c in clouds],
+        "pairs_linked": sum(p.ok for p in res.pairs),
+        "pairs_skipped": sum(not p.ok for p in res.pairs),
+        "tracks": int(np.unique(tracks.track_id).size),
+    }
+    if res.axes is not None:
+        summary["grid"] = {
+            "shape_zyx": list(res.axes.shape),
+            "spacing_xyz_um": list(res.axes.spacing_xyz_um),
+            "origin_xyz_um": list(res.axes.origin_xyz_um),
+        }
+    summary["timings"]["link_s"] = t1 - t0
+    summary["timings"]["fields_s"] = t2 - t1
+    summary["timings"]["write_s"] = time.perf_counter() - t2
+    return outcomes, tracks, res.axes
+
+
+def _write_increments(
+    out: Path,
+    res,
+    clouds: Sequence[np.ndarray],
+    frame_ids: Sequence[int],
+    settings: SeriesSettings,
+    vti_encoding: str,
+    writes: ConcurrentWrites,
+    increments: list,
+    outcomes: list,
+) -> None:
+    """Queue every increment's files on ``writes``; fill ``increments`` (summary entries) and
+    ``outcomes``."""
     for k, pair in enumerate(res.pairs):
         ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
         mfile = out / f"matches_{def_id:06d}.csv"
-        write_matches_csv(
+        writes.submit(
+            write_matches_csv,
             mfile,
             pair.matches,
             pair.displacement_um,
@@ -642,14 +691,20 @@ def _link_and_write(
         fld = res.total_fields[k]
         if fld is not None:
             base = out / "fields" / f"{def_id:06d}"
-            write_field_npz(base.with_suffix(".npz"), fld, overwrite=True)
-            write_field_vti(base.with_suffix(".vti"), fld, encoding=vti_encoding, overwrite=True)
+            writes.submit(write_field_npz, base.with_suffix(".npz"), fld, overwrite=True)
+            writes.submit(
+                write_field_vti,
+                base.with_suffix(".vti"),
+                fld,
+                encoding=vti_encoding,
+                overwrite=True,
+            )
             entry["field"] = f"fields/{def_id:06d}"
             entry["mask_fraction"] = float(fld.mask.mean())
         inc = res.increment_fields[k]
         if inc is not None:
             p = out / "fields" / f"increment_{def_id:06d}.npz"
-            write_field_npz(p, inc, overwrite=True)
+            writes.submit(write_field_npz, p, inc, overwrite=True)
             entry["increment_field"] = str(p.relative_to(out))
         increments.append(entry)
         outcomes.append(
@@ -668,27 +723,6 @@ def _link_and_write(
                 pair.sigma_displacement_um,
             )
         )
-    ids = np.asarray(frame_ids, dtype=np.int64)
-    tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
-    write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
-    summary["increments"] = increments
-    summary["counts"] = {
-        "frames": len(clouds),
-        "particles_per_frame": [int(c.shape[0]) for c in clouds],
-        "pairs_linked": sum(p.ok for p in res.pairs),
-        "pairs_skipped": sum(not p.ok for p in res.pairs),
-        "tracks": int(np.unique(tracks.track_id).size),
-    }
-    if res.axes is not None:
-        summary["grid"] = {
-            "shape_zyx": list(res.axes.shape),
-            "spacing_xyz_um": list(res.axes.spacing_xyz_um),
-            "origin_xyz_um": list(res.axes.origin_xyz_um),
-        }
-    summary["timings"]["link_s"] = t1 - t0
-    summary["timings"]["fields_s"] = t2 - t1
-    summary["timings"]["write_s"] = time.perf_counter() - t2
-    return outcomes, tracks, res.axes
 
 
 # -- failures and the closing line -----------------------------------------------------------

@@ -112,3 +112,26 @@ def test_unwritable_folder_is_one_clear_error(tmp_path):
     ro.chmod(0o500)
     with pytest.raises(OutputError, match="not writable"):
         atomic_write_text(ro / "y.txt", "z")
+
+
+def test_concurrent_writes_finish_every_file_and_report_the_first_failure(tmp_path):
+    from hrvbase.io import ConcurrentWrites, atomic_write_bytes
+
+    with ConcurrentWrites(threads=3) as writes:
+        for i in range(20):
+            writes.submit(atomic_write_bytes, tmp_path / f"f{i:02d}.bin", bytes([i]) * 1000)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"f{i:02d}.bin" for i in range(20)]
+    assert all((tmp_path / f"f{i:02d}.bin").read_bytes() == bytes([i]) * 1000 for i in range(20))
+
+    (tmp_path / "taken.bin").write_bytes(b"user data")
+    with pytest.raises(OutputError, match="taken.bin already exists"):
+        with ConcurrentWrites() as writes:
+            writes.submit(atomic_write_bytes, tmp_path / "a.bin", b"a")
+            writes.submit(atomic_write_bytes, tmp_path / "taken.bin", b"new")
+            writes.submit(atomic_write_bytes, tmp_path / "b.bin", b"b")
+    # the others still completed; the existing file was not touched; no temporary left
+    assert (tmp_path / "a.bin").read_bytes() == b"a" and (tmp_path / "b.bin").read_bytes() == b"b"
+    assert (tmp_path / "taken.bin").read_bytes() == b"user data"
+    assert not list(tmp_path.glob(".*.tmp"))
+    with pytest.raises(InputError, match="threads"):
+        ConcurrentWrites(threads=0)
