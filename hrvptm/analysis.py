@@ -206,6 +206,7 @@ def _displacement_sigma(study, sigma_a, sigma_b, displacement_um) -> np.ndarray:
         displacement_um=displacement_um,
         bias_sigma_xyz_um=series.bias_sigma_um[::-1],
         bias_length_xyz_um=series.bias_length_um[::-1],
+        bias_period_um=series.bias_period_um,
     )
 
 

@@ -280,6 +280,14 @@ SERIES_OPTIONS = (
         "L|Z,Y,X",
     ),
     SettingOption(
+        "bias_period_um",
+        ("--bias-period-um",),
+        "lateral period P (µm) of that bias: the microlens pitch in the object (MLA pitch / "
+        "magnification); 0: none",
+        _non_negative,
+        "P",
+    ),
+    SettingOption(
         "static_frames",
         ("--static-frames",),
         "the first N frames are at rest: report the spread of the displacements between them "

@@ -102,12 +102,20 @@ class SeriesSettings:
         Standard deviation ``(z, y, x)`` (µm, ≥ 0) of the per-particle localisation bias
         that changes as a particle moves (a light-field reconstruction's error depends on
         where the particle sits under the lenslets): it adds
-        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ = exp(−½ Σ_a (u_a / L_a)²)``
-        over the axes with ``L = bias_length_um`` and ``u`` the displacement
-        (:func:`match_sigma`). Default 0 (no such term).
+        ``2 b² (1 − ρ)`` to a displacement's variance, ``ρ`` the correlation of the bias
+        before and after the move (:func:`bias_decorrelation`; :func:`match_sigma`).
+        Default 0 (no such term).
     bias_length_um : float or tuple of 3 float
         ``L`` (µm, > 0): the move ``(z, y, x)`` over which the bias changes (one number:
         the same along every axis).
+    bias_period_um : float
+        Lateral period ``P`` (µm, ≥ 0) of the bias: the microlens pitch in the object (MLA
+        pitch / magnification; 25 µm for the paper's 100 µm lenslets behind a 4× objective).
+        A light-field reconstruction's error follows the particle's phase under the
+        lenslets, so a lateral move of one pitch brings the bias back, and a lateral
+        coordinate's bias changes only with moves along its own axis (and in depth), the
+        axial bias with moves along both. 0 (default): no period, every bias changes with a
+        move along any axis (:func:`bias_decorrelation`).
     predictor : bool
         Incremental mode: link each pair from the previous increment's displacement field
         (:func:`track.matching.increment_predictor`) as the linker's initial guess; the
@@ -122,6 +130,7 @@ class SeriesSettings:
     static_frames: int = 0
     bias_sigma_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
     bias_length_um: float | tuple[float, float, float] = 5.0
+    bias_period_um: float = 0.0
     predictor: bool = True
 
     def __post_init__(self) -> None:
@@ -150,6 +159,10 @@ class SeriesSettings:
                 f"bias_length_um must be one or three finite numbers > 0 (z, y, x), got {L!r}"
             )
         object.__setattr__(self, "bias_length_um", lengths)
+        P = self.bias_period_um
+        if isinstance(P, bool) or not isinstance(P, int | float) or not 0 <= P < math.inf:
+            raise InputError(f"bias_period_um must be a finite number >= 0 (µm), got {P!r}")
+        object.__setattr__(self, "bias_period_um", float(P))
         if not isinstance(self.predictor, bool):
             raise InputError(f"predictor must be true or false, got {self.predictor!r}")
         if not isinstance(self.grid, GridSettings):
@@ -698,6 +711,49 @@ def _sigmas(sigmas, pts) -> _CheckedSigmas | None:
     return None if sigmas is None else _CheckedSigmas(sigmas, pts)
 
 
+def bias_decorrelation(displacement_um, length_xyz_um, period_um: float = 0.0) -> np.ndarray:
+    """``1 − ρ``: how much of a particle's moving bias changes with its displacement, per axis.
+
+    The bias of a light-field localisation depends on where the particle sits: its depth and
+    its phase under the lenslets. Its correlation ``ρ_a`` between the two places of a move
+    ``u`` (per coordinate ``a``) is modelled as a product of one factor per direction ``c``:
+
+    - in depth, and without a period laterally: ``g_c = exp(−½ (u_c / L_c)²)``;
+    - laterally with a period ``P`` (``period_um > 0``), the periodic kernel
+      ``k_c = exp(−½ (P / (π L_c))² sin²(π u_c / P))``, which equals ``g_c`` for
+      ``u_c ≪ P`` and returns to 1 at every multiple of ``P``.
+
+    Without a period every coordinate's bias changes with a move along any axis:
+    ``ρ_a = g_x g_y g_z``. With one, ``ρ_x = k_x g_z``, ``ρ_y = k_y g_z`` and
+    ``ρ_z = k_x k_y g_z``: a lateral coordinate's bias follows the phase along its own axis
+    (measured: calibration runs translated along y keep their x bias), the axial bias both.
+
+    Parameters
+    ----------
+    displacement_um : ndarray, shape (K, 3)
+        Displacements (µm, x, y, z).
+    length_xyz_um : sequence of 3 float
+        ``L`` per direction (µm, > 0; x, y, z order).
+    period_um : float
+        ``P`` (µm, ≥ 0): lateral period, the microlens pitch in the object; 0 = none.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        ``1 − ρ`` per coordinate (x, y, z), in [0, 1].
+    """
+    u = np.asarray(displacement_um, float).reshape(-1, 3)
+    L = np.asarray(length_xyz_um, float)
+    g = np.exp(-0.5 * np.square(u / L))  # (K, 3)
+    if not period_um:
+        rho = np.prod(g, axis=1)
+        return np.repeat((1.0 - rho)[:, None], 3, axis=1)
+    P = float(period_um)
+    k = np.exp(-0.5 * np.square(P / (np.pi * L[:2]) * np.sin(np.pi * u[:, :2] / P)))
+    rho = np.column_stack([k[:, 0], k[:, 1], k[:, 0] * k[:, 1]]) * g[:, 2:3]
+    return 1.0 - rho
+
+
 def match_sigma(
     matches: np.ndarray,
     sigma_ref_um: np.ndarray,
@@ -707,6 +763,7 @@ def match_sigma(
     displacement_um: np.ndarray | None = None,
     bias_sigma_xyz_um=None,
     bias_length_xyz_um=(5.0, 5.0, 5.0),
+    bias_period_um: float = 0.0,
 ) -> np.ndarray:
     """Standard uncertainty of matched displacements: ``sqrt(σ_ref² + σ_def²)`` per axis.
 
@@ -724,9 +781,11 @@ def match_sigma(
         The displacements, for the moving-bias term.
     bias_sigma_xyz_um : sequence of 3 float, optional
         ``b`` (x, y, z order) of :attr:`SeriesSettings.bias_sigma_um`: adds
-        ``2 b² (1 − exp(−½ Σ_a (u_a / L_a)²))`` to each displacement's variance.
+        ``2 b² (1 − ρ)`` to each displacement's variance (:func:`bias_decorrelation`).
     bias_length_xyz_um : sequence of 3 float
         ``L`` (µm, x, y, z order).
+    bias_period_um : float
+        Lateral period ``P`` (µm; 0 = none) of :attr:`SeriesSettings.bias_period_um`.
 
     Returns
     -------
@@ -738,9 +797,8 @@ def match_sigma(
     if common_sigma_xyz_um is not None:
         var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
     if bias_sigma_xyz_um is not None and displacement_um is not None:
-        u = np.asarray(displacement_um, float).reshape(-1, 3)
-        rho = np.exp(-0.5 * np.sum(np.square(u / np.asarray(bias_length_xyz_um, float)), axis=1))
-        var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * (1 - rho)[:, None]
+        omr = bias_decorrelation(displacement_um, bias_length_xyz_um, bias_period_um)
+        var = var + 2 * np.square(np.asarray(bias_sigma_xyz_um, float)) * omr
     return np.sqrt(var)
 
 
@@ -865,6 +923,7 @@ def link_pairs(
                         displacement_um=d,
                         bias_sigma_xyz_um=settings.bias_sigma_um[::-1],
                         bias_length_xyz_um=settings.bias_length_um[::-1],
+                        bias_period_um=settings.bias_period_um,
                     ),
                 )
                 prev_field = getattr(lr, "displacement_field", None)
@@ -1177,6 +1236,7 @@ __all__ = [
     "SeriesResult",
     "SeriesSettings",
     "Tracks",
+    "bias_decorrelation",
     "check_grid",
     "compose_step",
     "cumulate_eulerian",

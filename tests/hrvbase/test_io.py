@@ -124,7 +124,7 @@ def test_concurrent_writes_finish_every_file_and_report_the_first_failure(tmp_pa
     assert all((tmp_path / f"f{i:02d}.bin").read_bytes() == bytes([i]) * 1000 for i in range(20))
 
     (tmp_path / "taken.bin").write_bytes(b"user data")
-    with pytest.raises(OutputError, match="taken.bin already exists"):
+    with pytest.raises(OutputError, match=r"taken\.bin already exists"):
         with ConcurrentWrites() as writes:
             writes.submit(atomic_write_bytes, tmp_path / "a.bin", b"a")
             writes.submit(atomic_write_bytes, tmp_path / "taken.bin", b"new")

@@ -67,6 +67,57 @@ def test_match_sigma_adds_in_quadrature_and_removes_the_shared_part():
     np.testing.assert_allclose(got[0, 2], np.sqrt(2.0 + 8.0 * (1 - np.exp(-0.5 * 0.01))))
 
 
+def test_the_lenslet_periodic_bias_follows_each_coordinates_own_phase():
+    """With a lateral period P (the lenslet pitch in the object) the bias comes back after a
+    move of one pitch, changes most at half a pitch, is Gaussian for small moves, and a
+    lateral coordinate's bias ignores moves along the other lateral axis; the axial one
+    follows both. Without a period it is the isotropic Gaussian."""
+    from track.series import bias_decorrelation
+
+    L, P = (4.0, 3.0, 10.0), 25.0  # x, y, z
+    u = np.array(
+        [
+            [25.0, 0.0, 0.0],  # one pitch along x
+            [12.5, 0.0, 0.0],  # half a pitch along x
+            [0.0, 12.5, 0.0],  # half a pitch along y
+            [0.2, 0.0, 0.0],  # small
+            [0.0, 0.0, 10.0],  # in depth only
+            [12.5, 50.0, 0.0],
+        ]
+    )
+    omr = bias_decorrelation(u, L, P)
+    half_x = 1 - np.exp(-0.5 * (P / (np.pi * 4.0)) ** 2)
+    half_y = 1 - np.exp(-0.5 * (P / (np.pi * 3.0)) ** 2)
+    np.testing.assert_allclose(omr[0], [0.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(omr[1], [half_x, 0.0, half_x])
+    np.testing.assert_allclose(omr[2], [0.0, half_y, half_y])
+    small = 1 - np.exp(-0.5 * (0.2 / 4.0) ** 2)  # the Gaussian of a small move
+    np.testing.assert_allclose(omr[3], [small, 0.0, small], rtol=1e-3)
+    depth = 1 - np.exp(-0.5)
+    np.testing.assert_allclose(omr[4], [depth, depth, depth])
+    np.testing.assert_allclose(omr[5], [half_x, 0.0, half_x], atol=1e-12)  # 50 µm = 2 P in y
+    # without a period: every coordinate's bias changes with a move along any axis
+    iso = bias_decorrelation(u, L)
+    rho = np.exp(-0.5 * np.sum((u / np.asarray(L)) ** 2, axis=1))
+    np.testing.assert_allclose(iso, np.repeat((1 - rho)[:, None], 3, axis=1))
+    # through match_sigma and the settings
+    m, s0 = np.array([[0, 0]]), np.zeros((1, 3))
+    got = match_sigma(
+        m,
+        s0,
+        s0,
+        displacement_um=u[1:2],
+        bias_sigma_xyz_um=(1.0, 1.0, 2.0),
+        bias_length_xyz_um=L,
+        bias_period_um=P,
+    )
+    np.testing.assert_allclose(got, np.sqrt(2 * np.array([[1.0, 0.0, 4.0]]) * omr[1]))
+    assert SeriesSettings(bias_period_um=25).bias_period_um == 25.0
+    for bad in (-1.0, float("inf"), "25", True):
+        with pytest.raises(InputError, match="bias_period_um"):
+            SeriesSettings(bias_period_um=bad)
+
+
 def test_track_clouds_writes_match_sigmas_and_the_noise_floor(tmp_path, rng):
     """Three frames of the same particles with known noise σ = (0.1, 0.2, 0.5) µm: the match
     σ is σ√2, and the static-frame noise floor measures it (RMS within 15 %)."""
