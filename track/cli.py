@@ -295,6 +295,14 @@ SERIES_OPTIONS = (
         _count,
         "N",
     ),
+    SettingOption(
+        "max_gap_frames",
+        ("--max-gap-frames",),
+        "incremental mode: a particle missed in up to N frames in a row keeps its track "
+        "(bridged where the tracks around it predict it)",
+        _count,
+        "N",
+    ),
 )
 
 #: Options of the linker (:class:`track.matching.LinkSettings`).
@@ -323,6 +331,12 @@ def _link_options(p: argparse.ArgumentParser) -> None:
     add_setting_options(g, LinkSettings, LINK_OPTIONS, prefix="link_")
     g.add_argument(
         "--no-fields", action="store_true", help="only link; no gridded fields (default: off)"
+    )
+    g.add_argument(
+        "--no-bridge",
+        action="store_true",
+        help="incremental mode: a track ends where its particle was missed or left unmatched; "
+        "no bridging over gaps (default: bridged)",
     )
     g.add_argument(
         "--no-predictor",
@@ -412,6 +426,7 @@ def series_settings(args: argparse.Namespace) -> SeriesSettings:
             "link": link,
             "compute_fields": not args.no_fields,
             "predictor": not args.no_predictor,
+            "bridge_tracks": not args.no_bridge,
         },
         prefix="series_",
     )

@@ -917,6 +917,75 @@ def _grow(
     return pairs
 
 
+def bridge_tracks(
+    ref_xyz, def_xyz, pairs, ref_rows, def_rows, settings=None, *, q_max: float = 1.0
+) -> np.ndarray:
+    """Link particles whose tracks end in a frame to particles that start tracks in a later one.
+
+    A particle missed by detection in an intermediate frame (or left unmatched by a pair)
+    ends its track there and reappears as the start of a new one. Its displacement from
+    the earlier frame to the later one is predicted from the particles tracked across both,
+    as :func:`link_pair` grows its matches (the global affine fit of their displacements
+    plus a moving-least-squares fit of the residuals of the neighbours), with the same
+    per-axis tolerance ellipsoid (the localisation noise from the leave-one-out residuals
+    of the tracked particles, widened by the local fit's error, volume-capped). A link is
+    made only when the later particle is the only one of *all* its frame's particles inside
+    the ellipsoid that passes the ratio test, lies within ``q_max`` of it, and starts a track.
+
+    Parameters
+    ----------
+    ref_xyz, def_xyz : ndarray, shape (N, 3), (M, 3)
+        Particles of the earlier and the later frame (µm, x, y, z).
+    pairs : ndarray of int, shape (K, 2)
+        ``[row_ref, row_def]`` of the particles tracked from one frame to the other.
+    ref_rows : ndarray of int, shape (R,)
+        Rows of ``ref_xyz`` whose tracks end (not in ``pairs``).
+    def_rows : ndarray of int, shape (S,)
+        Rows of ``def_xyz`` that start tracks (not in ``pairs``).
+    settings : LinkSettings, optional
+        ``local_*``, ``tolerance_sigmas``, ``nn_max_distance_um``, ``nn_ratio``.
+    q_max : float
+        Largest normalised distance from the prediction (0 < q_max ≤ 1; ``growth_q``: as
+        strict as the linker is with a particle it matches for the first time).
+
+    Returns
+    -------
+    ndarray of int, shape (B, 2)
+        ``[row_ref, row_def]`` of the bridged particles (empty with fewer than
+        ``MIN_PARTICLES`` pairs or no particle with three tracked neighbours).
+    """
+    settings = settings or LinkSettings()
+    if not 0 < q_max <= 1:
+        raise InputError(f"q_max must be in (0, 1], got {q_max!r}")
+    ref = np.asarray(ref_xyz, dtype=float).reshape(-1, 3)
+    dfm = np.asarray(def_xyz, dtype=float).reshape(-1, 3)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    ref_rows = np.asarray(ref_rows, dtype=np.int64).ravel()
+    free_def = np.zeros(dfm.shape[0], dtype=bool)
+    free_def[np.asarray(def_rows, dtype=np.int64).ravel()] = True
+    none = np.zeros((0, 2), dtype=np.int64)
+    if pairs.shape[0] < MIN_PARTICLES or ref_rows.size == 0 or not free_def.any():
+        return none
+    spacing = _mean_spacing(ref)
+    x = ref[pairs[:, 0]]
+    u_base = fit_affine(x, dfm[pairs[:, 1]] - x)(ref)
+    pred, _, _ = _predict(ref, dfm, pairs, u_base, settings, spacing)
+    resid = dfm[pairs[:, 1]] - x - pred[pairs[:, 0]]
+    noise = _loo_noise(resid, spacing)
+    p_rows, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing, ref_rows)
+    near = nnb >= 3
+    rows, p_rows, misfit = ref_rows[near], p_rows[near], misfit[near]
+    if rows.size == 0:
+        return none
+    k = settings.local_neighbors
+    radius = settings.local_radius_um or 3.0 * spacing
+    local = _neighbour_rms(x, resid, ref[rows], k, radius, np.full(rows.size, -1))
+    tol = _tolerance(np.maximum(misfit, local), noise, settings, spacing)
+    cand, q = match_predicted(ref[rows] + p_rows, dfm, tol, settings.nn_ratio)
+    cand = cand[free_def[cand[:, 1]] & (q <= q_max)]
+    return np.column_stack([rows[cand[:, 0]], cand[:, 1]]).astype(np.int64)
+
+
 def increment_predictor(
     previous_field: Callable[[np.ndarray], np.ndarray],
     *,

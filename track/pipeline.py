@@ -571,6 +571,8 @@ def _link_and_write(
         "min_particles": settings.min_particles,
         "static_frames": settings.static_frames,
         "predictor": settings.predictor,
+        "bridge_tracks": settings.bridge_tracks,
+        "max_gap_frames": settings.max_gap_frames,
         "grid": _settings_dict(settings.grid),
         "link": _settings_dict(settings.link),
     }

@@ -120,6 +120,14 @@ class SeriesSettings:
         Incremental mode: link each pair from the previous increment's displacement field
         (:func:`track.matching.increment_predictor`) as the linker's initial guess; the
         linker checks the guess and falls back to its global bootstrap when it fails.
+    bridge_tracks : bool
+        Incremental mode: continue a track that ended (its particle was missed by detection
+        in a frame, or left unmatched by a pair) where the tracks around it predict the
+        particle in a later frame (:func:`link_tracks`, :func:`track.matching.bridge_tracks`);
+        the pairs' matches and fields are unchanged. Default on.
+    max_gap_frames : int
+        Most frames in a row a bridged particle may be missing (≥ 0; 0: only particles of
+        consecutive frames that their pair left unmatched). Default 2.
     """
 
     mode: str = "incremental"
@@ -132,6 +140,8 @@ class SeriesSettings:
     bias_length_um: float | tuple[float, float, float] = 5.0
     bias_period_um: float = 0.0
     predictor: bool = True
+    bridge_tracks: bool = True
+    max_gap_frames: int = 2
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -165,6 +175,11 @@ class SeriesSettings:
         object.__setattr__(self, "bias_period_um", float(P))
         if not isinstance(self.predictor, bool):
             raise InputError(f"predictor must be true or false, got {self.predictor!r}")
+        if not isinstance(self.bridge_tracks, bool):
+            raise InputError(f"bridge_tracks must be true or false, got {self.bridge_tracks!r}")
+        g = self.max_gap_frames
+        if isinstance(g, bool) or not isinstance(g, int | np.integer) or g < 0:
+            raise InputError(f"max_gap_frames must be an integer >= 0, got {g!r}")
         if not isinstance(self.grid, GridSettings):
             raise InputError(f"grid must be a GridSettings, got {type(self.grid).__name__}")
         if int(self.grid.target_nodes) > MAX_GRID_NODES:
@@ -369,6 +384,8 @@ def link_tracks(
     mode: str = "incremental",
     positions_um: Sequence[np.ndarray] | None = None,
     sigmas_um: Sequence[np.ndarray] | None = None,
+    max_gap_frames: int | None = None,
+    link_settings: Any = None,
 ) -> Tracks:
     """Assign track ids from pairwise matches.
 
@@ -384,13 +401,24 @@ def link_tracks(
         Positions of each frame's particles, copied into :attr:`Tracks.xyz_um`.
     sigmas_um : sequence of (ndarray, shape (N_i, 3)), optional
         Their standard uncertainties, copied into :attr:`Tracks.sigma_xyz_um`.
+    max_gap_frames : int, optional
+        Incremental mode with ``positions_um``: bridge tracks (:func:`_bridge`). A particle
+        of frame ``i`` that no match continues is linked to a track that ended in frame
+        ``i − g``, ``g = 1 … max_gap_frames + 1`` (a particle missed by detection in up to
+        ``max_gap_frames`` frames in a row, or left unmatched by a pair), when
+        :func:`track.matching.bridge_tracks` finds it unambiguously where the tracks
+        present in both frames predict it. None (default): no bridging.
+    link_settings : LinkSettings, optional
+        The linker's settings used by the bridging.
 
     Returns
     -------
     Tracks
         Frame 0 particle ``r`` has track id ``r``. A particle matched from a particle with
         id ``t`` has id ``t`` (incremental: through every increment; cumulative: to frame 0);
-        every other particle starts a new track with the next unused id.
+        a bridged particle has the id of the track it continues; every other particle starts
+        a new track with the next unused id. A bridged track has no row in the frames where
+        the particle was missed.
     """
     if mode not in MODES:
         raise InputError(f"mode must be one of {MODES}, got {mode!r}")
@@ -399,6 +427,17 @@ def link_tracks(
         raise InputError(
             f"expected {len(n) - 1} match arrays for {len(n)} frames, got {len(matches)}"
         )
+    if max_gap_frames is not None and (
+        isinstance(max_gap_frames, bool)
+        or int(max_gap_frames) != max_gap_frames
+        or max_gap_frames < 0
+    ):
+        raise InputError(f"max_gap_frames must be an integer >= 0, got {max_gap_frames!r}")
+    bridge = max_gap_frames is not None and mode == "incremental" and positions_um is not None
+    if bridge:
+        pos = [np.asarray(p, dtype=float).reshape(-1, 3) for p in positions_um]
+        if [p.shape[0] for p in pos] != n:
+            raise InputError("positions_um do not have n_particles rows per frame")
     ids = [np.arange(n[0], dtype=np.int64)] if n else []
     next_id = n[0] if n else 0
     for i in range(1, len(n)):
@@ -409,6 +448,8 @@ def link_tracks(
             ref_n = n[i - 1] if mode == "incremental" else n[0]
             m = _check_matches(m, ref_n, n[i], f"matches of frame {i}")
             cur[m[:, 1]] = src[m[:, 0]]
+        if bridge:
+            _bridge(pos, ids, cur, int(max_gap_frames), link_settings)
         new = cur < 0
         cur[new] = next_id + np.arange(int(new.sum()))
         next_id += int(new.sum())
@@ -433,6 +474,41 @@ def link_tracks(
         xyz_um=xyz,
         sigma_xyz_um=sig,
     )
+
+
+def _bridge(pos, ids, cur, max_gap_frames: int, link_settings) -> None:
+    """Give the particles of frame ``i = len(ids)`` that no match continues (``cur < 0``)
+    the ids of tracks that ended in frame ``i − g``, ``g = 1 … max_gap_frames + 1``, nearest
+    frame first (:func:`track.matching.bridge_tracks`, predicted from the tracks present in
+    both frames); ``cur`` is updated in place. ``link_settings``: a LinkSettings, or None
+    (the defaults)."""
+    from .matching import LinkSettings, bridge_tracks
+
+    link_settings = link_settings if isinstance(link_settings, LinkSettings) else LinkSettings()
+    i = len(ids)
+    for g in range(1, max_gap_frames + 2):
+        j = i - g
+        if j < 0:
+            break
+        starts = np.flatnonzero(cur < 0)
+        if starts.size == 0:
+            break
+        # tracks seen in frame j and in none of the frames after it up to i
+        later = np.concatenate([*ids[j + 1 : i], cur[cur >= 0]])
+        ends = np.flatnonzero(~np.isin(ids[j], later))
+        if ends.size == 0:
+            continue
+        known = cur >= 0
+        _, r_j, r_i = np.intersect1d(ids[j], cur[known], return_indices=True)
+        pairs = np.column_stack([r_j, np.flatnonzero(known)[r_i]])
+        # Consecutive frames: the pair's linker compared these particles and left them
+        # unmatched, so a bridge must be as clear as its first matches (growth_q); across
+        # a gap the linker never saw the pair, and the whole ellipsoid counts.
+        q_max = link_settings.growth_q if g == 1 else 1.0
+        found = bridge_tracks(pos[j], pos[i], pairs, ends, starts, link_settings, q_max=q_max)
+        if found.shape[0]:
+            cur[found[:, 1]] = ids[j][found[:, 0]]
+            log.info("frame %d: %d tracks bridged from frame %d", i, found.shape[0], j)
 
 
 def lagrangian_displacements(
@@ -1073,6 +1149,8 @@ def track_series(
         mode=settings.mode,
         positions_um=pts,
         sigmas_um=sig,
+        max_gap_frames=settings.max_gap_frames if settings.bridge_tracks else None,
+        link_settings=settings.link,
     )
     n = len(pairs)
     inc_fields: list[GridField | None] = [None] * n

@@ -385,3 +385,15 @@ def test_uncertainty_model_options(tmp_path, capsys):
     assert rc == 0, err
     without = tables.read_match_sigmas(out / "matches_000001.csv")
     assert np.all(with_bias >= without) and np.all(with_bias[:, 2] > without[:, 2])
+
+
+def test_link_options_set_the_bridging_of_tracks():
+    from track.cli import build_parser, series_settings
+
+    p = build_parser()
+    s = series_settings(p.parse_args(["link", "a.csv", "b.csv", "-o", "out"]))
+    assert s.bridge_tracks is True and s.max_gap_frames == 2
+    args = p.parse_args(["link", "a.csv", "b.csv", "-o", "out", "--no-bridge"])
+    assert series_settings(args).bridge_tracks is False
+    args = p.parse_args(["link", "a.csv", "b.csv", "-o", "out", "--max-gap-frames", "0"])
+    assert series_settings(args).max_gap_frames == 0
