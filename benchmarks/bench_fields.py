@@ -92,28 +92,46 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=
         from hrvbase.parallel import Parallel
 
         kw["parallel"] = Parallel(workers=workers)
-    res, fields_s, fields_cpu = _timed(lambda: track_series(clouds, settings, pairs=pairs, **kw))
-
     try:  # the pipeline's concurrent writer (a baseline before it writes one file at a time)
         from hrvbase.io import ConcurrentWrites
     except ImportError:
         ConcurrentWrites = None
+    tmp_dir = tempfile.TemporaryDirectory(prefix="bench-fields-")
+    tmp = Path(tmp_dir.name)
+    ctx = ConcurrentWrites() if ConcurrentWrites else contextlib.nullcontext()
+    queued = []
 
-    def write():
-        with tempfile.TemporaryDirectory(prefix="bench-fields-") as tmp:
-            ctx = ConcurrentWrites() if ConcurrentWrites else contextlib.nullcontext()
-            with ctx as writes:
-                put = writes.submit if writes is not None else (lambda fn, *a: fn(*a))
-                for k, (tot, inc) in enumerate(
-                    zip(res.total_fields, res.increment_fields, strict=True)
-                ):
-                    if tot is not None:
-                        put(write_field_npz, Path(tmp) / f"{k + 1:06d}.npz", tot)
-                        put(write_field_vti, Path(tmp) / f"{k + 1:06d}.vti", tot)
-                    if inc is not None:
-                        put(write_field_npz, Path(tmp) / f"increment_{k + 1:06d}.npz", inc)
+    def put_fields(writes, k, tot, inc):
+        put = writes.submit if writes is not None else (lambda fn, *a: fn(*a))
+        if tot is not None:
+            put(write_field_npz, tmp / f"{k + 1:06d}.npz", tot)
+            put(write_field_vti, tmp / f"{k + 1:06d}.vti", tot)
+        if inc is not None:
+            put(write_field_npz, tmp / f"increment_{k + 1:06d}.npz", inc)
+        queued.append(k)
 
-    _, write_s, write_cpu = _timed(write)
+    with ctx as writes:
+        # as track link does: each increment's files are queued as soon as its fields exist
+        # (a baseline whose on_field gets only k writes them all after the fields)
+        def on_field(k, *fields):
+            if fields:
+                put_fields(writes, k, *fields)
+
+        res, fields_s, fields_cpu = _timed(
+            lambda: track_series(clouds, settings, pairs=pairs, on_field=on_field, **kw)
+        )
+
+        def write():
+            for k, (tot, inc) in enumerate(
+                zip(res.total_fields, res.increment_fields, strict=True)
+            ):
+                if k not in queued:
+                    put_fields(writes, k, tot, inc)
+
+        t0, c0 = time.perf_counter(), time.process_time()
+        write()
+    write_s, write_cpu = time.perf_counter() - t0, time.process_time() - c0  # all written
+    tmp_dir.cleanup()
     sq_e, sq_u, last_e, inside, hits1, hits2, n_std = 0.0, 0.0, 0.0, 0, 0, 0, 0
     iu = np.triu_indices(3)
     for k, g in enumerate(res.total_fields, start=1):

@@ -610,22 +610,28 @@ def _link_and_write(
             "no noise floor: no pair among the first %d (static) frames was linked",
             settings.static_frames,
         )
-    with _bar(n_pairs if settings.compute_fields else 0, progress, "fields", "field") as bar:
-        res = track_series(
-            clouds,
-            settings,
-            pairs=pairs,
-            on_field=lambda _k: bar.update(),
-            sigmas=sigmas,
-            parallel=parallel,
-        )
-    t2 = time.perf_counter()
     increments, outcomes = [], []
-    # The files are independent: their fsync waits overlap in a few writer threads.
+    # The files are independent: a few writer threads write each increment's field files
+    # while the next fields are computed (their fsync waits overlap the work and each other),
+    # then the matches; every file is atomic, a failed write fails the run at the end.
     with ConcurrentWrites() as writes:
-        _write_increments(
-            out, res, clouds, frame_ids, settings, vti_encoding, writes, increments, outcomes
-        )
+        with _bar(n_pairs if settings.compute_fields else 0, progress, "fields", "field") as bar:
+
+            def field_done(k: int, total, inc) -> None:
+                bar.update()
+                def_id = frame_ids[pairs[k].def_frame]
+                _write_fields(out, def_id, total, inc, vti_encoding, writes)
+
+            res = track_series(
+                clouds,
+                settings,
+                pairs=pairs,
+                on_field=field_done,
+                sigmas=sigmas,
+                parallel=parallel,
+            )
+        t2 = time.perf_counter()
+        _write_increments(out, res, clouds, frame_ids, settings, writes, increments, outcomes)
     ids = np.asarray(frame_ids, dtype=np.int64)
     tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
     write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
@@ -649,18 +655,34 @@ def _link_and_write(
     return outcomes, tracks, res.axes
 
 
+def _write_fields(
+    out: Path, def_id: int, total, inc, vti_encoding: str, writes: ConcurrentWrites
+) -> None:
+    """Queue the field files of the increment ending in frame ``def_id`` on ``writes``: the
+    total field (``fields/NNNNNN.npz`` and ``.vti``) and the increment (``.npz``)."""
+    if total is not None:
+        base = out / "fields" / f"{def_id:06d}"
+        writes.submit(write_field_npz, base.with_suffix(".npz"), total, overwrite=True)
+        writes.submit(
+            write_field_vti, base.with_suffix(".vti"), total, encoding=vti_encoding, overwrite=True
+        )
+    if inc is not None:
+        p = out / "fields" / f"increment_{def_id:06d}.npz"
+        writes.submit(write_field_npz, p, inc, overwrite=True)
+
+
 def _write_increments(
     out: Path,
     res,
     clouds: Sequence[np.ndarray],
     frame_ids: Sequence[int],
     settings: SeriesSettings,
-    vti_encoding: str,
     writes: ConcurrentWrites,
     increments: list,
     outcomes: list,
 ) -> None:
-    """Queue every increment's files on ``writes``; fill ``increments`` (summary entries) and
+    """Queue every increment's matches on ``writes`` (its field files were queued as they
+    were made, :func:`_write_fields`); fill ``increments`` (summary entries) and
     ``outcomes``."""
     for k, pair in enumerate(res.pairs):
         ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
@@ -692,22 +714,11 @@ def _write_increments(
             log.info("frames %d → %d %s", ref_id, def_id, pair.status)
         fld = res.total_fields[k]
         if fld is not None:
-            base = out / "fields" / f"{def_id:06d}"
-            writes.submit(write_field_npz, base.with_suffix(".npz"), fld, overwrite=True)
-            writes.submit(
-                write_field_vti,
-                base.with_suffix(".vti"),
-                fld,
-                encoding=vti_encoding,
-                overwrite=True,
-            )
             entry["field"] = f"fields/{def_id:06d}"
             entry["mask_fraction"] = float(fld.mask.mean())
         inc = res.increment_fields[k]
         if inc is not None:
-            p = out / "fields" / f"increment_{def_id:06d}.npz"
-            writes.submit(write_field_npz, p, inc, overwrite=True)
-            entry["increment_field"] = str(p.relative_to(out))
+            entry["increment_field"] = f"fields/increment_{def_id:06d}.npz"
         increments.append(entry)
         outcomes.append(
             PairOutcome(

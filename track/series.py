@@ -1101,7 +1101,7 @@ def track_series(
     linker: Callable[..., Any] | None = None,
     pairs: Sequence[PairResult] | None = None,
     on_pair: Callable[[PairResult], None] | None = None,
-    on_field: Callable[[int], None] | None = None,
+    on_field: Callable[[int, GridField | None, GridField | None], None] | None = None,
     sigmas: Sequence[np.ndarray | None] | None = None,
     parallel=None,
 ) -> SeriesResult:
@@ -1119,7 +1119,10 @@ def track_series(
     on_pair : callable, optional
         Progress callback, see :func:`link_pairs`.
     on_field : callable, optional
-        Called with the pair's index ``k`` once its field is done (gridded or skipped).
+        Called as ``on_field(k, total, increment)`` once pair ``k``'s field is done, in order:
+        its total and increment fields (:attr:`SeriesResult.total_fields`,
+        :attr:`SeriesResult.increment_fields`; None where skipped or not made), e.g. to write
+        them while the next ones are computed.
     sigmas : sequence of (ndarray, shape (N_i, 3)), optional
         Position uncertainties of each frame (µm), see :func:`link_pairs`; also copied into
         the tracks.
@@ -1276,7 +1279,10 @@ def _fields(
 
 
 def _fields_loop(pts, pairs, settings, axes, inc_fields, totals, status, lams, on_field, parallel):
-    done = on_field or (lambda k: None)
+    def done(k: int) -> None:
+        if on_field is not None:
+            on_field(k, totals[k], inc_fields[k])
+
     cumulation = None if settings.mode == "cumulative" else EulerianCumulation(axes)
     broken = None
     for k, got in _increments(pts, pairs, settings, axes, parallel):
