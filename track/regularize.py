@@ -300,10 +300,10 @@ def second_difference_operator(shape: tuple[int, int, int]) -> sp.csr_matrix:
     return sp.vstack(blocks, format="csr")
 
 
-def make_grid(bounds_um, spacing_um) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
-    """Regular grid covering ``bounds_um`` ((3, 2): min, max µm per axis x, y, z).
+def make_grid(bounds_xyz_um, spacing_xyz_um) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
+    """Regular grid covering ``bounds_xyz_um`` ((3, 2): min, max µm per axis x, y, z).
 
-    The node spacing is the largest value ≤ ``spacing_um`` that divides each extent into a
+    The node spacing is the largest value ≤ ``spacing_xyz_um`` that divides each extent into a
     whole number of cells (at least one cell per axis).
 
     Returns
@@ -313,12 +313,14 @@ def make_grid(bounds_um, spacing_um) -> tuple[np.ndarray, np.ndarray, tuple[int,
     shape : tuple of int
         Node counts ``(nz, ny, nx)`` (array order, as :attr:`GridDisplacement.shape`).
     """
-    b = np.asarray(bounds_um, dtype=float)
+    b = np.asarray(bounds_xyz_um, dtype=float)
     if b.shape != (3, 2) or not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
-        raise InputError(f"bounds_um must be finite (3, 2) [min, max] per axis, got {b.tolist()}")
-    h = np.broadcast_to(np.asarray(spacing_um, dtype=float), (3,))
+        raise InputError(
+            f"bounds_xyz_um must be finite (3, 2) [min, max] per axis, got {b.tolist()}"
+        )
+    h = np.broadcast_to(np.asarray(spacing_xyz_um, dtype=float), (3,))
     if not np.all(np.isfinite(h)) or np.any(h <= 0):
-        raise InputError(f"spacing_um must be finite and > 0, got {spacing_um}")
+        raise InputError(f"spacing_xyz_um must be finite and > 0, got {spacing_xyz_um}")
     extent = b[:, 1] - b[:, 0]
     cells = np.maximum(1, np.ceil(extent / h - 1e-9)).astype(int)
     step = np.where(extent > 0, extent / cells, h)
@@ -359,8 +361,8 @@ def _solve_spd(mat: sp.csr_matrix, rhs: np.ndarray, info: dict, rtol: float = 1e
 def fit_field(
     points_um,
     displacements_um,
-    bounds_um,
-    spacing_um,
+    bounds_xyz_um,
+    spacing_xyz_um,
     method: str = "gridded",
     weight: float = 1.0,
     *,
@@ -377,10 +379,10 @@ def fit_field(
         Reference positions of matched particles in µm.
     displacements_um : array_like, shape (P, 3)
         Their displacements in µm.
-    bounds_um : array_like, shape (3, 2)
+    bounds_xyz_um : array_like, shape (3, 2)
         Region [min, max] (µm) the grid must cover; rows x, y, z.
-    spacing_um : float or array_like, shape (3,)
-        Largest allowed node spacing in µm (per axis: x, y, z, as the rows of ``bounds_um``).
+    spacing_xyz_um : float or array_like, shape (3,)
+        Largest allowed node spacing in µm (per axis: x, y, z, as the rows of ``bounds_xyz_um``).
     method : {"gridded", "admm"}
         Direct sparse solve of the normal equations, or ADMM splitting (same minimiser).
     weight : float
@@ -412,7 +414,7 @@ def fit_field(
         raise InputError(f"method must be one of {METHODS}, got {method!r}")
     if not np.isfinite(weight) or weight < 0:
         raise InputError(f"weight must be finite and ≥ 0, got {weight}")
-    origin, step, shape = make_grid(bounds_um, spacing_um)
+    origin, step, shape = make_grid(bounds_xyz_um, spacing_xyz_um)
     b = interpolation_matrix(x, origin, step, shape, "linear")
     lap = second_difference_operator(shape)
     p, g = b.shape
@@ -702,8 +704,8 @@ class RefinedDisplacement:
 def fit_field_refined(
     points_um,
     displacements_um,
-    bounds_um,
-    spacing_um,
+    bounds_xyz_um,
+    spacing_xyz_um,
     method: str = "gridded",
     weight: float = 1.0,
     *,
@@ -725,7 +727,7 @@ def fit_field_refined(
 
     Parameters
     ----------
-    points_um, displacements_um, bounds_um, spacing_um, method, weight
+    points_um, displacements_um, bounds_xyz_um, spacing_xyz_um, method, weight
         As :func:`fit_field`.
     length_um : float
         Unit of the candidates' scales (µm, > 0), e.g. the mean particle spacing.
@@ -745,7 +747,7 @@ def fit_field_refined(
     u = _as_points("displacements_um", displacements_um)
     if not (np.isfinite(length_um) and length_um > 0):
         raise InputError(f"length_um must be finite and > 0, got {length_um}")
-    coarse = fit_field(x, u, bounds_um, spacing_um, method, weight)
+    coarse = fit_field(x, u, bounds_xyz_um, spacing_xyz_um, method, weight)
     r = u - coarse(x)
     p = x.shape[0]
     sub = np.arange(p)

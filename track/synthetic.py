@@ -77,10 +77,12 @@ def _unit(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _bounds(bounds_um) -> np.ndarray:
-    b = np.asarray(bounds_um, dtype=float)
+def _bounds(bounds_xyz_um) -> np.ndarray:
+    b = np.asarray(bounds_xyz_um, dtype=float)
     if b.shape != (3, 2) or not np.all(np.isfinite(b)) or np.any(b[:, 1] <= b[:, 0]):
-        raise InputError(f"bounds_um must be finite (3, 2) [min, max] per axis, got {b.tolist()}")
+        raise InputError(
+            f"bounds_xyz_um must be finite (3, 2) [min, max] per axis, got {b.tolist()}"
+        )
     return b
 
 
@@ -298,14 +300,14 @@ def _box_corners(b: np.ndarray) -> np.ndarray:
     return np.array(np.meshgrid(*b, indexing="ij")).reshape(3, -1).T
 
 
-def make_field(name: str, bounds_um, spacing_um: float, amplitude_um: float) -> KnownField:
+def make_field(name: str, bounds_xyz_um, spacing_um: float, amplitude_um: float) -> KnownField:
     """One field of the family, sized for a box of particles.
 
     Parameters
     ----------
     name : str
         One of :data:`FIELD_NAMES`.
-    bounds_um : array_like, shape (3, 2)
+    bounds_xyz_um : array_like, shape (3, 2)
         [min, max] of the imaged box per axis (x, y, z), µm.
     spacing_um : float
         Mean nearest-neighbour particle spacing (µm); the heterogeneous fields' length
@@ -324,7 +326,7 @@ def make_field(name: str, bounds_um, spacing_um: float, amplitude_um: float) -> 
     InputError
         Unknown name, bad box, spacing or amplitude.
     """
-    b = _bounds(bounds_um)
+    b = _bounds(bounds_xyz_um)
     if not (np.isfinite(spacing_um) and spacing_um > 0):
         raise InputError(f"spacing_um must be finite and > 0, got {spacing_um}")
     if not (np.isfinite(amplitude_um) and amplitude_um > 0):
@@ -383,7 +385,7 @@ def make_field(name: str, bounds_um, spacing_um: float, amplitude_um: float) -> 
 # ------------------------------------------------------------------------------- clouds
 
 
-def poisson_disc_cloud(n: int, bounds_um, min_distance_um: float, seed: int = 0) -> np.ndarray:
+def poisson_disc_cloud(n: int, bounds_xyz_um, min_distance_um: float, seed: int = 0) -> np.ndarray:
     """``n`` uniformly random points in a box, no two closer than ``min_distance_um``.
 
     Random sequential addition in batches (candidates too close to an accepted point or to
@@ -394,7 +396,7 @@ def poisson_disc_cloud(n: int, bounds_um, min_distance_um: float, seed: int = 0)
     ----------
     n : int
         Number of points (≥ 1).
-    bounds_um : array_like, shape (3, 2)
+    bounds_xyz_um : array_like, shape (3, 2)
         [min, max] per axis (x, y, z), µm.
     min_distance_um : float
         Smallest pairwise distance (µm, ≥ 0).
@@ -410,7 +412,7 @@ def poisson_disc_cloud(n: int, bounds_um, min_distance_um: float, seed: int = 0)
     InputError
         Bad arguments, or a box too small to hold ``n`` points that far apart.
     """
-    b = _bounds(bounds_um)
+    b = _bounds(bounds_xyz_um)
     if int(n) != n or n < 1:
         raise InputError(f"n must be a positive integer, got {n}")
     if not (np.isfinite(min_distance_um) and min_distance_um >= 0):
@@ -463,7 +465,7 @@ class SyntheticPair:
     field : KnownField
         The field that made the deformation (for a pair of :func:`make_pair`,
         ``true_displacement_um = field(seeds_um)``).
-    bounds_um : ndarray, shape (3, 2)
+    bounds_xyz_um : ndarray, shape (3, 2)
         The imaged box (both frames are cropped to it).
     spacing_um : float
         Mean nearest-neighbour distance of the noise-free particles in the box at frame 0.
@@ -480,7 +482,7 @@ class SyntheticPair:
     ref_noise_um: np.ndarray
     def_noise_um: np.ndarray
     field: KnownField
-    bounds_um: np.ndarray
+    bounds_xyz_um: np.ndarray
     spacing_um: float
     noise_xyz_um: tuple[float, float, float]
 
@@ -519,7 +521,7 @@ class SyntheticSeries:
         Noise-free positions of every particle at frame 0.
     field : KnownField
         The step per frame, a function of frame-0 positions.
-    bounds_um, spacing_um, noise_xyz_um
+    bounds_xyz_um, spacing_um, noise_xyz_um
         As :class:`SyntheticPair`.
     """
 
@@ -528,7 +530,7 @@ class SyntheticSeries:
     frame_noise_um: tuple
     seeds_um: np.ndarray
     field: KnownField
-    bounds_um: np.ndarray
+    bounds_xyz_um: np.ndarray
     spacing_um: float
     noise_xyz_um: tuple[float, float, float]
 
@@ -552,7 +554,7 @@ class SyntheticSeries:
             ref_noise_um=self.frame_noise_um[a],
             def_noise_um=self.frame_noise_um[b],
             field=self.field,
-            bounds_um=self.bounds_um,
+            bounds_xyz_um=self.bounds_xyz_um,
             spacing_um=self.spacing_um,
             noise_xyz_um=self.noise_xyz_um,
         )
@@ -646,7 +648,7 @@ def make_series(
         frame_noise_um=tuple(noises),
         seeds_um=seeds,
         field=fld,
-        bounds_um=box,
+        bounds_xyz_um=box,
         spacing_um=spacing,
         noise_xyz_um=tuple(float(v) for v in noise),
     )
@@ -786,7 +788,7 @@ def score_link(pair: SyntheticPair, matches, displacement_field=None) -> LinkSco
     if displacement_field is not None and m.shape[0]:
         fe = np.asarray(displacement_field(x)) - truth
         fld = tuple(float(v) for v in np.sqrt(np.mean(fe**2, axis=0)) / s)
-    b = pair.bounds_um
+    b = pair.bounds_xyz_um
     pc = pair.seeds_um[common]
     near = np.min(np.minimum(pc - b[:, 0], b[:, 1] - pc), axis=1) <= s
     correct_ids = ida[good]

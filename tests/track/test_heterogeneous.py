@@ -93,7 +93,7 @@ def test_make_field_rejects_unknown_names_and_bad_sizes():
         make_field("tornado", BOX, SPACING, 10.0)
     with pytest.raises(InputError, match="amplitude_um"):
         make_field("vortex", BOX, SPACING, -1.0)
-    with pytest.raises(InputError, match="bounds_um"):
+    with pytest.raises(InputError, match="bounds_xyz_um"):
         make_field("vortex", np.zeros((3, 2)), SPACING, 10.0)
 
 
@@ -115,7 +115,7 @@ def test_make_pair_noise_drop_outs_crop_and_truth():
     assert 45.0 < p.spacing_um < 52.0
     assert np.all(np.isin(p.def_ids, np.arange(p.seeds_um.shape[0])))
     for xyz in (p.ref_xyz_um, p.def_xyz_um):  # both frames hold the box's particles only
-        assert np.all((xyz > p.bounds_um[:, 0] - 15) & (xyz < p.bounds_um[:, 1] + 15))
+        assert np.all((xyz > p.bounds_xyz_um[:, 0] - 15) & (xyz < p.bounds_xyz_um[:, 1] + 15))
     sd = np.std(np.vstack([p.ref_noise_um, p.def_noise_um]), axis=0)
     assert np.allclose(sd, NOISE_XYZ_UM, rtol=0.1)
     assert 0.85 < p.common_ids.size / p.ref_ids.size < 0.95  # drop-outs and crossings

@@ -114,11 +114,11 @@ def test_fit_affine_exact():
 )
 def test_fit_field_validates(args, kwargs, needle):
     with pytest.raises(InputError, match=needle):
-        fit_field(*args, bounds_um=[[0, 1]] * 3, spacing_um=0.5, **kwargs)
+        fit_field(*args, bounds_xyz_um=[[0, 1]] * 3, spacing_xyz_um=0.5, **kwargs)
 
 
 def test_grid_validates():
-    with pytest.raises(InputError, match="spacing_um"):
+    with pytest.raises(InputError, match="spacing_xyz_um"):
         make_grid([[0, 1]] * 3, 0.0)
-    with pytest.raises(InputError, match="bounds_um"):
+    with pytest.raises(InputError, match="bounds_xyz_um"):
         make_grid([[1, 0]] * 3, 1.0)
