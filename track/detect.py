@@ -346,6 +346,11 @@ def voxel_to_um(
     return np.stack([x0 + p[:, 2] * dx, y0 + p[:, 1] * dy, z0 + p[:, 0] * dz], axis=1)
 
 
+#: Noise σ (in units of its depth's typical σ) a sub-lenslet phase is brought down to by
+#: :func:`equalize_lenslet_phases`: phases up to it are left as they are (with 144 lenslets
+#: per phase the robust σ of a phase varies by about 10 % by chance, and particles lying on
+#: the lenslets of one phase raise it further).
+PHASE_SIGMA_TOL = 2.0
 #: Fewest voxels per (depth, lenslet phase) for :func:`equalize_lenslet_phases` (its robust
 #: statistics): a volume of fewer than 3 × 3 lenslets is left as it is.
 PHASE_MIN_VOX = 9
@@ -366,11 +371,12 @@ def equalize_lenslet_phases(
     ``(a, b)`` the robust median ``m_kab`` and σ ``σ_kab`` (1.4826 × MAD over the voxels of
     that phase, one per lenslet) are measured, and the voxels become
 
-    ``m_k + (v - m_kab) · min(1, σ_k / σ_kab)``
+    ``m_k + (v - m_kab) · min(1, t σ_k / σ_kab)``
 
     with ``m_k`` and ``σ_k`` the medians of ``m_kab`` and ``σ_kab`` over the phases of depth
-    ``k``: phases noisier than their depth's typical phase are scaled down to it, none is
-    amplified, and the phase offsets are removed. The particles (a few lenslets each) hardly
+    ``k`` and ``t`` = :data:`PHASE_SIGMA_TOL`: phases more than ``t`` times noisier than
+    their depth's typical phase are scaled down to ``t σ_k``, none is amplified, and the
+    phase offsets are removed. The particles (a few lenslets each) hardly
     move these statistics. A depth whose typical σ is 0 (a sparse volume) is left as it is.
 
     Parameters
@@ -414,7 +420,9 @@ def equalize_lenslet_phases(
     live = s_k > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(live[:, None, None], sig / s_k[:, None, None], 1.0)
-    gain = np.where(live[:, None, None], np.minimum(1.0, 1.0 / np.maximum(ratio, 1e-30)), 1.0)
+    gain = np.where(
+        live[:, None, None], np.minimum(1.0, PHASE_SIGMA_TOL / np.maximum(ratio, 1e-30)), 1.0
+    )
     shift = np.where(live[:, None, None], m_k[:, None, None] - med * 1.0, 0.0)
     for a in range(s):
         for b in range(s):
