@@ -28,7 +28,9 @@ Given the lenslet period of a light-field reconstruction (``lenslet_period_vox``
 super-resolution factor, which ``recon run`` records in ``recon.json``), the noise of every
 sub-lenslet phase is first brought to its depth's typical level
 (:func:`equalize_lenslet_phases`): the reconstruction concentrates noise into single voxels
-and lines at a few phases, which would otherwise pass for particles or set their width.
+and lines at a few phases, which would otherwise pass for particles or set their width. The
+light piled up on its outer lenslets and planes is kept out of the band-pass, and the
+significance test follows the depth-dependent noise (see :func:`detect_particles`).
 
 Positions are returned in µm, columns ``x, y, z``: voxel ``(k, j, i)`` (z, y, x indices) has its
 centre at ``origin_xyz_um + (i dx, j dy, k dz)``.
@@ -455,21 +457,64 @@ def _robust_sigma(vol: np.ndarray) -> float:
     return median_and_sigma(interior(vol))[1]
 
 
-def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.ndarray:
+def _fill_faces(img: np.ndarray, band_vox: Sequence[int]) -> None:
+    """Replace the ``band_vox`` outer voxels of every face (z, y, x) of ``img`` by the median
+    of the voxels inside them (axes shorter than 4 bands keep theirs), in place."""
+    inner = tuple(
+        slice(b, n - b) if n > 4 * b else slice(None)
+        for b, n in zip(band_vox, img.shape, strict=True)
+    )
+    med = float(np.median(img[inner]))
+    for axis, (b, n) in enumerate(zip(band_vox, img.shape, strict=True)):
+        if b > 0 and n > 4 * b:
+            sl = [slice(None)] * 3
+            sl[axis] = slice(0, b)
+            img[tuple(sl)] = med
+            sl[axis] = slice(n - b, n)
+            img[tuple(sl)] = med
+
+
+def _plane_sigmas(vol: np.ndarray) -> np.ndarray:
+    """Robust σ of every depth plane of ``vol`` (its lateral interior), shape (nz,)."""
+    lat = tuple(
+        slice(FACE_VOX, n - FACE_VOX) if n > 4 * FACE_VOX else slice(None) for n in vol.shape[1:]
+    )
+    v = vol[(slice(None), *lat)].reshape(vol.shape[0], -1)
+    med = np.median(v, axis=1, keepdims=True)
+    return 1.4826 * np.median(np.abs(v - med), axis=1)
+
+
+def _bandpass(
+    work: np.ndarray,
+    settings: DetectSettings,
+    report: dict,
+    face_fill_vox: Sequence[int] | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The volume segmentation runs on: smoothed and background-subtracted at the scale of
-    the particles measured on ``work`` (see :class:`DetectSettings`); notes in ``report``."""
+    the particles measured on ``work`` (see :class:`DetectSettings`); notes in ``report``.
+
+    With ``face_fill_vox`` (a light-field reconstruction, :func:`detect_particles`), the
+    outer voxels that hold the light piled up from outside the field are replaced by the
+    volume's median before filtering (:func:`_fill_faces`), and the robust σ of every depth
+    plane of the band-passed volume is returned with it (else None): the noise of a
+    reconstruction changes with depth."""
     if settings.smooth_fwhm == 0 and settings.background_fwhm == 0:
         report["particle_fwhm_vox"] = None
         report["noise_sigma_segmented"] = _robust_sigma(work)
-        return work
+        return work, None
     fwhm = particle_fwhm_vox(work)
     if fwhm is None:
         log.warning("detect_particles: no particle maximum to measure; no band-pass")
         report["particle_fwhm_vox"] = None
         report["noise_sigma_segmented"] = _robust_sigma(work)
-        return work
+        return work, None
     report["particle_fwhm_vox"] = [float(v) for v in fwhm]
     img = work.astype(np.float32)
+    if face_fill_vox is not None:
+        # the background Gaussian would carry the face light far inwards (one iteration:
+        # σ of 60 depth planes), a negative background that the noise σ then measures
+        _fill_faces(img, face_fill_vox)
+        report["face_fill_vox"] = [int(v) for v in face_fill_vox]
     sigma = settings.smooth_fwhm * fwhm
     if settings.smooth_fwhm > 0:
         sigma = np.maximum(sigma, SMOOTH_MIN_VOX)
@@ -477,6 +522,7 @@ def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.nd
     if settings.background_fwhm > 0:
         out -= gaussian_filter(img, settings.background_fwhm * fwhm, mode="nearest")
     report["noise_sigma_segmented"] = _robust_sigma(out)
+    planes = _plane_sigmas(out) if face_fill_vox is not None else None
     if settings.background_fwhm > 0:
         # below the local background is background: the threshold fraction is of [0, max]
         out = np.clip(out, 0.0, None)
@@ -499,7 +545,7 @@ def _bandpass(work: np.ndarray, settings: DetectSettings, report: dict) -> np.nd
         (settings.smooth_fwhm, settings.background_fwhm),
         [f"{v:.1f}" for v in fwhm],
     )
-    return out
+    return out, planes
 
 
 def detect_particles(
@@ -531,11 +577,17 @@ def detect_particles(
     lenslet_period_vox : int, optional
         Lateral lenslet period of a light-field reconstruction (voxels: its super-resolution
         factor ``s``; ``recon.json`` ``grid.s``, :attr:`track.volumes.VolumeInfo.
-        lenslet_period_vox`). When given, the noise of every sub-lenslet phase is brought to
-        its depth's level (:func:`equalize_lenslet_phases`) in the volume the particles are
-        found, measured, tested and localised in (PSF, deconvolution, band-pass, particle
-        width, significance, and the localisation on the input, ``localize_on="input"``).
-        None (default): no phase equalisation, the volume as it is.
+        lenslet_period_vox`). When given, the volume is treated as a light-field
+        reconstruction: (1) the noise of every sub-lenslet phase is brought to its depth's
+        level (:func:`equalize_lenslet_phases`) in the volume the particles are found,
+        measured (PSF, width) and localised in (the input, ``localize_on="input"``);
+        (2) before the band-pass its outer lenslet (``s`` voxels) on the lateral faces and
+        its 2 outer depth planes, where the light from outside the field piles up, are set to
+        the volume's median; (3) each blob's significance is measured against the larger of
+        the volume's noise σ and that of its own depth plane; (4) particles longer than half
+        the volume along some axis (one RL iteration) are localised on the band-passed volume,
+        as their box around them is cut by the faces. None (default): none of this, the
+        behaviour without a period.
     lenslet_phase_vox : sequence of 2 int
         ``(phase_y, phase_x)``: sub-lenslet position of voxel row and column 0 (0 for the
         volumes of ``recon run``); used only with ``lenslet_period_vox``.
@@ -607,7 +659,12 @@ def detect_particles(
         report["deconvolution_iterations"] = 0
 
     t = time.perf_counter()
-    seg_vol = _bandpass(work, settings, report)
+    # a light-field reconstruction piles the light from outside its field onto its outer
+    # lenslets (s voxels laterally) and depth planes
+    face_fill = None
+    if lenslet_period_vox is not None:
+        face_fill = (FACE_VOX, max(FACE_VOX, period), max(FACE_VOX, period))
+    seg_vol, plane_sigma = _bandpass(work, settings, report, face_fill)
     timings["bandpass_s"] = time.perf_counter() - t
     t = time.perf_counter()
     margin_vox = tuple(math.ceil(settings.edge_margin_um / d) for d in spacing)
@@ -625,15 +682,26 @@ def detect_particles(
     floor = settings.min_peak_snr * noise if noise is not None else 0.0
     # a pure-noise volume has a median of its own: significance is above it
     base = float(np.median(interior(seg_vol)))
-    significant = [b for b in accepted if b.peak - base >= floor]
+    if plane_sigma is None:
+        floors = [floor] * len(accepted)
+    else:
+        # a light-field reconstruction's noise changes with depth: each blob is tested
+        # against the σ of its own depth plane where that exceeds the volume's
+        nz = len(plane_sigma)
+        floors = [
+            settings.min_peak_snr
+            * max(noise, float(plane_sigma[min(max(round(b.centroid_vox[0]), 0), nz - 1)]))
+            for b in accepted
+        ]
+    significant = [b for b, f in zip(accepted, floors, strict=True) if b.peak - base >= f]
     insignificant = [
         dataclasses.replace(
             b,
             reason=f"insignificant (peak {(b.peak - base) / noise:.2g} σ above the background "
-            f"< min_peak_snr {settings.min_peak_snr:g})",
+            f"< min_peak_snr {settings.min_peak_snr:g} × the σ of its depth or the volume)",
         )
-        for b in accepted
-        if b.peak - base < floor
+        for b, f in zip(accepted, floors, strict=True)
+        if b.peak - base < f
     ]
     n_insignificant = len(insignificant)
     accepted = significant
@@ -673,6 +741,18 @@ def detect_particles(
         # 2: 3 of 6 particles localised within the tolerances on the original intensities,
         # 6 of 6 on the equalised ones)
         loc_vol = work if settings.localize_on == "deconvolved" else found_in
+        fwhm = report.get("particle_fwhm_vox")
+        if (
+            lenslet_period_vox is not None
+            and fwhm is not None
+            and any(w > 0.5 * n for w, n in zip(fwhm, vol.shape, strict=True))
+        ):
+            # particles longer than half the volume (one iteration: the out-of-focus cone
+            # spans the depth): the box around each is cut by the faces and the pedestal
+            # it holds pulls the centre towards the middle (1 iteration, SNR 5: 2-3 of 6
+            # localised 70-100 µm off in z); the band-passed volume has no pedestal
+            loc_vol = seg_vol
+            report["localized_on"] = "band-passed"
         loc = localize(loc_vol, seeds, spacing, half_box_vox=half, method=settings.method)
         keep = loc.ok
         n_ok = int(keep.sum())
