@@ -13,6 +13,12 @@ previous layout: ``"voxel_size_um"``, ``"origin_xyz_um"`` or ``origin_um`` ``[x0
 ``spacing``, ``XResolution``/``YResolution``, ``xorigin``/``yorigin``/``zorigin``), or from
 the folder's ``recon.json`` (``voxel_size_um``; ``grid.origin_um`` ``[x0, y0]`` and
 ``grid.depths_um`` place the volume in object space). Lengths in µm (docs/conventions.md).
+
+The ``grid`` of a series' ``recon.json`` (next to TIFF volumes, or inside a Zarr store) also
+gives the lenslet period of the volumes, its super-resolution factor ``s``, and the sub-lenslet
+phase of their first voxel (:func:`lenslet_phases`, :attr:`VolumeInfo.lenslet_period_vox`),
+which :func:`track.detect.detect_particles` uses to treat the noise of a light-field
+reconstruction; without ``recon.json`` the volumes have none.
 """
 
 from __future__ import annotations
