@@ -6,7 +6,8 @@ given SNR is added (:func:`lfsim.noise.add_gaussian_noise`: SNR = P99.9 of the c
 σ), the background is subtracted as ``recon run`` does (:func:`recon.preprocess.prepare_image`)
 and the image is reconstructed with Richardson–Lucy (``iterations``, ``s``, ``z_step_um``, the
 depth-adaptive filter on or off); :func:`track.detect.detect_particles` with its default
-settings then runs on the volume. A detection *matches* a true particle when it lies within
+settings then runs on the volume, given its lenslet period ``s`` as ``track``'s pipeline
+gives it from ``recon.json``. A detection *matches* a true particle when it lies within
 half the particle spacing laterally and ``axial_tol`` axially (one particle per detection at
 most); every other detection is *spurious*.
 
@@ -180,7 +181,9 @@ def run_case(m: Microscope, setting, seed: int, n_particles: int = 6, settings=N
     t0 = time.perf_counter()
     vol, spacing, origin = reconstruct(m, xyz, iterations, s, z_step, filt, snr, seed)
     t1 = time.perf_counter()
-    det = detect_particles(vol, spacing, settings, origin_xyz_um=origin)
+    # the lenslet period recon records (recon.json grid.s; the volume starts at a lenslet
+    # corner, phase 0), as track's pipeline passes it on (track.volumes.VolumeInfo)
+    det = detect_particles(vol, spacing, settings, origin_xyz_um=origin, lenslet_period_vox=s)
     p = m.optics.lenslet_object_um
     matched, spurious = score(xyz, det.positions_um, 1.0 * p, 4.0 * m.particle_um)
     return {

@@ -353,6 +353,11 @@ def _first_psf(vol, info, settings):
 
     if settings.deconvolution_iterations == 0:
         return None, "not used (deconvolution off)"
+    if info.lenslet_period_vox is not None:
+        # the volume detect_particles deconvolves: its lenslet phases equalised
+        from .detect import equalize_lenslet_phases
+
+        vol, _ = equalize_lenslet_phases(vol, info.lenslet_period_vox, info.lenslet_phase_vox)
     try:
         psf = estimate_psf(
             vol, info.voxel_size_um, n_particles=settings.psf_particles, box_um=settings.psf_box_um
@@ -381,7 +386,15 @@ def _detect_frame(job, ctx) -> dict:
     settings, psf, out = ctx
     t0 = time.perf_counter()
     vol = read_volume(v)
-    det = detect_particles(vol, v.voxel_size_um, settings, psf, origin_xyz_um=v.origin_xyz_um)
+    det = detect_particles(
+        vol,
+        v.voxel_size_um,
+        settings,
+        psf,
+        origin_xyz_um=v.origin_xyz_um,
+        lenslet_period_vox=v.lenslet_period_vox,
+        lenslet_phase_vox=v.lenslet_phase_vox,
+    )
     part = numbered(out / "particles", v.index, ".csv")
     write_points_csv(
         part, det.positions_um, det.intensities, sigma_xyz_um=det.sigma_um, overwrite=True

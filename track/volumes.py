@@ -13,6 +13,12 @@ previous layout: ``"voxel_size_um"``, ``"origin_xyz_um"`` or ``origin_um`` ``[x0
 ``spacing``, ``XResolution``/``YResolution``, ``xorigin``/``yorigin``/``zorigin``), or from
 the folder's ``recon.json`` (``voxel_size_um``; ``grid.origin_um`` ``[x0, y0]`` and
 ``grid.depths_um`` place the volume in object space). Lengths in µm (docs/conventions.md).
+
+The ``grid`` of a series' ``recon.json`` (next to TIFF volumes, or inside a Zarr store) also
+gives the lenslet period of the volumes, its super-resolution factor ``s``, and the sub-lenslet
+phase of their first voxel (:func:`lenslet_phases`, :attr:`VolumeInfo.lenslet_period_vox`),
+which :func:`track.detect.detect_particles` uses to treat the noise of a light-field
+reconstruction; without ``recon.json`` the volumes have none.
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ import numpy as np
 from hrvbase.io import read_json
 
 from .errors import InputError
+
+log = logging.getLogger(__name__)
 
 #: Pattern of the numbered files of a series (6 digits).
 NUMBERED = re.compile(r"^(\d{6})\.(tif|tiff|csv)$")
@@ -61,6 +69,14 @@ class VolumeInfo:
         position along its t axis); None for a TIFF file.
     lead : tuple of int
         OME-Zarr: the indices of the axes before ``(z, y, x)`` that select this volume.
+    lenslet_period_vox : int or None
+        Lateral lenslet period of a light-field reconstruction (voxels: its super-resolution
+        factor ``s``), from the ``grid`` of the series' ``recon.json``
+        (:func:`lenslet_phases`); None when unknown. :func:`track.detect.detect_particles`
+        uses it to even out the noise of the sub-lenslet phases.
+    lenslet_phase_vox : tuple of 2 int
+        ``(phase_y, phase_x)``: sub-lenslet position of voxel row and column 0 (0 for the
+        volumes of ``recon run``).
     """
 
     path: Path
@@ -70,6 +86,8 @@ class VolumeInfo:
     origin_xyz_um: tuple
     dataset: str | None = None
     lead: tuple = ()
+    lenslet_period_vox: int | None = None
+    lenslet_phase_vox: tuple = (0, 0)
 
     @property
     def name(self) -> str:
@@ -131,6 +149,72 @@ def _origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | None:
         raise InputError(f"{where}: bad origin_um/depths_um {o!r} / {d!r}") from None
     # recon places voxel column i at origin + (i + 0.5) · dx (geometry.ReconGrid.x_um)
     return (ox + 0.5 * vs[2], oy + 0.5 * vs[1], z0)
+
+
+def lenslet_phases(
+    recon: Mapping, voxel_size_um, origin_xyz_um, where: str
+) -> tuple[int | None, tuple[int, int]]:
+    """Lenslet period (voxels) and phase of a volume from the ``grid`` of its ``recon.json``.
+
+    ``grid.s`` is the period; ``grid.origin_um`` (the corner of lenslet ``(0, 0)``) and the
+    volume's origin (centre of voxel ``(0, 0, 0)``) give the sub-lenslet position of voxel
+    row and column 0 (0 for an uncropped ``recon run`` volume). When the volume's lateral
+    voxel size is not ``grid.lenslet_object_um / s`` (a resampled copy) or its origin is not
+    on the grid's voxel lattice, the period does not apply: ``(None, (0, 0))`` with a
+    warning, and detection runs without it.
+
+    Raises
+    ------
+    InputError
+        A ``grid`` entry that is not a JSON object, or a bad ``s`` or ``lenslet_object_um``.
+    """
+    grid = recon.get("grid")
+    if grid is None:
+        return None, (0, 0)
+    if not isinstance(grid, Mapping):
+        raise InputError(f"{where}: 'grid' must be a JSON object, got {grid!r}")
+    if grid.get("s") is None:
+        return None, (0, 0)
+    s, pitch = grid.get("s"), grid.get("lenslet_object_um")
+    if isinstance(s, bool) or not isinstance(s, int) or s < 1:
+        raise InputError(f"{where}: grid.s must be a positive integer, got {s!r}")
+    try:
+        pitch = float(pitch)
+        corner = [float(v) for v in grid.get("origin_um", (0.0, 0.0))][:2]
+    except (TypeError, ValueError):
+        raise InputError(
+            f"{where}: grid.lenslet_object_um and grid.origin_um must be numbers, got "
+            f"{grid.get('lenslet_object_um')!r} and {grid.get('origin_um')!r}"
+        ) from None
+    if not (math.isfinite(pitch) and pitch > 0) or len(corner) != 2:
+        raise InputError(
+            f"{where}: grid.lenslet_object_um must be > 0 µm and grid.origin_um [x0, y0], "
+            f"got {grid.get('lenslet_object_um')!r} and {grid.get('origin_um')!r}"
+        )
+    _, dy, dx = voxel_size_um
+    vox = pitch / s
+    if not (math.isclose(dy, vox, rel_tol=1e-3) and math.isclose(dx, vox, rel_tol=1e-3)):
+        log.warning(
+            "%s: the volumes' lateral voxel size %g × %g µm is not grid.lenslet_object_um / s "
+            "= %g µm: the lenslet period does not apply (detection without it)",
+            where,
+            dy,
+            dx,
+            vox,
+        )
+        return None, (0, 0)
+    phase = []
+    for o, c, d in ((origin_xyz_um[1], corner[1], dy), (origin_xyz_um[0], corner[0], dx)):
+        k = (o - c) / d - 0.5  # voxel column k + 0.5 from the corner of lenslet (0, 0)
+        if abs(k - round(k)) > 1e-3:
+            log.warning(
+                "%s: the volumes' origin is off the reconstruction grid: the lenslet period "
+                "does not apply (detection without it)",
+                where,
+            )
+            return None, (0, 0)
+        phase.append(round(k) % s)
+    return s, (phase[0], phase[1])
 
 
 @dataclass(frozen=True)
@@ -310,7 +394,9 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
             or head.imagej_origin
             or _origin(recon.get("grid") or {}, vs, RECON_JSON)
         )
-        out.append(VolumeInfo(p, k, shape, vs, origin or (0.0, 0.0, 0.0)))
+        origin = origin or (0.0, 0.0, 0.0)
+        period, phase = lenslet_phases(recon, vs, origin, str(folder / RECON_JSON))
+        out.append(VolumeInfo(p, k, shape, vs, origin, None, (), period, phase))
     first = out[0]
     for v, dtype in zip(out[1:], dtypes[1:], strict=True):
         if v.shape != first.shape or dtype != dtypes[0]:
@@ -450,6 +536,7 @@ def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
     n = shape[0] if lead_names[:1] == ["t"] else 1
     missing = []
     recon_json = store / RECON_JSON
+    recon = {}
     if recon_json.is_file():
         recon = read_json(recon_json)
         frames = recon.get("frames") if isinstance(recon, Mapping) else None
@@ -461,10 +548,15 @@ def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
             f"{store}: frame(s) t = {', '.join(map(str, missing[:5]))} not written yet "
             f"({RECON_JSON} has no volume for them; an interrupted recon run?)"
         )
+    lenslet = (None, (0, 0))
+    if isinstance(recon, Mapping):
+        lenslet = lenslet_phases(recon, vs, (x0, y0, z0), str(recon_json))
     out = []
     for k in range(n):
         lead = tuple([k] if lead_names[:1] == ["t"] else []) + (0,) * ("c" in lead_names)
-        out.append(VolumeInfo(store, k, shape[-3:], vs, (x0, y0, z0), str(ds["path"]), lead))
+        out.append(
+            VolumeInfo(store, k, shape[-3:], vs, (x0, y0, z0), str(ds["path"]), lead, *lenslet)
+        )
     return out
 
 
@@ -529,6 +621,7 @@ __all__ = [
     "RECON_JSON",
     "VolumeInfo",
     "is_zarr",
+    "lenslet_phases",
     "numbered",
     "read_volume",
     "scan_volumes",

@@ -206,6 +206,33 @@ def test_recon_json_supplies_voxel_size(tmp_path):
     assert vols[1].origin_xyz_um == pytest.approx((1.0, 1.0, 100.0))
 
 
+def test_recon_json_supplies_the_lenslet_period_and_phase(tmp_path, caplog):
+    for k in range(2):
+        _volume(tmp_path / f"{k:06d}.tif", vs=None)
+    # 10 µm lenslets, s = 5 (2 µm voxels); the volumes start 3 columns (x) and 1 row (y)
+    # after the corner of lenslet (0, 0): a crop whose voxel (0, 0) sits at phase (1, 3)
+    grid = {"s": 5, "lenslet_object_um": 10.0, "origin_um": [-20.0, 4.0], "depths_um": [0, 4]}
+    recon = {"voxel_size_um": [4, 2, 2], "grid": grid}
+    (tmp_path / "recon.json").write_text(json.dumps(recon))
+    vols = volumes.scan_volumes(tmp_path)
+    assert vols[0].lenslet_period_vox == 5 and vols[0].lenslet_phase_vox == (0, 0)
+    assert volumes.lenslet_phases(recon, (4, 2, 2), (-20 + 7.0, 4 + 3.0, 0), "r") == (5, (1, 3))
+    # no s (an older recon.json): no period
+    assert volumes.lenslet_phases({"grid": {"origin_um": [0, 0]}}, (4, 2, 2), (1, 1, 0), "r") == (
+        None,
+        (0, 0),
+    )
+    # resampled volumes (voxel size not pitch / s) or an origin off the grid: no period, said
+    for vs, origin in (((4, 1, 1), (-19.0, 5.0, 0)), ((4, 2, 2), (-19.5, 5.0, 0))):
+        with caplog.at_level("WARNING", logger="track.volumes"):
+            assert volumes.lenslet_phases(recon, vs, origin, "r") == (None, (0, 0))
+        assert "lenslet period does not apply" in caplog.text
+        caplog.clear()
+    for bad in ({"grid": [1]}, {"grid": {**grid, "s": 2.5}}, {"grid": {**grid, "s": 0}}):
+        with pytest.raises(InputError, match="grid"):
+            volumes.lenslet_phases(bad, (4, 2, 2), (-19.0, 5.0, 0), "recon.json")
+
+
 def test_mismatched_voxel_sizes(tmp_path):
     _volume(tmp_path / "000000.tif")
     _volume(tmp_path / "000001.tif", vs=(5.0, 1.7, 1.6))

@@ -101,6 +101,17 @@ def test_frames_recon_has_not_written_are_missing(tmp_path):
         scan_volumes(store)
 
 
+def test_recon_json_in_the_store_gives_the_lenslet_period(tmp_path):
+    data = np.ones((2, 3, 10, 10), np.float32)
+    # voxel (0, 0, 0) at x = -13, y = 7 µm: 3 and 1 voxels past the corner of lenslet (0, 0)
+    store = write_ngff(tmp_path / "d.zarr", data, "tzyx", (1, 5, 2, 2), (0, 100, 7.0, -13.0))
+    grid = {"s": 5, "lenslet_object_um": 10.0, "origin_um": [-20.0, 4.0]}
+    frames = [{"index": k, "output": {"t": k}} for k in range(2)]
+    (store / "recon.json").write_text(json.dumps({"grid": grid, "frames": frames}))
+    vols = scan_volumes(store)
+    assert [(v.lenslet_period_vox, v.lenslet_phase_vox) for v in vols] == [(5, (1, 3))] * 2
+
+
 def test_track_cli_names_a_store_that_is_not_an_image(tmp_path, capsys):
     from track.cli import main
 
