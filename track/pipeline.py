@@ -923,6 +923,9 @@ def track_volumes(
     if series is not None and series.compute_fields:
         check_grid(volume_extent_um(vols[0]), series.grid, where="the volume")
     params = {"detect": _settings_dict(settings)}
+    periods = sorted({v.lenslet_period_vox for v in vols if v.lenslet_period_vox is not None})
+    if periods:  # an input of the detector (recon.json): a folder detected without it is redone
+        params["lenslet_period_vox"] = periods
     fp = _fingerprint({**where, **params})
     out = Path(out_dir)
     prev = _open_results(out, fp, overwrite)

@@ -120,3 +120,23 @@ def test_track_volumes_detects_resumes_and_links(tmp_path):
     res3 = track_volumes(vols, out, detect=det, series=series)
     assert [f.reused for f in res3.frames] == [True, True, False]
     assert table.read_bytes() == before
+
+
+def test_a_lenslet_period_appearing_in_recon_json_is_a_new_input(tmp_path):
+    """Detections made without the lenslet period (no recon.json) are not resumed once the
+    series has one: the detector works differently with it (track.detect)."""
+    vols = tmp_path / "vols"
+    _volumes(vols)
+    out = tmp_path / "res"
+    det = track.DetectSettings(deconvolution_iterations=0)
+    track_volumes(vols, out, detect=det)
+    origin = track.volumes.scan_volumes(vols)[0].origin_xyz_um
+    grid = {"s": 4, "lenslet_object_um": 4.0, "origin_um": [origin[0] - 0.5, origin[1] - 0.5]}
+    (vols / "recon.json").write_text(json.dumps({"grid": grid}))
+    assert track.volumes.scan_volumes(vols)[0].lenslet_period_vox == 4
+    with pytest.raises(InputError, match="other inputs or settings"):
+        track_volumes(vols, out, detect=det)
+    res = track_volumes(vols, out, detect=det, overwrite=True)
+    assert not any(f.reused for f in res.frames)
+    assert res.summary["parameters"]["lenslet_period_vox"] == [4]
+    assert track_volumes(vols, out, detect=det).frames[0].reused  # and then it resumes
