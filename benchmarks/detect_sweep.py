@@ -9,7 +9,10 @@ depth-adaptive filter on or off); :func:`track.detect.detect_particles` with its
 settings then runs on the volume, given its lenslet period ``s`` as ``track``'s pipeline
 gives it from ``recon.json``. A detection *matches* a true particle when it lies within
 half the particle spacing laterally and ``axial_tol`` axially (one particle per detection at
-most); every other detection is *spurious*.
+most); every other detection is *spurious*. Every setting is also reconstructed and detected
+without particles (same optics, noise σ, black level and noise seed: the particle image's
+P99.9 / SNR sets σ): its detections are the ``noise`` column (``noise_spurious``; skip it with
+``--no-noise``).
 
 Two microscopes: the paper's (4×/0.2, 100 µm / f 1000 µm lenslets, 15 px per lenslet, 15 µm
 particles) and a 10×/0.3 one (150 µm / f 2500 µm lenslets, 11 px per lenslet, 6 µm
@@ -22,7 +25,7 @@ pair of iterations and s, and each of iterations × SNR, without the full produc
 
 Usage::
 
-    python benchmarks/detect_sweep.py [--microscope paper 10x] [--seed 2] [--quick]
+    python benchmarks/detect_sweep.py [--microscope paper 10x] [--seed 2] [--quick] [--no-noise]
 """
 
 from __future__ import annotations
@@ -126,10 +129,31 @@ def _projector(o, depths, s):
     return _BANKS[key]
 
 
-def reconstruct(m: Microscope, xyz_um, iterations, s, z_step_um, depth_filter, snr, seed):
-    """Render, add noise and reconstruct; returns ``(volume, voxel_size_um, origin_xyz_um)``."""
+def render(m: Microscope, xyz_um, snr, seed) -> tuple[np.ndarray, np.ndarray]:
+    """The noisy particle image (12-bit DN) and the same noise without particles.
+
+    The noise σ is set from the particle image (:func:`lfsim.noise.add_gaussian_noise`: its
+    P99.9 / SNR); the particle-free image has that σ, black level and noise realisation
+    (same seed), so that its reconstruction holds exactly the noise of the particle case."""
     from lfsim.noise import add_gaussian_noise
     from lfsim.tracer import RenderSettings, Sources, trace_paraxial
+
+    clean = trace_paraxial(
+        m.optics,
+        Sources.spheres(xyz_um, m.particle_um),
+        RenderSettings(rays_per_particle=100_000, mode="expected", seed=seed),
+    )
+    noisy, info = add_gaussian_noise(clean.astype(np.float64), snr, seed, bit_depth=12)
+    # the draws add_gaussian_noise made (a generator seeded alike), on the black level alone
+    noise = np.random.default_rng(seed).normal(0.0, info["sigma_dn"], size=clean.shape)
+    full = 2 ** info["bit_depth"] - 1
+    blank = np.clip(np.rint(info["offset_dn"] + noise), 0, full).astype(noisy.dtype)
+    return noisy, blank
+
+
+def reconstruct_image(m: Microscope, image, iterations, s, z_step_um, depth_filter):
+    """Subtract the background and reconstruct one image; returns ``(volume, voxel_size_um,
+    origin_xyz_um)``."""
     from recon.deconvolve import richardson_lucy
     from recon.filters import DepthFilter
     from recon.geometry import ReconGrid, depth_range
@@ -138,13 +162,7 @@ def reconstruct(m: Microscope, xyz_um, iterations, s, z_step_um, depth_filter, s
     o = m.optics
     depths = depth_range(*m.z_volume_um, z_step_um)
     proj = _projector(o, depths, s)
-    clean = trace_paraxial(
-        o,
-        Sources.spheres(xyz_um, m.particle_um),
-        RenderSettings(rays_per_particle=100_000, mode="expected", seed=seed),
-    )
-    noisy, _ = add_gaussian_noise(clean.astype(np.float64), snr, seed, bit_depth=12)
-    img, _ = prepare_image(noisy)
+    img, _ = prepare_image(image)
     filt = DepthFilter.for_optics(o, depths, s) if depth_filter else None
     vol = richardson_lucy(img, proj, iterations, depth_filter=filt, track_kl=False).volume
     n = round(o.sensor_px[0] / o.px_per_lenslet)
@@ -155,6 +173,12 @@ def reconstruct(m: Microscope, xyz_um, iterations, s, z_step_um, depth_filter, s
         grid.voxel_size_um,
         (float(grid.x_um()[0]), float(grid.y_um()[0]), float(depths[0])),
     )
+
+
+def reconstruct(m: Microscope, xyz_um, iterations, s, z_step_um, depth_filter, snr, seed):
+    """Render, add noise and reconstruct; returns ``(volume, voxel_size_um, origin_xyz_um)``."""
+    noisy, _ = render(m, xyz_um, snr, seed)
+    return reconstruct_image(m, noisy, iterations, s, z_step_um, depth_filter)
 
 
 def score(truth_um, found_um, lateral_tol_um, axial_tol_um) -> tuple[int, int]:
@@ -170,22 +194,32 @@ def score(truth_um, found_um, lateral_tol_um, axial_tol_um) -> tuple[int, int]:
     return matched, len(found_um) - matched
 
 
-def run_case(m: Microscope, setting, seed: int, n_particles: int = 6, settings=None) -> dict:
+def run_case(
+    m: Microscope, setting, seed: int, n_particles: int = 6, settings=None, noise: bool = True
+) -> dict:
     """One row of the table: ``n_true, n_detected, n_matched, spurious, rejected`` (by
-    reason), and the seconds spent (``recon_s``: PSF bank, rendering and reconstruction;
-    ``detect_s``)."""
+    reason), ``noise_spurious`` (detections in the particle-free reconstruction of the same
+    setting, noise σ and noise seed; None with ``noise=False``), and the seconds spent
+    (``recon_s``: PSF bank, rendering and both reconstructions; ``detect_s``: both
+    detections)."""
     from track.detect import detect_particles
 
     iterations, s, z_step, filt, snr = setting
     xyz = seed_particles(m, n_particles, seed)
     t0 = time.perf_counter()
-    vol, spacing, origin = reconstruct(m, xyz, iterations, s, z_step, filt, snr, seed)
+    noisy, blank = render(m, xyz, snr, seed)
+    vol, spacing, origin = reconstruct_image(m, noisy, iterations, s, z_step, filt)
+    vol0 = reconstruct_image(m, blank, iterations, s, z_step, filt)[0] if noise else None
     t1 = time.perf_counter()
     # the lenslet period recon records (recon.json grid.s; the volume starts at a lenslet
     # corner, phase 0), as track's pipeline passes it on (track.volumes.VolumeInfo)
     det = detect_particles(vol, spacing, settings, origin_xyz_um=origin, lenslet_period_vox=s)
     p = m.optics.lenslet_object_um
     matched, spurious = score(xyz, det.positions_um, 1.0 * p, 4.0 * m.particle_um)
+    noise_spurious = None
+    if vol0 is not None:
+        det0 = detect_particles(vol0, spacing, settings, origin_xyz_um=origin, lenslet_period_vox=s)
+        noise_spurious = det0.n
     return {
         "microscope": m.name,
         "iterations": iterations,
@@ -197,6 +231,7 @@ def run_case(m: Microscope, setting, seed: int, n_particles: int = 6, settings=N
         "n_detected": det.n,
         "n_matched": matched,
         "spurious": spurious,
+        "noise_spurious": noise_spurious,
         "rejected": dict(det.report.get("rejections", {})),
         "recon_s": t1 - t0,
         "detect_s": time.perf_counter() - t1,
@@ -211,17 +246,19 @@ def setting_id(setting) -> str:
 
 def format_row(r: dict) -> str:
     rej = ", ".join(f"{k} {v}" for k, v in sorted(r["rejected"].items()) if v) or "-"
+    noise = "-" if r.get("noise_spurious") is None else str(r["noise_spurious"])
     return (
         f"{r['microscope']:>6s} {r['iterations']:>4d} {r['s']:>3d} {r['z_step_um']:>5.0f} "
         f"{'on' if r['filter'] else 'off':>6s} {r['snr']:>4.0f} | {r['n_true']:>4d} "
-        f"{r['n_detected']:>5d} {r['n_matched']:>5d} {r['spurious']:>5d} | "
+        f"{r['n_detected']:>5d} {r['n_matched']:>5d} {r['spurious']:>5d} {noise:>5s} | "
         f"{r['recon_s']:>5.1f} {r['detect_s']:>5.1f} | {rej}"
     )
 
 
 HEADER = (
     f"{'optics':>6s} {'iter':>4s} {'s':>3s} {'dz':>5s} {'filter':>6s} {'SNR':>4s} | "
-    f"{'true':>4s} {'found':>5s} {'match':>5s} {'spur':>5s} | {'rec s':>5s} {'det s':>5s} | "
+    f"{'true':>4s} {'found':>5s} {'match':>5s} {'spur':>5s} {'noise':>5s} | "
+    f"{'rec s':>5s} {'det s':>5s} | "
     "rejected (reason count)"
 )
 
@@ -236,6 +273,11 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--particles", type=int, default=6)
     ap.add_argument("--quick", action="store_true", help="the reduced grid of the test tier")
+    ap.add_argument(
+        "--no-noise",
+        action="store_true",
+        help="skip the particle-free reconstruction of every setting (noise column '-')",
+    )
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING)
@@ -244,20 +286,29 @@ def main(argv=None) -> int:
     init_backend()
     ms = microscopes()
     print(HEADER)
-    total = [0, 0, 0, 0]
+    total = [0, 0, 0, 0, 0]
     for name in args.microscope:
         for setting in QUICK if args.quick else GRID:
-            r = run_case(ms[name], setting, args.seed, args.particles)
+            r = run_case(ms[name], setting, args.seed, args.particles, noise=not args.no_noise)
             print(format_row(r), flush=True)
             total = [
                 a + b
                 for a, b in zip(
                     total,
-                    (r["n_true"], r["n_detected"], r["n_matched"], r["spurious"]),
+                    (
+                        r["n_true"],
+                        r["n_detected"],
+                        r["n_matched"],
+                        r["spurious"],
+                        r["noise_spurious"] or 0,
+                    ),
                     strict=True,
                 )
             ]
-    print(f"total: {total[0]} true, {total[1]} detected, {total[2]} matched, {total[3]} spurious")
+    print(
+        f"total: {total[0]} true, {total[1]} detected, {total[2]} matched, {total[3]} spurious"
+        + ("" if args.no_noise else f"; {total[4]} in the particle-free volumes")
+    )
     return 0
 
 
