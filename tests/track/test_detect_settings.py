@@ -5,7 +5,9 @@ Seeded particles rendered through two microscopes (the paper's 4×/0.2 and a 10�
 super-resolution, depth step, depth filter and SNR (``benchmarks/detect_sweep.py``), are
 detected with the default settings, given the lenslet period (``s``) as ``track``'s pipeline
 gives it from ``recon.json``: ≥ 95 % of the particles found (all 6), nothing spurious, except
-where :data:`KNOWN_LIMITS` holds a measured bound (none today). The detector's scales were
+where :data:`KNOWN_LIMITS` holds a measured bound (none today); and nothing in the
+particle-free reconstruction of the same setting (same optics, noise σ and noise seed),
+except where :data:`NOISE_KNOWN_LIMITS` holds a measured bound. The detector's scales were
 chosen on scene seed 1; these tests use seed 2 (never the frames tuned on).
 
 The default tier runs the reduced grid (``QUICK``); the long tier (``-m studies``) the full
@@ -63,10 +65,38 @@ MICROSCOPES = SWEEP.microscopes()
 #: - (20 it, s 5, 10 µm, filter on, SNR 5) on seed 1 (4 of 6 paper, 5 of 6 10x before: clump
 #:   and elongated rejections): 6 of 6 with the phases equalised.
 #:
-#: Pure-noise reconstructions of every grid setting on both optics (seeds 1 and 2: 48
-#: volumes) give one blob in all: (20, 3, 2, off, 90), seed 2, paper optics (6.5 σ; none
-#: without the period).
+#: Pure-noise reconstructions: :data:`NOISE_KNOWN_LIMITS`.
 KNOWN_LIMITS: dict = {}
+
+#: Measured limits of the particle-free reconstructions (``run_case``'s ``noise_spurious``:
+#: the same setting, optics, noise σ and noise seed without particles): detections at most,
+#: for settings where the detector is known to find blobs in pure noise; every other setting
+#: must give none. Measured over the full grid on both optics (``detect_sweep.py``): seed 2,
+#: 1 blob in all (this entry); seed 1, none.
+#:
+#: - (20 it, s 3, dz 2 µm, filter off, SNR 90), paper optics: 1 blob (6.1 σ of the volume,
+#:   5.1 σ of its depth plane; none before the lenslet period was used). Measured cause: in
+#:   a volume without particles the detector's scales are set by noise maxima. The width
+#:   measurement (``particle_fwhm_vox``) and the PSF estimate take maxima that stand > 5
+#:   (> 10) robust σ of the whole volume; here (a) the face light, not only on the outer
+#:   lenslet that the band-pass fills but on the first voxels of the next one (x or y = 3:
+#:   18-23 σ of the volume, 6-8 σ of their own depth and phase), and (b) at a few depths
+#:   (45, 105) 6 of the 9 phases of s = 3 are 4-40 × noisier than at the neighbouring
+#:   depths, so ``equalize_lenslet_phases``, whose reference is the median over that depth's
+#:   own phases, leaves their spikes (20-28 σ of the volume). The PSF estimated from them
+#:   (1 "isolated particle") and the secondary deconvolution sharpen the noise to a 1-plane
+#:   axial width, the band-pass then hardly averages over depth, and one blob passes the
+#:   per-plane test. In the particle case of the setting the particles are 30 planes long
+#:   and unresolved laterally (no PSF, no deconvolution), 40-60 σ. Tried, not adopted:
+#:   filling the faces before the width and PSF are measured (this case: still 1 blob; at
+#:   (10, 5, 2, on, 20) 10x it removes the bright face maxima under whose quarter the noise
+#:   maxima stayed, and a PSF is then estimated from noise); that and the depth's typical σ
+#:   pooled over it and its neighbours (this case 0, (10, 5, 2, on, 20) 10x 3); that and a
+#:   5 σ gate per (depth, phase) on the measured maxima (full grid, seed 2: 9 blobs in all,
+#:   particles still 144 of 144). A fix has to make a particle-free volume give "no particle
+#:   maximum" robustly: a gate on the maxima that the face light and heavy-tailed (depth,
+#:   phase) noise do not pass.
+NOISE_KNOWN_LIMITS: dict = {("paper", (20, 3, 2.0, False, 90.0)): 1}
 
 
 def _check(name: str, setting) -> None:
@@ -78,6 +108,8 @@ def _check(name: str, setting) -> None:
     else:
         assert r["n_matched"] >= limit, row
     assert r["spurious"] == 0, row
+    # the particle-free reconstruction of the same setting gives no particle
+    assert r["noise_spurious"] <= NOISE_KNOWN_LIMITS.get((name, tuple(setting)), 0), row
     # rejections are counted by filter, every key present
     assert set(r["rejected"]) >= {"edge", "too_small", "too_large", "elongated", "clump"}, row
 
