@@ -6,7 +6,9 @@ The pipeline of the paper's §3.2 (settings of Table 1):
    Richardson–Lucy updates (paper: 5) with a particle PSF, given or estimated from this volume
    (:mod:`track.psf_estimate`; skipped with a note in the report when no isolated particle is
    found, or when the particles are narrower than :data:`PSF_MIN_FWHM_VOX` voxels along some
-   axis, as many reconstruction iterations make them);
+   axis, as many reconstruction iterations make them; discarded, with a note, when an
+   estimated PSF deconvolves the maxima it was measured on to images narrower than that: it
+   was made of noise, as in a volume without particles, and sharpened the noise into blobs);
 2. **segmentation** (:mod:`track.segment`) of a band-passed copy of the volume at the scale
    of its particles (the FWHM measured on it, :func:`track.psf_estimate.particle_fwhm_vox`,
    see ``smooth_fwhm``/``background_fwhm``): threshold, connected components, edge, size,
@@ -651,6 +653,21 @@ def detect_particles(
         if psf is not None:
             work = deconvolve(found_in, psf, settings.deconvolution_iterations)
             report["deconvolution_iterations"] = settings.deconvolution_iterations
+            fwhm_out = particle_fwhm_vox(work) if fwhm_in is not None else None
+            if fwhm_out is not None and fwhm_out.min() < PSF_MIN_FWHM_VOX:
+                # a PSF estimated from resolved maxima that deconvolves them to unresolved
+                # images was made of noise, not particles (a particle-free light-field
+                # volume: face light and noise spikes, the PSF of one "isolated particle"),
+                # and the deconvolution sharpened noise into blobs: the input is used
+                work = found_in.astype(np.float32)
+                report["deconvolution_iterations"] = 0
+                report["psf"] += (
+                    f"; deconvolution discarded: it left the maxima "
+                    f"{[float(v) for v in fwhm_out]} voxels wide (FWHM, from "
+                    f"{[float(v) for v in fwhm_in]}), under {PSF_MIN_FWHM_VOX} along some "
+                    "axis (unresolved)"
+                )
+                log.info("detect_particles: %s", report["psf"])
         else:
             report["deconvolution_iterations"] = 0
         timings["deconvolve_s"] = time.perf_counter() - t

@@ -71,32 +71,28 @@ KNOWN_LIMITS: dict = {}
 #: Measured limits of the particle-free reconstructions (``run_case``'s ``noise_spurious``:
 #: the same setting, optics, noise σ and noise seed without particles): detections at most,
 #: for settings where the detector is known to find blobs in pure noise; every other setting
-#: must give none. Measured over the full grid on both optics (``detect_sweep.py``): seed 2,
-#: 1 blob in all (this entry); seed 1, none.
-#:
-#: - (20 it, s 3, dz 2 µm, filter off, SNR 90), paper optics: 1 blob (6.1 σ of the volume,
-#:   5.1 σ of its depth plane; none before the lenslet period was used). Measured cause: in
-#:   a volume without particles the detector's scales are set by noise maxima. The width
-#:   measurement (``particle_fwhm_vox``) and the PSF estimate take maxima that stand > 5
-#:   (> 10) robust σ of the whole volume; here (a) the face light, not only on the outer
-#:   lenslet that the band-pass fills but on the first voxels of the next one (x or y = 3:
-#:   18-23 σ of the volume, 6-8 σ of their own depth and phase), and (b) at a few depths
-#:   (45, 105) 6 of the 9 phases of s = 3 are 4-40 × noisier than at the neighbouring
-#:   depths, so ``equalize_lenslet_phases``, whose reference is the median over that depth's
-#:   own phases, leaves their spikes (20-28 σ of the volume). The PSF estimated from them
-#:   (1 "isolated particle") and the secondary deconvolution sharpen the noise to a 1-plane
-#:   axial width, the band-pass then hardly averages over depth, and one blob passes the
-#:   per-plane test. In the particle case of the setting the particles are 30 planes long
-#:   and unresolved laterally (no PSF, no deconvolution), 40-60 σ. Tried, not adopted:
-#:   filling the faces before the width and PSF are measured (this case: still 1 blob; at
-#:   (10, 5, 2, on, 20) 10x it removes the bright face maxima under whose quarter the noise
-#:   maxima stayed, and a PSF is then estimated from noise); that and the depth's typical σ
-#:   pooled over it and its neighbours (this case 0, (10, 5, 2, on, 20) 10x 3); that and a
-#:   5 σ gate per (depth, phase) on the measured maxima (full grid, seed 2: 9 blobs in all,
-#:   particles still 144 of 144). A fix has to make a particle-free volume give "no particle
-#:   maximum" robustly: a gate on the maxima that the face light and heavy-tailed (depth,
-#:   phase) noise do not pass.
-NOISE_KNOWN_LIMITS: dict = {("paper", (20, 3, 2.0, False, 90.0)): 1}
+#: must give none. None today: the full grid on both optics gives none on seeds 1 and 2.
+#: What removed the former one, (20 it, s 3, dz 2 µm, filter off, SNR 90), paper optics,
+#: seed 2 (1 blob, 6.1 σ of the volume, 5.1 σ of its depth plane; none before the lenslet
+#: period was used): in a volume without particles the width measurement
+#: (``particle_fwhm_vox``) and the PSF estimate take noise maxima for particles: the face
+#: light just inside the outer lenslet (x or y = 3: 18-23 σ of the volume) and, at a few
+#: depths (45, 105) where 6 of the 9 phases of s = 3 are 4-40 × noisier than at the
+#: neighbouring depths, spikes that ``equalize_lenslet_phases`` leaves (its reference is the
+#: median of that depth's own phases). The PSF of that one "isolated particle" deconvolved
+#: the maxima of width (4, 8.5, 5.5) voxels to (1, 11, 17): axially unresolved, the noise
+#: sharpened to single planes, which the band-pass then hardly averages over. The
+#: deconvolution is now discarded when an estimated PSF leaves the maxima narrower than
+#: ``PSF_MIN_FWHM_VOX`` (unresolved, the limit under which no PSF is estimated at all);
+#: without it the volume gives none. Tried, not adopted (each moved the blobs elsewhere):
+#: filling the faces before the width and PSF are measured (at (10, 5, 2, on, 20) 10x it
+#: removes the bright face maxima under whose quarter the noise maxima stayed, so a PSF is
+#: estimated from noise); with it, the depth's typical σ pooled over it and its neighbours
+#: (this case 0, (10, 5, 2, on, 20) 10x 3), or a 5 σ gate per (depth, phase) on the measured
+#: maxima (full grid, seed 2: 9 blobs in all). The width and PSF are still measured on noise
+#: in a particle-free volume: the per-plane significance test and the discarded
+#: deconvolution are what keep its blobs out.
+NOISE_KNOWN_LIMITS: dict = {}
 
 
 def _check(name: str, setting) -> None:
