@@ -652,7 +652,8 @@ class _ThinPlateFit:
         scale = max(float(b.gam.max(initial=0.0)), 1.0)
         den = b.gam[:, None] + self.lam[None, :]  # (N - 4, C)
         rdiag = np.abs(np.diag(b.R1))
-        if rdiag.min() <= 1e-10 * rdiag.max() or den.min() <= 1e-14 * scale:
+        # four particles fix the affine part exactly: no spline mode (den is empty)
+        if rdiag.min() <= 1e-10 * rdiag.max() or den.min(initial=np.inf) <= 1e-14 * scale:
             raise InputError(
                 f"cannot fit a displacement field to {Y.shape[0]} particles: they are coplanar "
                 "or repeated"

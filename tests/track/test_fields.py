@@ -123,6 +123,18 @@ def test_gridfield_validates_shapes():
         GridField(ax.x_um, ax.y_um, ax.z_um, u[:, :, :2], F, E, e, np.ones(ax.shape, bool))
 
 
+def test_four_particles_give_their_affine_field():
+    """The fewest particles a field takes (4, not coplanar) fix its affine part exactly and
+    leave no spline mode: the fit is that affine map, not a crash on the empty mode set."""
+    X = np.array([[0.0, 0, 0], [100, 0, 0], [0, 80, 0], [0, 0, 60]])
+    A = np.array([[0.01, 0.0, 0.02], [0.0, -0.01, 0.0], [0.0, 0.0, 0.005]])
+    u = X @ A.T + [1.0, -2.0, 0.5]
+    for smoothing in ("gcv", 0.0, 1.0):
+        it = fit_displacement(X, u, GridSettings(smoothing=smoothing))
+        q = np.array([[50.0, 40, 30], [10, 20, 5]])
+        assert np.allclose(it(q), q @ A.T + [1.0, -2.0, 0.5], atol=1e-9)
+
+
 def test_bad_inputs_and_settings():
     X = _cloud()
     with pytest.raises(InputError, match="at least 4"):
