@@ -505,6 +505,9 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
             "depths_um": list(map(float, rgrid.depths_um)),
             "origin_um": list(model.origin_xy_um),
             "iterations": res.iterations,
+            # the lenslet period and phase travel with a TIFF copied without recon.json
+            # (track.volumes.lenslet_phases)
+            "grid": rgrid.to_dict(),
         },
     )
     return {

@@ -18,7 +18,8 @@ The ``grid`` of a series' ``recon.json`` (next to TIFF volumes, or inside a Zarr
 gives the lenslet period of the volumes, its super-resolution factor ``s``, and the sub-lenslet
 phase of their first voxel (:func:`lenslet_phases`, :attr:`VolumeInfo.lenslet_period_vox`),
 which :func:`track.detect.detect_particles` uses to treat the noise of a light-field
-reconstruction; without ``recon.json`` the volumes have none.
+reconstruction. ``recon run`` also writes that ``grid`` into each TIFF's metadata, so that a
+TIFF copied without its ``recon.json`` keeps its period; volumes from elsewhere have none.
 """
 
 from __future__ import annotations
@@ -395,7 +396,9 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
             or _origin(recon.get("grid") or {}, vs, RECON_JSON)
         )
         origin = origin or (0.0, 0.0, 0.0)
-        period, phase = lenslet_phases(recon, vs, origin, str(folder / RECON_JSON))
+        # recon.json's grid, else the one recon wrote into the TIFF (copied without it)
+        src, where = (recon, folder / RECON_JSON) if recon.get("grid") is not None else (meta, p)
+        period, phase = lenslet_phases(src, vs, origin, str(where))
         out.append(VolumeInfo(p, k, shape, vs, origin, None, (), period, phase))
     first = out[0]
     for v, dtype in zip(out[1:], dtypes[1:], strict=True):

@@ -76,6 +76,19 @@ def test_dataset_folder_reconstructs_and_finds_particles(dataset, tmp_path, caps
         k = int(np.argmin(np.abs(depths - z)))
         near = vol[max(k - 2, 0) : k + 3, max(j - 2, 0) : j + 3, max(i - 2, 0) : i + 3]
         assert near.max() > 0.3 * vol.max(), (x, y, z)
+    # the lenslet grid travels in each TIFF: copied without recon.json, the volumes keep
+    # the lenslet period that track's detection uses
+    from track.volumes import scan_volumes
+
+    assert vmeta["grid"] == g
+    bare = tmp_path / "copied"
+    bare.mkdir()
+    for f in vol_dir.glob("*.tif"):
+        shutil.copy(f, bare / f.name)
+    for folder in (vol_dir, bare):
+        vols = scan_volumes(folder)
+        assert [v.lenslet_period_vox for v in vols] == [3] * 3, folder
+        assert vols[0].lenslet_phase_vox == (0, 0)
 
 
 def test_resume_and_refusal(dataset, tmp_path, capsys):

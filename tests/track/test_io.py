@@ -233,6 +233,20 @@ def test_recon_json_supplies_the_lenslet_period_and_phase(tmp_path, caplog):
             volumes.lenslet_phases(bad, (4, 2, 2), (-19.0, 5.0, 0), "recon.json")
 
 
+def test_a_tiff_carries_its_lenslet_grid_without_recon_json(tmp_path):
+    """recon run writes its grid into each TIFF: copied alone, the volumes keep the period;
+    a bad one is refused, naming the file."""
+    grid = {"s": 5, "lenslet_object_um": 10.0, "origin_um": [-20.0, 4.0], "depths_um": [0, 4]}
+    meta = {"origin_um": [-20.0, 4.0], "depths_um": [0, 4], "grid": grid}
+    for k in range(2):
+        _volume(tmp_path / f"{k:06d}.tif", vs=(4, 2, 2), meta=meta)
+    vols = volumes.scan_volumes(tmp_path)
+    assert [(v.lenslet_period_vox, v.lenslet_phase_vox) for v in vols] == [(5, (0, 0))] * 2
+    _volume(tmp_path / "000001.tif", vs=(4, 2, 2), meta={**meta, "grid": {**grid, "s": 2.5}})
+    with pytest.raises(InputError, match=r"000001\.tif: grid\.s must be a positive integer"):
+        volumes.scan_volumes(tmp_path)
+
+
 def test_mismatched_voxel_sizes(tmp_path):
     _volume(tmp_path / "000000.tif")
     _volume(tmp_path / "000001.tif", vs=(5.0, 1.7, 1.6))
