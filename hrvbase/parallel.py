@@ -179,6 +179,20 @@ class _Failed:
         self.exc = exc
 
 
+class _Skipped:
+    """A frame not started because its map had stopped on another frame's failure."""
+
+
+#: Maps (their tokens) stopped in this worker process: their frames not yet started are
+#: skipped (:meth:`FrameMap._stop`).
+_STOPPED: set[str] = set()
+
+
+def _stop_map(token: str, dask_worker=None) -> None:
+    """(On a worker) skip the frames of map ``token`` that have not started."""
+    _STOPPED.add(token)
+
+
 #: Loggers whose messages on a worker are sent back with the frame's result and logged by the
 #: calling process (so that a command shows a frame's warnings wherever the frame ran).
 FORWARDED_LOGGERS = ("hrvbase", "lfsim", "recon", "track", "hrvptm")
@@ -205,9 +219,11 @@ class _Done:
     logs: list
 
 
-def _run_task(func, item, key: str | None, build, args, levels: dict) -> _Done:
+def _run_task(func, item, key: str | None, build, args, levels: dict, token: str) -> _Done:
     """What a worker runs for one frame: its log records (at the caller's ``levels``) are
-    returned with its result."""
+    returned with its result; nothing is run once map ``token`` has stopped."""
+    if token in _STOPPED:
+        return _Done(_Skipped(), [])
     handler = _Captured()
     for name, level in levels.items():
         lg = logging.getLogger(name)
@@ -229,12 +245,6 @@ def _replay(logs: list) -> None:
     """Log here what a frame logged on a worker."""
     for name, level, message in logs:
         logging.getLogger(name).log(level, "%s", message)
-
-
-def _processing(keys, dask_scheduler=None) -> list:
-    """(On the scheduler) the ``keys`` whose tasks are running on a worker."""
-    tasks = dask_scheduler.tasks
-    return [k for k in keys if k in tasks and tasks[k].state == "processing"]
 
 
 def _peak_rss_bytes() -> int:
@@ -392,16 +402,17 @@ class FrameMap:
             ", ".join(f"{k} {_mib(v)}" for k, v in sorted(self.peak_memory_bytes.items())),
         )
 
-    def _stop(self, futures) -> None:
-        """After a failure: frames not started are cancelled; those running on a worker finish
-        (and are handed back), so that no worker writes a frame after the map has ended."""
-        waiting = [f for f in futures if f.status != "finished"]
+    def _stop(self, token: str) -> None:
+        """After a failure: the frames not started are skipped, those running finish (and are
+        handed back), so that every frame written is recorded and no worker writes a frame
+        after the map has ended.
+
+        The frames are not cancelled: a worker cannot stop a frame it has begun, and the
+        scheduler may start a queued one while its cancellation is on the way."""
         try:
-            running = set(self._client.run_on_scheduler(_processing, keys=[f.key for f in waiting]))
-        except Exception as exc:  # pragma: no cover - scheduler gone: cancel everything
-            log.debug("task states: %s", exc)
-            running = set()
-        self._client.cancel([f for f in waiting if f.key not in running])
+            self._client.run(_stop_map, token)
+        except Exception as exc:  # pragma: no cover - a worker gone: its frames were lost
+            log.debug("stopping the frames on the workers: %s", exc)
 
     def _run_dask(self) -> Iterator[tuple[Any, Any]]:
         from distributed import as_completed
@@ -435,6 +446,7 @@ class FrameMap:
                     build,
                     shared[0],
                     levels,
+                    token,
                     key=f"{self.desc}-{i:06d}-{token}" + (f"-r{n}" if n else ""),
                     retries=self.parallel.retries,
                     pure=False,
@@ -475,10 +487,12 @@ class FrameMap:
                         result = _Failed(exc)
                     except Exception as exc:  # an unexpected error, after its retries
                         result = _Failed(exc)
+                    if isinstance(result, _Skipped):
+                        continue
                     if isinstance(result, _Failed):
                         if first_error is None:
                             first_error = result.exc
-                            self._stop(futures)
+                            self._stop(token)
                         continue
                     bar.update(1)
                     yield self.items[i], result

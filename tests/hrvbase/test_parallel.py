@@ -62,6 +62,15 @@ def _fail_on_3(k, ctx):
     return k
 
 
+def _write_or_fail_on_1(k, ctx):
+    """Frame 1 fails at once; the others take a while and write their output."""
+    if k == 1:
+        raise InputError(f"frame {k} is unreadable")
+    time.sleep(0.3)
+    Path(ctx["folder"], f"done_{k}").write_text("")
+    return k
+
+
 def _expected(n, offset):
     return [_frame(k, {"offset": offset, "bank": np.arange(1000.0)})[0] for k in range(n)]
 
@@ -193,6 +202,23 @@ def test_local_cluster_failure_is_raised_and_not_retried(tmp_path):
     attempts = (tmp_path / "attempts.txt").read_text().split()
     assert attempts.count("3") == 1  # a user error is not retried
     assert set(got) <= {0, 1, 2}
+
+
+def test_after_a_failure_every_frame_written_is_handed_back(tmp_path):
+    """Frames not started when one fails are skipped; those running finish and are handed
+    back, so that a command records every frame written and none is written after the map."""
+    ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
+    got = []
+    with pytest.raises(InputError, match="frame 1 is unreadable"):
+        with frame_map(
+            _write_or_fail_on_1, range(12), parallel=Parallel(workers=2), context=ctx
+        ) as fm:
+            for k, _ in fm:
+                got.append(k)
+    written = {int(p.name[5:]) for p in tmp_path.glob("done_*")}
+    assert written == set(got) and len(got) < 11, (written, got)
+    time.sleep(1.0)
+    assert {int(p.name[5:]) for p in tmp_path.glob("done_*")} == written
 
 
 # -- a real loopback cluster -----------------------------------------------------------------
