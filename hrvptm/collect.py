@@ -4,6 +4,14 @@ Each report's ``summary.md`` becomes a section (its headings moved one level dow
 plots are copied next to the page, under ``<page stem>/<study name>/``, so the page stands
 on its own; plots of an earlier collection of the same page that it no longer shows are
 removed from there. Nothing is written unless every report is complete.
+
+With the plots goes the report's record (:data:`RECORD_FILES`: its ``summary.md``,
+``summary.json``, ``study.json`` and ``tables/``), so that such a folder is itself a report
+``collect`` reads: after re-running only the studies a change affects, the page is collected
+again from the new reports and the stored records of the others::
+
+    hrvptm collect NEW_REPORT docs/validation/fig7_shear_impact ... -o docs/validation.md \
+        --preamble docs/validation_intro.md --overwrite
 """
 
 from __future__ import annotations
@@ -16,6 +24,10 @@ from pathlib import Path
 from .errors import StudyError
 
 log = logging.getLogger(__name__)
+
+#: A report's files kept beside the page with its plots (its record), and its tables.
+RECORD_FILES = ("summary.md", "summary.json", "study.json")
+RECORD_TABLES = "tables"
 
 
 def _read_summary(report: Path) -> tuple[str, dict]:
@@ -190,7 +202,10 @@ def _check_page(page: Path, reports, preamble, overwrite: bool) -> None:
 
     inputs = [*reports, *([preamble] if preamble is not None else [])]
     check_output_file(page, inputs=inputs, overwrite=overwrite)
-    guard_output(page.parent / page.stem, inputs, option="the page's plot folder")
+    # the page's own stored records (PAGE_STEM/<study>) are read and rewritten as they are
+    assets = page.parent / page.stem
+    others = [r for r in inputs if not _is_stored_record(Path(r), assets)]
+    guard_output(assets, others, option="the page's plot folder")
     if page.exists():
         first = page.read_text(encoding="utf-8", errors="replace").split("\n", 1)[0]
         if first.strip() != MARKER:
@@ -200,13 +215,39 @@ def _check_page(page: Path, reports, preamble, overwrite: bool) -> None:
             )
 
 
+def _is_stored_record(report: Path, assets: Path) -> bool:
+    """Whether ``report`` is a study folder of the page's plot folder ``assets`` (a record an
+    earlier collection stored there)."""
+    try:
+        return report.resolve().parent == assets.resolve() and report.is_dir()
+    except OSError:
+        return False
+
+
+def _store_record(report: Path, folder: Path, written: set[Path]) -> None:
+    """Copy ``report``'s record (:data:`RECORD_FILES` and its tables) into ``folder``."""
+    from hrvbase.io import atomic_write_bytes
+
+    files = [report / f for f in RECORD_FILES]
+    tables = report / RECORD_TABLES
+    files += sorted(tables.glob("*.csv")) if tables.is_dir() else []
+    for src in files:
+        if not src.is_file():
+            continue
+        dst = folder / src.relative_to(report)
+        if src.resolve() != dst.resolve():
+            atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
+        written.add(dst)
+
+
 def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
     """Write the page ``page`` from the report folders ``reports``; returns its path.
 
     Parameters
     ----------
     reports : sequence of path
-        Finished study reports (``summary.md`` and ``summary.json``).
+        Finished study reports (``summary.md`` and ``summary.json``), or records an earlier
+        collection of this page stored in ``PAGE_STEM/<study>/``.
     page : path
         Markdown page; its plots go to the folder ``PAGE_STEM/`` beside it.
     preamble : path, optional
@@ -236,15 +277,25 @@ def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
             raise StudyError(f"preamble {pre} does not exist")
         lines = [_read_text(pre, "preamble").rstrip("\n"), ""]
     lines += _overview(loaded)
+    names = [data["study"]["experiment"]["experiment"]["name"] for _, _, data in loaded]
+    for (report, _, _), name in zip(loaded, names, strict=True):
+        if _is_stored_record(report, assets) and report.name != name:
+            raise StudyError(f"{report} holds the record of study {name!r}, not {report.name!r}")
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise StudyError(f"study {dupes[0]!r} is given twice; give one report per study")
     written: set[Path] = set()
-    for report, md, data in loaded:
-        name = data["study"]["experiment"]["experiment"]["name"]
+    for (report, md, data), name in zip(loaded, names, strict=True):
         for plot in data.get("plots", []):
             src = report / plot
+            if not src.is_file():  # a stored record keeps its plots beside its summary
+                src = report / Path(plot).name
             if src.is_file():
                 dst = assets / name / Path(plot).name
-                atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
+                if src.resolve() != dst.resolve():
+                    atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
                 written.add(dst)
+        _store_record(report, assets / name, written)
         rel = f"{page.stem}/{name}"
         md = re.sub(r"\]\(plots/([^)]+)\)", lambda m, r=rel: f"]({r}/{m.group(1)})", md)
         md = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", md, flags=re.M)
@@ -256,14 +307,17 @@ def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
 
 
 def _prune(assets: Path, keep: set[Path]) -> None:
-    """Remove the plots (``*.png`` one folder down) that an earlier collection of this page
-    wrote and this one does not reference, and folders left empty; nothing else is touched."""
+    """Remove the plots (``*.png`` one folder down) and records that an earlier collection of
+    this page wrote and this one does not reference, and folders left empty; nothing else is
+    touched."""
     if not assets.is_dir():
         return
-    for png in sorted(assets.glob("*/*.png")):
-        if png not in keep:
-            log.info("removing %s (no longer on the page)", png)
-            png.unlink()
-    for folder in assets.iterdir():
+    old = [*assets.glob("*/*.png"), *(p for f in RECORD_FILES for p in assets.glob(f"*/{f}"))]
+    old += assets.glob(f"*/{RECORD_TABLES}/*.csv")
+    for path in sorted(old):
+        if path not in keep:
+            log.info("removing %s (no longer on the page)", path)
+            path.unlink()
+    for folder in sorted(assets.glob(f"*/{RECORD_TABLES}")) + sorted(assets.iterdir()):
         if folder.is_dir() and not any(folder.iterdir()):
             folder.rmdir()
