@@ -234,6 +234,7 @@ def markdown(study_dict: dict, result: dict) -> str:
         f"`{Path(exp['scene']).name}`, reconstructed with `{Path(st['recon_scene']).name}`",
         f"- reconstruction: {_recon_line(study_dict['recon'])}",
         f"- command: `{result.get('command', '')}`",
+        *_revision_line(result.get("source_revision")),
         "",
     ]
     if failed := failed_line(result):
@@ -307,6 +308,14 @@ def markdown(study_dict: dict, result: dict) -> str:
             lines.append(f"![{Path(p).stem}]({p})")
     lines.append("")
     return "\n".join(lines)
+
+
+def _revision_line(rev) -> list[str]:
+    """The source revision of a report (``summary.json`` ``source_revision``), if known."""
+    if not isinstance(rev, dict) or not isinstance(rev.get("commit"), str):
+        return []
+    mod = " with uncommitted changes" if rev.get("modified") else ""
+    return [f"- code: commit `{rev['commit'][:12]}`{mod}"]
 
 
 def write_summary(report_dir: Path, study_dict: dict, result: dict) -> None:

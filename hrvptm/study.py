@@ -24,6 +24,8 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from hrvbase.revision import source_revision
+
 from . import plots
 from .analysis import analyse
 from .config import Study
@@ -245,6 +247,7 @@ def run_study(
     result = {
         "tool": TOOL,
         "version": _version(),
+        "source_revision": source_revision(),
         "command": command,
         "finished": datetime.now(UTC).isoformat(timespec="seconds"),
         "status": "failed" if failed_frames else "complete",
