@@ -634,7 +634,11 @@ class EulerianCumulation:
         self._F = np.matmul(np.eye(3) + G_inc, self._F)  # (compose_step)
         self._u = self._u + u_inc
         keep = np.flatnonzero(self._mask)  # a node once unsupported stays so
-        self._mask[keep] = increment.supported(x[keep])
+        # a new array: the fields returned before keep theirs (their files may still be
+        # being written, by the writer threads of track.pipeline, while this one is made)
+        mask = self._mask.copy()
+        mask[keep] = increment.supported(x[keep])
+        self._mask = mask
         shape = self.axes.shape
         Fg = self._F.reshape(*shape, 3, 3)
         stds = {}

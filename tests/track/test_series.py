@@ -482,3 +482,27 @@ def test_a_particle_its_pair_left_unmatched_is_bridged_but_not_across_a_skipped_
         SeriesSettings(max_gap_frames=1.5)
     with pytest.raises(InputError, match="bridge_tracks"):
         SeriesSettings(bridge_tracks="yes")
+
+
+def test_a_total_field_is_not_changed_by_the_next_increment():
+    """Each total field keeps its own arrays: composing the next increment (which loses the
+    support of some nodes) leaves the one returned before as it was, for the writer threads
+    that may still be writing its files (track.pipeline)."""
+    from track.fields import field_on_grid, fit_displacement, grid_axes
+    from track.series import EulerianCumulation
+
+    X0 = _cloud(seed=4)
+    X1 = X0 + np.c_[0.1 * X0[:, 2], np.zeros((len(X0), 2))]
+    half = X1[:, 0] < np.median(X1[:, 0])  # the second increment sees half the particles
+    ax = grid_axes(X0, 20.0)
+    inc = [
+        fit_displacement(X0, X1 - X0),
+        fit_displacement(X1[half], np.full((half.sum(), 3), 0.5)),
+    ]
+    cum = EulerianCumulation(ax)
+    first = cum.add(inc[0], field_on_grid(inc[0], ax))
+    kept = {k: np.array(getattr(first, k), copy=True) for k in ("u", "F", "E", "mask")}
+    second = cum.add(inc[1], field_on_grid(inc[1], ax))
+    assert second.mask.sum() < first.mask.sum()  # support was lost ...
+    for k, v in kept.items():  # ... in the second field only
+        np.testing.assert_array_equal(getattr(first, k), v, err_msg=k)
