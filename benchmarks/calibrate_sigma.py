@@ -3,17 +3,19 @@
 
 The σ model (``track.detect`` and ``track.series.match_sigma``), per axis ``a``:
 
-- a position: ``σ² = (f_a σ_loc)² + s_a²``;
-- a displacement: ``σ² = f_a² (σ_loc,1² + σ_loc,2²) + 2 b_a² (1 − ρ_a(u))``, ``ρ_a`` the
-  correlation of the moving bias over the displacement ``u``
-  (:func:`track.series.bias_decorrelation`: lengths ``L``, lateral period ``P``);
+- a position: ``σ² = (f_a σ_loc)² + c_a² / SNR² + s_a²``;
+- a displacement: ``σ² = f_a² (σ_loc,1² + σ_loc,2²) + c_a² (1/SNR_1² + 1/SNR_2²)
+  + 2 b_a² (1 − ρ_a(u))``, ``ρ_a`` the correlation of the moving bias over the displacement
+  ``u`` (:func:`track.series.bias_decorrelation`: lengths ``L``, lateral period ``P``);
 
-``σ_loc`` the radial-symmetry fit's σ, ``f`` ``sigma_noise_factor`` (one per axis), ``s``
-``sigma_systematic_um`` and ``b`` ``bias_sigma_um``; ``L`` (``bias_length_um``) and ``P``
+``σ_loc`` the radial-symmetry fit's σ, ``SNR`` that of the camera frame (``recon run``
+measures it), ``f`` ``sigma_noise_factor`` (one per axis), ``c`` ``sigma_snr_um`` (fitted
+with ``--snr-term``, else kept at the study file's), ``s`` ``sigma_systematic_um`` and ``b``
+``bias_sigma_um``; ``L`` (``bias_length_um``) and ``P``
 (``bias_period_um``) are the first study file's, or with ``--fit-lengths`` ``L`` is fitted too
 (one lateral length for x and y, one axial).
-The studies are run *raw* (``f = 1``, ``s = b = 0``: σ = ``σ_loc``), so that
-any ``(f, s, b)`` can be applied to the same errors afterwards.
+The studies are run *raw* (``f = 1``, ``c = s = b = 0``: σ = ``σ_loc``), so that
+any ``(f, s, b, c)`` can be applied to the same errors afterwards.
 
 1. **Calibration**: copies of the test-size studies with other seeds (default 2; ``--seed 2
    3 4`` pools three, as the shipped numbers were fitted: other particles and noise than the
@@ -30,7 +32,7 @@ any ``(f, s, b)`` can be applied to the same errors afterwards.
 Usage (from the repository root; the work folder keeps the rendered frames between runs)::
 
     python benchmarks/calibrate_sigma.py -o /tmp/calib --seed 2 3 4 --bias-period-um 25 \
-        --fit-lengths                                               # fit all axes, print
+        --fit-lengths --snr-term                                    # fit all axes, print
     python benchmarks/calibrate_sigma.py -o /tmp/calib --axes z --write   # after a z change
 
 Calibrating on the frames the coverage is then reported on would make it meaningless: the
@@ -52,16 +54,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's packages, as the studies it runs use
 EXPERIMENTS = ROOT / "scenes" / "experiments"
-#: The studies with absolute positions (4a) and displacements (4b: none; 5a: along x and y).
+#: The studies with absolute positions (4a) and displacements (4b: none; 4c: none, camera
+#: noise from 100 to 25 000 fps; 5a: along x and y).
 STUDIES = (
     "fig4a_localization_snr_test",
     "fig4b_zero_displacement_test",
+    "fig4c_frame_rate_test",
     "fig5a_translation_x_test",
     "fig5a_translation_y_test",
 )
 AXES = "xyz"  # the analysis's column order
 #: Lines of a study file set by the calibration (removed for the raw runs).
-SIGMA_KEYS = ("sigma_noise_factor", "sigma_systematic_um", "bias_sigma_um")
+SIGMA_KEYS = ("sigma_noise_factor", "sigma_systematic_um", "bias_sigma_um", "sigma_snr_um")
 COVER = (0.6827, 0.9545)
 
 
@@ -124,30 +128,39 @@ def samples(toml: Path, out: Path) -> dict:
 
     study = load_study(toml)
     det, ser = study.track.detect, study.track.series
-    if det.sigma_noise_factor != 1 or any(det.sigma_systematic_um) or any(ser.bias_sigma_um):
+    if (
+        det.sigma_noise_factor != 1
+        or any(det.sigma_systematic_um)
+        or any(det.sigma_snr_um)
+        or any(ser.bias_sigma_um)
+    ):
         raise SystemExit(f"calibrate_sigma: {toml} is not a raw run (σ settings set)")
     unc = analyse(study, VariantPaths(out / "mismatched")).arrays["uncertainty"]
-    return {"error": unc["error"], "sigma": unc["sigma"], "u": unc["displacement"]}
+    q = unc.get("inv_snr2", np.zeros(len(unc["error"])))
+    return {"error": unc["error"], "sigma": unc["sigma"], "u": unc["displacement"], "q": q}
 
 
 # -- the model ---------------------------------------------------------------------------------
 def _parts(d: dict, j: int, model: tuple):
-    """Per sample of axis j: error, σ_loc², position?, 1 − ρ; ``model`` = (L xyz, P)."""
+    """Per sample of axis j: error, σ_loc², position?, 1 − ρ, Σ 1/SNR²; ``model`` =
+    (L xyz, P)."""
     from track.series import bias_decorrelation
 
     e, s, u = d["error"][:, j], d["sigma"][:, j], d["u"]
     pos = ~np.all(np.isfinite(u), axis=1)
     uu = np.where(np.isfinite(u), u, 0.0)
     one_minus_rho = bias_decorrelation(uu, model[0], model[1])[:, j]
+    q = np.asarray(d["q"], float)
     ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
-    return e[ok], s[ok] ** 2, pos[ok], one_minus_rho[ok]
+    return e[ok], s[ok] ** 2, pos[ok], one_minus_rho[ok], q[ok]
 
 
-def variance(parts, f, s, b):
-    """Model variance of every sample for (arrays of) f, s, b (broadcast on a leading axis)."""
-    _, s2, pos, omr = parts
-    f, s, b = (np.asarray(v, float)[..., None] for v in (f, s, b))
-    return f**2 * s2 + np.where(pos, s**2, 2 * b**2 * omr)
+def variance(parts, f, s, b, c):
+    """Model variance of every sample for (arrays of) f, s, b, c (broadcast on a leading
+    axis)."""
+    _, s2, pos, omr, q = parts
+    f, s, b, c = (np.asarray(v, float)[..., None] for v in (f, s, b, c))
+    return f**2 * s2 + c**2 * q + np.where(pos, s**2, 2 * b**2 * omr)
 
 
 def cover(e, var) -> tuple:
@@ -155,21 +168,29 @@ def cover(e, var) -> tuple:
     return np.mean(z <= 1.0, axis=-1), np.mean(z <= 2.0, axis=-1)
 
 
-def fit_axis(parts) -> tuple[float, float, float]:
-    """(f, s, b) of one axis: closest coverage (pooled, positions, displacements), then most
-    likely."""
-    e, pos = parts[0], parts[2]
+def fit_axis(parts, c_fixed: float | None = 0.0) -> tuple[float, float, float, float]:
+    """(f, s, b, c) of one axis: closest coverage (pooled, positions, displacements), then
+    most likely; ``c`` fitted too when ``c_fixed`` is None."""
+    e, pos, q = parts[0], parts[2], parts[4]
     rms_pos = float(np.sqrt(np.mean(e[pos] ** 2))) if pos.any() else 0.0
     rms_dis = float(np.sqrt(np.mean(e[~pos] ** 2))) if (~pos).any() else 0.0
-    fs = np.geomspace(0.3, 30.0, 61)
-    ss = np.concatenate([[0.0], np.geomspace(0.01, 3 * rms_pos, 40)]) if rms_pos else [0.0]
-    bs = np.concatenate([[0.0], np.geomspace(0.01, 3 * rms_dis, 40)]) if rms_dis else [0.0]
-    F, S, B = (g.ravel() for g in np.meshgrid(fs, ss, bs, indexing="ij"))
+    n = 61 if c_fixed is not None else 31  # a coarser grid for four parameters
+    fs = np.geomspace(0.3, 30.0, n)
+    ss = np.concatenate([[0.0], np.geomspace(0.01, 3 * rms_pos, n // 3 * 2)]) if rms_pos else [0.0]
+    bs = np.concatenate([[0.0], np.geomspace(0.01, 3 * rms_dis, n // 3 * 2)]) if rms_dis else [0.0]
+    cs = [c_fixed]
+    if c_fixed is None:
+        # up to the whole error at the lowest SNR (largest Σ 1/SNR²)
+        qmax = float(q.max()) if q.size else 0.0
+        rms = float(np.sqrt(np.mean(e**2))) if e.size else 0.0
+        hi = 3 * rms / np.sqrt(qmax) if qmax > 0 and rms > 0 else 0.0
+        cs = np.concatenate([[0.0], np.geomspace(hi / 300, hi, 20)]) if hi else [0.0]
+    F, S, B, C = (g.ravel() for g in np.meshgrid(fs, ss, bs, cs, indexing="ij"))
     loss = np.zeros(F.size)
     nll = np.zeros(F.size)
     for lo in range(0, F.size, 4000):
         sl = slice(lo, lo + 4000)
-        v = variance(parts, F[sl], S[sl], B[sl])
+        v = variance(parts, F[sl], S[sl], B[sl], C[sl])
         for mask, w in ((np.ones_like(pos), 1.0), (pos, 0.5), (~pos, 0.5)):
             if mask.any():
                 c1, c2 = cover(e[mask], v[:, mask])
@@ -177,7 +198,7 @@ def fit_axis(parts) -> tuple[float, float, float]:
         nll[sl] = np.mean(0.5 * np.log(v) + 0.5 * e**2 / v, axis=1)
     near = loss <= loss.min() + 2e-4  # within about 1 % of coverage of the best
     i = np.flatnonzero(near)[np.argmin(nll[near])]
-    return float(F[i]), float(S[i]), float(B[i])
+    return float(F[i]), float(S[i]), float(B[i]), float(C[i])
 
 
 # -- study files -------------------------------------------------------------------------------
@@ -191,10 +212,13 @@ def shipped_model(path: Path) -> tuple:
     return tuple(st.bias_length_um[::-1]), st.bias_period_um
 
 
-def fit_model(calib: dict, model: tuple, groups, axes: str, fitted: dict, lengths) -> tuple:
-    """Fit (f, s, b) of ``axes`` for the lateral and axial lengths in ``lengths`` (None: keep
-    ``model``'s); the lengths with the coverage closest to the goal over the axes, then the
-    most likely. Returns (model, params)."""
+def fit_model(
+    calib: dict, model: tuple, groups, axes: str, fitted: dict, lengths, snr_term: bool = False
+) -> tuple:
+    """Fit (f, s, b) of ``axes`` (and c with ``snr_term``, else the study file's ``c``) for
+    the lateral and axial lengths in ``lengths`` (None: keep ``model``'s); the lengths with
+    the coverage closest to the goal over the axes, then the most likely. Returns (model,
+    params)."""
     options = [model] if lengths is None else [((a, a, z), model[1]) for a, z in lengths]
     best = None
     for m in options:
@@ -203,8 +227,8 @@ def fit_model(calib: dict, model: tuple, groups, axes: str, fitted: dict, length
             if not set(group) & set(axes):
                 continue
             parts = [_parts(d, AXES.index(a), m) for d in calib.values() for a in group]
-            pooled = tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
-            fit = fit_axis(pooled)
+            pooled = tuple(np.concatenate([p[i] for p in parts]) for i in range(5))
+            fit = fit_axis(pooled, None if snr_term else fitted[group[0]][3])
             v = variance(pooled, *fit)
             c1, c2 = cover(pooled[0], v)
             loss += float((c1 - COVER[0]) ** 2 + (c2 - COVER[1]) ** 2)
@@ -219,7 +243,7 @@ def fit_model(calib: dict, model: tuple, groups, axes: str, fitted: dict, length
 
 
 def shipped_params(path: Path) -> dict:
-    """(f, s, b) per axis (x, y, z) as a study file sets them."""
+    """(f, s, b, c) per axis (x, y, z) as a study file sets them."""
     t = tomllib.loads(path.read_text(encoding="utf-8"))
     det = t.get("track", {}).get("detect", {})
     ser = t.get("track", {})
@@ -227,7 +251,8 @@ def shipped_params(path: Path) -> dict:
     f = [float(f)] * 3 if not isinstance(f, list) else [float(v) for v in f[::-1]]
     s = [float(v) for v in det.get("sigma_systematic_um", [0.0] * 3)[::-1]]
     b = [float(v) for v in ser.get("bias_sigma_um", [0.0] * 3)[::-1]]
-    return {ax: (f[j], s[j], b[j]) for j, ax in enumerate(AXES)}
+    c = [float(v) for v in det.get("sigma_snr_um", [0.0] * 3)[::-1]]
+    return {ax: (f[j], s[j], b[j], c[j]) for j, ax in enumerate(AXES)}
 
 
 def _fmt(v: float) -> str:
@@ -242,6 +267,7 @@ def write_params(params: dict, model: tuple) -> list[Path]:
     f = "[" + ", ".join(_fmt(params[a][0]) for a in zyx) + "]"
     s = "[" + ", ".join(_fmt(params[a][1]) for a in zyx) + "]"
     b = "[" + ", ".join(_fmt(params[a][2]) for a in zyx) + "]"
+    c = "[" + ", ".join(_fmt(params[a][3]) for a in zyx) + "]"
     L = "[" + ", ".join(_fmt(v) for v in model[0][::-1]) + "]"
     period = f"{_fmt(model[1])}   # the lenslet pitch in the object (µm); 0: none"
     done = []
@@ -254,10 +280,18 @@ def write_params(params: dict, model: tuple) -> list[Path]:
             )
         else:
             new = re.sub(r"^bias_period_um\s*=.*$", f"bias_period_um = {period}", new, flags=re.M)
+        if "sigma_snr_um" not in new:
+            new = re.sub(
+                r"^(sigma_systematic_um\s*=.*\n)",
+                r"\g<1>sigma_snr_um = [0, 0, 0]   # z, y, x (µm at SNR 1)\n",
+                new,
+                flags=re.M,
+            )
         for key, val in (
             ("sigma_noise_factor", f),
             ("sigma_systematic_um", s),
             ("bias_sigma_um", b),
+            ("sigma_snr_um", c),
             ("bias_length_um", L),
         ):
             new = re.sub(
@@ -336,6 +370,12 @@ def main(argv=None) -> int:
         "none); default: the first study file's bias_period_um",
     )
     ap.add_argument(
+        "--snr-term",
+        action="store_true",
+        help="fit sigma_snr_um (the error that falls as 1/SNR of the camera frame) too; "
+        "without it, the study file's is kept",
+    )
+    ap.add_argument(
         "--fit-lengths",
         action="store_true",
         help="fit bias_length_um as well (lateral 2-12 µm, axial 5-20 µm), keeping "
@@ -377,19 +417,26 @@ def main(argv=None) -> int:
     groups = [("x", "y")] + [(a,) for a in AXES if a not in "xy"] if args.lateral else AXES
     grid = [(a, z) for a in (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0) for z in (5.0, 10.0, 20.0)]
     model, fitted = fit_model(
-        calib, model0, groups, args.axes, shipped, grid if args.fit_lengths else None
+        calib,
+        model0,
+        groups,
+        args.axes,
+        shipped,
+        grid if args.fit_lengths else None,
+        snr_term=args.snr_term,
     )
     print(
         f"\nbias_length_um (z, y, x) {list(model_shipped[0][::-1])} → {list(model[0][::-1])}; "
         f"bias_period_um {model_shipped[1]:g} → {model[1]:g}"
     )
     print(
-        "\n| axis | sigma_noise_factor | sigma_systematic_um | bias_sigma_um |  (shipped → fitted)"
+        "\n| axis | sigma_noise_factor | sigma_systematic_um | bias_sigma_um | sigma_snr_um |"
+        "  (shipped → fitted)"
     )
-    print("|---|---|---|---|")
+    print("|---|---|---|---|---|")
     for ax in AXES:
         a, b = shipped[ax], fitted[ax]
-        print(f"| {ax} | " + " | ".join(f"{_fmt(a[i])} → {_fmt(b[i])}" for i in range(3)) + " |")
+        print(f"| {ax} | " + " | ".join(f"{_fmt(a[i])} → {_fmt(b[i])}" for i in range(4)) + " |")
     table("Calibration runs, fitted numbers:", calib, fitted, model)
     if valid:
         table("Validation (shipped seed), shipped numbers:", valid, shipped, model_shipped)

@@ -104,6 +104,8 @@ class VariantData:
     box_hi: np.ndarray
     noise: list[dict]
     sigmas: list[np.ndarray] = field(default_factory=list)
+    #: SNR of each camera frame as ``recon run`` measured it (None: not recorded)
+    snr_measured: list = field(default_factory=list)
 
     @classmethod
     def load(cls, study, paths: VariantPaths) -> VariantData:
@@ -129,7 +131,19 @@ class VariantData:
         lo = np.array([g["origin_um"][0], g["origin_um"][1], min(g["depths_um"])], float)
         size = g["lenslet_object_um"] * np.asarray(g["n_lenslets"], float)
         hi = np.array([lo[0] + size[0], lo[1] + size[1], max(g["depths_um"])], float)
-        return cls(study, paths, tids, txyz, dets, lo, hi, noise, sigmas)
+        pre = {f.get("index"): f.get("preprocess") or {} for f in meta.get("frames", [])}
+        measured = [pre.get(k, {}).get("snr") for k in range(n)]
+        for k in range(n):
+            noise[k]["snr_measured"] = math.nan if measured[k] is None else float(measured[k])
+        return cls(study, paths, tids, txyz, dets, lo, hi, noise, sigmas, measured)
+
+    def inv_snr2(self, *frames: int) -> float:
+        """``Σ 1 / SNR²`` of the camera frames ``frames`` (``recon run``'s measurement; 0
+        for a frame without one): the weight of ``DetectSettings.sigma_snr_um²`` in the
+        variance of a position (one frame) or a displacement (two), for
+        benchmarks/calibrate_sigma.py."""
+        snr = [self.snr_measured[k] if k < len(self.snr_measured) else None for k in frames]
+        return float(sum(0.0 if v is None else 1.0 / v**2 for v in snr))
 
     def in_volume(self, xyz: np.ndarray) -> np.ndarray:
         """Mask of points inside the reconstructed volume."""
@@ -214,17 +228,28 @@ def _uncertainty(
     errors: list[np.ndarray],
     sigmas: list[np.ndarray],
     displacements: list[np.ndarray] | None = None,
+    inv_snr2: list[float] | None = None,
 ) -> dict:
-    """Pooled errors and σ (K, 3) for the summary and the plots, and the measured
-    displacement (K, 3) each σ was computed for (NaN for positions), for recalibration
-    (benchmarks/calibrate_sigma.py)."""
+    """Pooled errors and σ (K, 3) for the summary and the plots, and for recalibration
+    (benchmarks/calibrate_sigma.py) the measured displacement (K, 3) each σ was computed for
+    (NaN for positions) and ``Σ 1/SNR²`` (K,) of the frames of each error (one value per
+    chunk of ``errors``; :meth:`VariantData.inv_snr2`)."""
     e = np.concatenate([x.reshape(-1, 3) for x in errors]) if errors else np.zeros((0, 3))
     s = np.concatenate([x.reshape(-1, 3) for x in sigmas]) if sigmas else np.zeros((0, 3))
     if displacements is None:
         u = np.full(e.shape, np.nan)
     else:
         u = np.concatenate([x.reshape(-1, 3) for x in displacements]) if errors else e.copy()
-    return {"error": e, "sigma": s, "displacement": u}
+    q = np.zeros(len(e))
+    if inv_snr2 is not None:
+        q = (
+            np.concatenate(
+                [np.full(len(x.reshape(-1, 3)), v) for x, v in zip(errors, inv_snr2, strict=True)]
+            )
+            if errors
+            else q
+        )
+    return {"error": e, "sigma": s, "displacement": u, "inv_snr2": q}
 
 
 def _pooled(errors: list[np.ndarray], prefix: str) -> dict:
@@ -322,7 +347,7 @@ def analyse_localization(data: VariantData) -> Analysis:
         summary[f"worst_maxabs_{ax}"] = float(np.nanmax([r[f"maxabs_{ax}"] for r in rows]))
         summary[f"worst_abs_mean_{ax}"] = float(np.nanmax([abs(r[f"mean_{ax}"]) for r in rows]))
     summary["mean_recall"] = float(np.nanmean([r["recall"] for r in rows]))
-    unc = _uncertainty(errs, sigs)
+    unc = _uncertainty(errs, sigs, inv_snr2=[data.inv_snr2(k) for k in range(len(errs))])
     summary.update(coverage(unc["error"], unc["sigma"]))
     return _with_failures(Analysis(rows, summary, {"uncertainty": unc}), failures)
 
@@ -404,7 +429,8 @@ def analyse_pairs(data: VariantData) -> Analysis:
         summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_links"] = int(sum(r["n_wrong"] for r in rows))
-    unc = _uncertainty(errs, sigs, disp)
+    pairs = _pairs(len(data.detections), group)
+    unc = _uncertainty(errs, sigs, disp, [data.inv_snr2(a, b) for a, b in pairs])
     summary.update(coverage(unc["error"], unc["sigma"], "u_"))
     arrays = {"errors": hist, "uncertainty": unc}
     return _with_failures(Analysis(rows, summary, arrays), failures)
@@ -689,7 +715,7 @@ def analyse_series(data: VariantData) -> Analysis:
     _pool_heterogeneous(rows, summary)
     summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
     summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
-    unc = _uncertainty(errs, sigs, disp)
+    unc = _uncertainty(errs, sigs, disp, [data.inv_snr2(0, k) for k in range(1, n)])
     summary.update(coverage(unc["error"], unc["sigma"], "u_"))
     arrays["uncertainty"] = unc
     return _with_failures(Analysis(rows, summary, arrays), failures)

@@ -67,13 +67,21 @@ class VariantPaths:
         return self.root / AXIAL_DIR
 
 
-def frame_preprocess():
+def frame_preprocess(experiment=None):
     """The preprocessing of every frame a study reconstructs: the black level is estimated
     (median) and modelled, as ``recon run`` does (the axial references are prepared alike,
-    :func:`recon.reference.reference_preprocess`)."""
+    :func:`recon.reference.reference_preprocess`). A simulated camera's conversion gain
+    (``[noise.camera]``, what its data sheet gives a user) enters each frame's SNR as
+    ``recon run --gain-dn-per-e`` does."""
+    from lfsim.camera import CameraModel
     from recon.preprocess import Preprocess
 
-    return Preprocess(background="auto")
+    gain = 0.0
+    if experiment is not None:
+        spec = experiment.noise_for_frame(0)
+        if spec.model == "camera":
+            gain = (spec.camera or CameraModel()).gain_dn_per_e
+    return Preprocess(background="auto", gain_dn_per_e=gain)
 
 
 def simulate(experiment, paths: VariantPaths, *, progress: bool = True, parallel=None) -> float:
@@ -129,7 +137,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
             optics=optics,
             grid=grid,
             settings=study.recon,
-            preprocess=frame_preprocess(),
+            preprocess=frame_preprocess(study.experiment),
             overwrite=True,  # inside the report: replace only an outdated run of this study
             progress=progress,
             provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},

@@ -427,6 +427,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--hot-pixels", action="store_true", help="suppress isolated hot pixels (default: off)"
     )
     run.add_argument(
+        "--gain-dn-per-e",
+        type=float,
+        default=0.0,
+        metavar="G",
+        help="the camera's conversion gain (grey levels per photo-electron) for the shot noise "
+        "in each frame's SNR (recon.json; track's sigma_snr_um uses it); default 0: additive "
+        "noise only",
+    )
+    run.add_argument(
         "--roi",
         default=None,
         metavar="X0:X1,Y0:Y1",
@@ -621,7 +630,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 f"--background must be a finite number, 'auto' or 'none', got {args.background!r}"
             )
     dark = read_frame(args.dark, what="dark frame") if args.dark else None
-    pre = Preprocess(dark=dark, background=background, hot_pixels=args.hot_pixels)
+    if not (math.isfinite(args.gain_dn_per_e) and args.gain_dn_per_e >= 0):
+        raise InputError(f"--gain-dn-per-e must be a finite number >= 0, got {args.gain_dn_per_e}")
+    pre = Preprocess(
+        dark=dark,
+        background=background,
+        hot_pixels=args.hot_pixels,
+        gain_dn_per_e=args.gain_dn_per_e,
+    )
     make_writer(args.format, args.output, zarr_chunk_z=args.zarr_chunk_z)  # checks the options
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
     check_output_folder(args.output)

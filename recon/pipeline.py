@@ -506,8 +506,9 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
             "origin_um": list(model.origin_xy_um),
             "iterations": res.iterations,
             # the lenslet period and phase travel with a TIFF copied without recon.json
-            # (track.volumes.lenslet_phases)
+            # (track.volumes.lenslet_phases), and so does the frame's SNR
             "grid": rgrid.to_dict(),
+            "snr": pinfo["snr"],
         },
     )
     return {

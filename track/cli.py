@@ -216,6 +216,14 @@ DETECT_OPTIONS = (
         "Z,Y,X",
     ),
     SettingOption(
+        "sigma_snr_um",
+        ("--sigma-snr-um",),
+        "random error Z,Y,X in µm at a camera SNR of 1, falling as 1/SNR with each frame's "
+        "SNR (recon run records it), added in quadrature to each particle's σ (default 0: off)",
+        _numbers_zyx(one=False, positive=False),
+        "Z,Y,X",
+    ),
+    SettingOption(
         "max_rel_aspect",
         ("--max-rel-aspect",),
         "largest aspect ratio of a blob relative to the median blob's (>= 1)",

@@ -153,8 +153,16 @@ class DetectSettings:
         particle that barely moves (the reconstruction's bias at the particle's place),
         added in quadrature to every particle's σ; it cancels in displacements
         (:func:`track.series.match_sigma`). Default 0.
+    sigma_snr_um : tuple of 3 float
+        Random error ``(z, y, x)`` (µm, ≥ 0) at a camera SNR of 1, falling as ``1 / SNR``
+        with the SNR of the volume's camera frame (``recon run`` measures it,
+        :func:`recon.preprocess.frame_snr`), added in quadrature to the random part: the
+        localiser's own σ hardly follows the camera noise, which a few RL iterations turn into
+        structure shaped like the particles (Fig. 4c: from 100 to 25 000 fps the lateral error
+        grows 11-fold, the localiser's σ 2-fold). Default 0 (off); when set, every volume
+        needs its SNR (a volume of ``recon run``).
 
-    Calibrate both on simulated data of the same setup, with other seeds than the data
+    Calibrate them on simulated data of the same setup, with other seeds than the data
     they are then checked on (``hrvptm`` studies report the coverage of the σ).
     """
 
@@ -174,6 +182,7 @@ class DetectSettings:
     localize_on: str = "input"
     sigma_noise_factor: float | tuple[float, float, float] = 1.0
     sigma_systematic_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sigma_snr_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
     smooth_fwhm: float = 0.25
     background_fwhm: float = 1.5
     min_peak_snr: float = 5.0
@@ -261,6 +270,10 @@ class DetectSettings:
         if min(sys_um) < 0:
             raise InputError(f"sigma_systematic_um must be >= 0, got {self.sigma_systematic_um!r}")
         object.__setattr__(self, "sigma_systematic_um", sys_um)
+        snr_um = check_triple(self.sigma_snr_um, "sigma_snr_um", positive=False)
+        if min(snr_um) < 0:
+            raise InputError(f"sigma_snr_um must be >= 0, got {self.sigma_snr_um!r}")
+        object.__setattr__(self, "sigma_snr_um", snr_um)
         f = self.sigma_noise_factor
         if isinstance(f, list | tuple | np.ndarray):
             if len(f) != 3 or any(
@@ -300,7 +313,7 @@ class Detection:
         with ``DetectSettings.sigma_systematic_um`` added in quadrature.
     sigma_random_um : ndarray, shape (N, 3), float64
         Its random part (independent between frames): the localiser's voxel-noise σ times
-        ``DetectSettings.sigma_noise_factor``.
+        ``DetectSettings.sigma_noise_factor``, with ``sigma_snr_um / snr`` in quadrature.
     sizes_vox : ndarray, shape (N,), int64
         Blob voxel counts.
     report : dict
@@ -550,6 +563,21 @@ def _bandpass(
     return out, planes
 
 
+def _snr_term(sigma_snr_um: tuple, snr: float | None) -> np.ndarray:
+    """``sigma_snr_um / snr`` (z, y, x) µm; zero when the term is off."""
+    c = np.asarray(sigma_snr_um, dtype=float)
+    if not c.any():
+        return np.zeros(3)
+    if snr is None:
+        raise InputError(
+            "sigma_snr_um is set but the volume has no camera SNR (recon run records it in "
+            "recon.json); set sigma_snr_um to 0 for volumes from elsewhere"
+        )
+    if isinstance(snr, bool) or not isinstance(snr, int | float) or not 0 < snr < math.inf:
+        raise InputError(f"snr must be a finite number > 0, got {snr!r}")
+    return c / float(snr)
+
+
 def detect_particles(
     volume: np.ndarray,
     voxel_size_um: Sequence[float],
@@ -559,6 +587,7 @@ def detect_particles(
     origin_xyz_um: Sequence[float] = (0.0, 0.0, 0.0),
     lenslet_period_vox: int | None = None,
     lenslet_phase_vox: Sequence[int] = (0, 0),
+    snr: float | None = None,
 ) -> Detection:
     """Find and localise particles in a reconstructed volume.
 
@@ -593,6 +622,10 @@ def detect_particles(
     lenslet_phase_vox : sequence of 2 int
         ``(phase_y, phase_x)``: sub-lenslet position of voxel row and column 0 (0 for the
         volumes of ``recon run``); used only with ``lenslet_period_vox``.
+    snr : float, optional
+        SNR of the camera frame the volume was reconstructed from
+        (:attr:`track.volumes.VolumeInfo.snr`), for ``DetectSettings.sigma_snr_um``; needed
+        when that is set.
 
     Returns
     -------
@@ -602,7 +635,8 @@ def detect_particles(
     Raises
     ------
     InputError
-        For a non-3-D, empty or non-finite volume, bad voxel size, origin, PSF or settings.
+        For a non-3-D, empty or non-finite volume, bad voxel size, origin, PSF or settings,
+        or ``sigma_snr_um`` set without an ``snr``.
     """
     t0 = time.perf_counter()
     vol = check_volume(volume)
@@ -614,7 +648,10 @@ def detect_particles(
         raise InputError(f"settings must be a DetectSettings, got {type(settings).__name__}")
     if psf is not None:
         psf = check_psf(psf)
+    snr_term_um = _snr_term(settings.sigma_snr_um, snr)
     report: dict = {"volume_shape": list(vol.shape), "voxel_size_um": list(spacing)}
+    if snr is not None:
+        report["snr"] = float(snr)
     timings: dict = {}
 
     # the volume particles are found in (``vol`` itself without a lenslet period)
@@ -775,7 +812,7 @@ def detect_particles(
         n_ok = int(keep.sum())
         pos_vox = loc.positions_vox[keep]
         factor = np.asarray(settings.sigma_noise_factor, dtype=float)  # scalar or (z, y, x)
-        rand_zyx_um = factor * loc.sigma_vox[keep] * np.asarray(spacing)
+        rand_zyx_um = np.hypot(factor * loc.sigma_vox[keep] * np.asarray(spacing), snr_term_um)
         sig_zyx_um = np.hypot(rand_zyx_um, np.asarray(settings.sigma_systematic_um))
         report["noise_sigma_median"] = float(np.nanmedian(loc.noise_sigma)) if n_ok else None
         report["half_box_vox"] = list(half)

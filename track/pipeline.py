@@ -394,6 +394,7 @@ def _detect_frame(job, ctx) -> dict:
         origin_xyz_um=v.origin_xyz_um,
         lenslet_period_vox=v.lenslet_period_vox,
         lenslet_phase_vox=v.lenslet_phase_vox,
+        snr=v.snr,
     )
     part = numbered(out / "particles", v.index, ".csv")
     write_points_csv(
@@ -926,6 +927,15 @@ def track_volumes(
     periods = sorted({v.lenslet_period_vox for v in vols if v.lenslet_period_vox is not None})
     if periods:  # an input of the detector (recon.json): a folder detected without it is redone
         params["lenslet_period_vox"] = periods
+    if any(settings.sigma_snr_um):  # the frames' SNR sets their σ
+        unknown = [v for v in vols if v.snr is None]
+        if unknown:
+            raise InputError(
+                f"sigma_snr_um is set but {unknown[0].source()} has no camera SNR (recon run "
+                f"records it in recon.json; {len(unknown)} of {len(vols)} volumes lack it); "
+                "set sigma_snr_um to 0 for volumes from elsewhere"
+            )
+        params["frame_snr"] = [v.snr for v in vols]
     fp = _fingerprint({**where, **params})
     out = Path(out_dir)
     prev = _open_results(out, fp, overwrite)

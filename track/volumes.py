@@ -78,6 +78,10 @@ class VolumeInfo:
     lenslet_phase_vox : tuple of 2 int
         ``(phase_y, phase_x)``: sub-lenslet position of voxel row and column 0 (0 for the
         volumes of ``recon run``).
+    snr : float or None
+        SNR of the camera frame the volume was reconstructed from (``recon.json`` frames'
+        ``preprocess.snr``, or the TIFF's metadata; :func:`recon.preprocess.frame_snr`);
+        None when unknown or the frame held no noise.
     """
 
     path: Path
@@ -89,6 +93,7 @@ class VolumeInfo:
     lead: tuple = ()
     lenslet_period_vox: int | None = None
     lenslet_phase_vox: tuple = (0, 0)
+    snr: float | None = None
 
     @property
     def name(self) -> str:
@@ -320,6 +325,26 @@ def _tiff_header(path: Path) -> _Header:
     return _Header(shape, dtype, meta, ij_vs, ij_origin)
 
 
+def _snr(value, where: str) -> float | None:
+    """A frame's recorded SNR (None: not recorded, or a noise-free frame)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < math.inf:
+        raise InputError(f"{where}: snr must be a finite number > 0 or null, got {value!r}")
+    return float(value)
+
+
+def _frame_snrs(recon: Mapping, where: str) -> dict[int, float | None]:
+    """The SNR of each frame ``recon.json`` records (``frames[i].preprocess.snr``), by index."""
+    out = {}
+    for f in recon.get("frames") or []:
+        if isinstance(f, Mapping) and isinstance(f.get("index"), int):
+            pre = f.get("preprocess")
+            if isinstance(pre, Mapping):
+                out[f["index"]] = _snr(pre.get("snr"), f"{where} frame {f['index']}")
+    return out
+
+
 def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     """The numbered volumes ``NNNNNN.tif`` of a folder, or the frames of an OME-Zarr image,
     with voxel size and origin.
@@ -371,6 +396,7 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     recon_vs = None
     if recon.get("voxel_size_um") is not None:
         recon_vs = _voxel_size(recon["voxel_size_um"], str(folder / RECON_JSON))
+    snrs = _frame_snrs(recon, str(folder / RECON_JSON))
     out, dtypes = [], []
     for k in idx:
         p = files[k]
@@ -399,7 +425,9 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
         # recon.json's grid, else the one recon wrote into the TIFF (copied without it)
         src, where = (recon, folder / RECON_JSON) if recon.get("grid") is not None else (meta, p)
         period, phase = lenslet_phases(src, vs, origin, str(where))
-        out.append(VolumeInfo(p, k, shape, vs, origin, None, (), period, phase))
+        # recon.json's record of the frame, else the SNR recon wrote into the TIFF
+        snr = snrs[k] if k in snrs else _snr(meta.get("snr"), str(p))
+        out.append(VolumeInfo(p, k, shape, vs, origin, None, (), period, phase, snr))
     first = out[0]
     for v, dtype in zip(out[1:], dtypes[1:], strict=True):
         if v.shape != first.shape or dtype != dtypes[0]:
@@ -551,14 +579,17 @@ def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
             f"{store}: frame(s) t = {', '.join(map(str, missing[:5]))} not written yet "
             f"({RECON_JSON} has no volume for them; an interrupted recon run?)"
         )
-    lenslet = (None, (0, 0))
+    lenslet, snrs = (None, (0, 0)), {}
     if isinstance(recon, Mapping):
         lenslet = lenslet_phases(recon, vs, (x0, y0, z0), str(recon_json))
+        snrs = _frame_snrs(recon, str(recon_json))
     out = []
     for k in range(n):
         lead = tuple([k] if lead_names[:1] == ["t"] else []) + (0,) * ("c" in lead_names)
         out.append(
-            VolumeInfo(store, k, shape[-3:], vs, (x0, y0, z0), str(ds["path"]), lead, *lenslet)
+            VolumeInfo(
+                store, k, shape[-3:], vs, (x0, y0, z0), str(ds["path"]), lead, *lenslet, snrs.get(k)
+            )
         )
     return out
 

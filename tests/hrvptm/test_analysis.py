@@ -351,6 +351,29 @@ def test_coverage_of_right_and_wrong_uncertainties(tmp_path):
     assert half["coverage_1sigma_x"] < 0.5 and half["zscore_rms_x"] == pytest.approx(2, rel=0.1)
 
 
+def test_the_uncertainty_arrays_carry_the_frames_measured_snr(tmp_path):
+    """Σ 1/SNR² of the camera frames of each error (benchmarks/calibrate_sigma.py fits
+    sigma_snr_um on it) and the measured SNR in each row; 0 and NaN where recon has none."""
+    study = _study(4, None, "pairs")
+    noise = (0.2, 0.2, 1.0)
+    paths = _fake_variant(tmp_path, study, bias=(0, 0, 0), noise_um=noise)
+    _with_sigma(paths, 4, noise)
+    a = analyse_pairs(VariantData.load(study, paths))
+    assert not a.arrays["uncertainty"]["inv_snr2"].any()
+    assert all(np.isnan(r["snr_measured"]) for r in a.rows)
+    rj = paths.volumes / "recon.json"
+    meta = json.loads(rj.read_text())
+    snr = [5.0, 10.0, 20.0, 40.0]
+    meta["frames"] = [{"index": k, "preprocess": {"snr": v}} for k, v in enumerate(snr)]
+    rj.write_text(json.dumps(meta))
+    a = analyse_pairs(VariantData.load(study, paths))
+    q = a.arrays["uncertainty"]["inv_snr2"]
+    assert q.shape == (120,)  # 60 particles in each pair of frames (0, 1), (2, 3)
+    np.testing.assert_allclose(q[:60], 1 / 25 + 1 / 100)
+    np.testing.assert_allclose(q[60:], 1 / 400 + 1 / 1600)
+    assert [r["snr_measured"] for r in a.rows] == [5.0, 20.0]
+
+
 def test_pairs_coverage_uses_the_displacement_sigma(tmp_path):
     """Two images of static particles with σ = noise: the displacement σ is σ√2, and a
     systematic part declared in the study's detection settings cancels."""

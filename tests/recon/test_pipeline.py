@@ -89,6 +89,13 @@ def test_dataset_folder_reconstructs_and_finds_particles(dataset, tmp_path, caps
         vols = scan_volumes(folder)
         assert [v.lenslet_period_vox for v in vols] == [3] * 3, folder
         assert vols[0].lenslet_phase_vox == (0, 0)
+        # ... and so does each frame's measured SNR
+        assert [v.snr for v in vols] == [f["preprocess"]["snr"] for f in meta["frames"]]
+    # the SNR recon measures on each raw frame is the simulator's (its definition, paper
+    # §4.1), within the spread of the 99.9th percentile of this small image (90 000 px)
+    truth_snr = [r["noise"]["snr"] for r in read_json(dataset / "dataset.json")["frame_records"]]
+    got = [f["preprocess"]["snr"] for f in meta["frames"]]
+    assert got == pytest.approx(truth_snr, rel=0.15), (got, truth_snr)
 
 
 def test_resume_and_refusal(dataset, tmp_path, capsys):

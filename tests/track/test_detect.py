@@ -266,6 +266,7 @@ def test_detect_rejects_bad_input(volume, voxel, kwargs, name):
         ({"sigma_noise_factor": (1.0, 2.0)}, "sigma_noise_factor"),
         ({"sigma_noise_factor": "5"}, "sigma_noise_factor"),
         ({"sigma_systematic_um": (1.0, -0.1, 0.0)}, "sigma_systematic_um"),
+        ({"sigma_snr_um": (1.0, 0.0, -0.2)}, "sigma_snr_um"),
         ({"smooth_fwhm": -0.1}, "smooth_fwhm"),
         ({"smooth_fwhm": 0.5, "background_fwhm": 0.4}, "background_fwhm"),
     ],
@@ -382,6 +383,27 @@ def test_sigma_noise_factor_per_axis(scene):
     )
     assert DetectSettings(sigma_noise_factor=[4, 3, 2]).sigma_noise_factor == (4.0, 3.0, 2.0)
     assert DetectSettings(sigma_noise_factor=5).sigma_noise_factor == 5
+
+
+def test_sigma_snr_term_falls_as_one_over_the_frame_snr(scene):
+    """sigma_snr_um / SNR joins the random part of every particle's σ (x, y, z columns from
+    the (z, y, x) setting); set, it needs the frame's SNR."""
+    vol, _ = scene
+    base = detect_particles(vol, VOXEL, DetectSettings(deconvolution_iterations=0))
+    st = DetectSettings(deconvolution_iterations=0, sigma_snr_um=(20.0, 4.0, 2.0))
+    for snr in (5.0, 50.0):
+        det = detect_particles(vol, VOXEL, st, snr=snr)
+        want = np.hypot(base.sigma_random_um, np.array([2.0, 4.0, 20.0]) / snr)
+        np.testing.assert_allclose(det.sigma_random_um, want)
+        np.testing.assert_allclose(det.positions_um, base.positions_um)  # σ only
+        assert det.report["snr"] == snr
+    with pytest.raises(InputError, match="sigma_snr_um is set but the volume has no camera SNR"):
+        detect_particles(vol, VOXEL, st)
+    with pytest.raises(InputError, match="snr must be a finite number > 0"):
+        detect_particles(vol, VOXEL, st, snr=0.0)
+    # off (the default), a known SNR changes nothing
+    off = detect_particles(vol, VOXEL, DetectSettings(deconvolution_iterations=0), snr=5.0)
+    np.testing.assert_array_equal(off.sigma_um, base.sigma_um)
 
 
 def test_resolved_neighbours_are_split_not_rejected(rng):

@@ -247,6 +247,21 @@ def test_a_tiff_carries_its_lenslet_grid_without_recon_json(tmp_path):
         volumes.scan_volumes(tmp_path)
 
 
+def test_each_volume_knows_its_camera_snr(tmp_path):
+    """recon.json's record of each frame gives its SNR, else the TIFF's metadata; a bad one
+    is refused naming the file; none: None."""
+    for k in range(3):
+        _volume(tmp_path / f"{k:06d}.tif", meta={"snr": 7.0} if k == 2 else None)
+    assert [v.snr for v in volumes.scan_volumes(tmp_path)] == [None, None, 7.0]
+    frames = [{"index": k, "preprocess": {"snr": 10.0 + k}} for k in range(2)]
+    (tmp_path / "recon.json").write_text(json.dumps({"frames": frames}))
+    assert [v.snr for v in volumes.scan_volumes(tmp_path)] == [10.0, 11.0, 7.0]
+    frames[1]["preprocess"]["snr"] = -3
+    (tmp_path / "recon.json").write_text(json.dumps({"frames": frames}))
+    with pytest.raises(InputError, match=r"recon\.json frame 1: snr must be a finite number > 0"):
+        volumes.scan_volumes(tmp_path)
+
+
 def test_mismatched_voxel_sizes(tmp_path):
     _volume(tmp_path / "000000.tif")
     _volume(tmp_path / "000001.tif", vs=(5.0, 1.7, 1.6))

@@ -140,3 +140,31 @@ def test_a_lenslet_period_appearing_in_recon_json_is_a_new_input(tmp_path):
     assert not any(f.reused for f in res.frames)
     assert res.summary["parameters"]["lenslet_period_vox"] == [4]
     assert track_volumes(vols, out, detect=det).frames[0].reused  # and then it resumes
+
+
+def test_the_snr_term_needs_every_frame_snr_and_follows_it(tmp_path):
+    """sigma_snr_um on volumes without a camera SNR is refused before anything is written;
+    with recon.json's SNRs each frame's σ follows its own, and a changed SNR is a new input."""
+    vols = tmp_path / "vols"
+    _volumes(vols)
+    out = tmp_path / "res"
+    det = track.DetectSettings(deconvolution_iterations=0, sigma_snr_um=(10.0, 2.0, 2.0))
+    with pytest.raises(InputError, match=r"has no camera SNR .*3 of 3 volumes lack it"):
+        track_volumes(vols, out, detect=det)
+    assert not out.exists()
+    snrs = [4.0, 40.0, 400.0]
+    frames = [{"index": k, "preprocess": {"snr": v}} for k, v in enumerate(snrs)]
+    (vols / "recon.json").write_text(json.dumps({"frames": frames}))
+    res = track_volumes(vols, out, detect=det)
+    off = track_volumes(
+        vols, tmp_path / "off", detect=track.DetectSettings(deconvolution_iterations=0)
+    )
+    for f, g, snr in zip(res.frames, off.frames, snrs, strict=True):
+        assert f.report["snr"] == snr
+        want = np.hypot(g.sigma_um, np.array([2.0, 2.0, 10.0]) / snr)
+        np.testing.assert_allclose(f.sigma_um, want)
+    assert res.summary["parameters"]["frame_snr"] == snrs
+    frames[0]["preprocess"]["snr"] = 8.0
+    (vols / "recon.json").write_text(json.dumps({"frames": frames}))
+    with pytest.raises(InputError, match="other inputs or settings"):
+        track_volumes(vols, out, detect=det)
