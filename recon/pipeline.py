@@ -311,6 +311,12 @@ def reconstruct_series(
             e = prev_frames.get(k)
             if e and e.get("input_sha256") == sha and writer.verify(k, e.get("output")):
                 entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
+                if "snr" not in (entry.get("preprocess") or {}):
+                    # kept from a run before the SNR was measured: measure it now (its frame
+                    # read again, not reconstructed), as track's sigma_snr_um needs it
+                    img = read_frame(ref.path, page=ref.page)
+                    entry["preprocess"] = {**(entry.get("preprocess") or {})}
+                    entry["preprocess"].update(prepare_image(img, pp)[1])
                 skipped.append(k)
             else:
                 if e and e.get("input_sha256") == sha and writer.exists(k):

@@ -119,6 +119,16 @@ def test_resume_and_refusal(dataset, tmp_path, capsys):
     assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
     changed = [p.name for p in vol_dir.glob("*.tif") if p.stat().st_mtime_ns != mtimes[p.name]]
     assert changed == ["000002.tif"]
+    # A folder of a version that did not measure the SNR gains it on resume, nothing redone.
+    from hrvbase.io import read_json, write_json
+
+    meta = read_json(vol_dir / "recon.json")
+    snrs = [f["preprocess"].pop("snr") for f in meta["frames"]]
+    write_json(vol_dir / "recon.json", meta, overwrite=True)
+    rc, out, _ = main_verbose(capsys, *args)
+    assert rc == 0 and "0 volume(s) reconstructed, 3 already done" in out
+    assert [f["preprocess"]["snr"] for f in read_json(vol_dir / "recon.json")["frames"]] == snrs
+    assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
     # Other settings into the same folder: refused, nothing touched.
     rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "2", "-o", vol_dir)
     assert rc == 2 and "other inputs or settings" in err and err.count("\n") == 1
