@@ -266,7 +266,12 @@ def reconstruct_series(
     fp = _fingerprint(
         {
             "settings": st.result_dict(),  # not the threads: same volumes for any count
-            "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
+            # the camera gain enters only each frame's SNR, not the volumes (measured again
+            # for the frames a resumed run keeps)
+            "preprocess": {
+                **{k: v for k, v in pp.to_dict().items() if k != "gain_dn_per_e"},
+                "dark_sha256": dark_sum,
+            },
             "optics": optics.to_dict(),
             "grid": grid.to_dict(),
             "bank": key,
@@ -311,9 +316,10 @@ def reconstruct_series(
             e = prev_frames.get(k)
             if e and e.get("input_sha256") == sha and writer.verify(k, e.get("output")):
                 entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
-                if "snr" not in (entry.get("preprocess") or {}):
-                    # kept from a run before the SNR was measured: measure it now (its frame
-                    # read again, not reconstructed), as track's sigma_snr_um needs it
+                kept_gain = ((previous or {}).get("preprocess") or {}).get("gain_dn_per_e", 0.0)
+                if "snr" not in (entry.get("preprocess") or {}) or kept_gain != pp.gain_dn_per_e:
+                    # kept from a run before the SNR was measured, or with another camera
+                    # gain: measure it now (the frame read again, not reconstructed)
                     img = read_frame(ref.path, page=ref.page)
                     entry["preprocess"] = {**(entry.get("preprocess") or {})}
                     entry["preprocess"].update(prepare_image(img, pp)[1])

@@ -129,6 +129,12 @@ def test_resume_and_refusal(dataset, tmp_path, capsys):
     assert rc == 0 and "0 volume(s) reconstructed, 3 already done" in out
     assert [f["preprocess"]["snr"] for f in read_json(vol_dir / "recon.json")["frames"]] == snrs
     assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
+    # The camera gain changes the SNR (shot noise), not the volumes: resumed, SNR measured anew.
+    rc, out, _ = main_verbose(capsys, *args, "--gain-dn-per-e", "0.5")
+    assert rc == 0 and "0 volume(s) reconstructed, 3 already done" in out
+    shot = [f["preprocess"]["snr"] for f in read_json(vol_dir / "recon.json")["frames"]]
+    assert all(a < b for a, b in zip(shot, snrs, strict=True)), (shot, snrs)
+    assert {p.name: p.read_bytes() for p in vol_dir.glob("*.tif")} == before
     # Other settings into the same folder: refused, nothing touched.
     rc, _, err = run(capsys, "run", dataset, *FAST, "--iterations", "2", "-o", vol_dir)
     assert rc == 2 and "other inputs or settings" in err and err.count("\n") == 1
