@@ -1083,6 +1083,9 @@ for cid, extra, needle in [
     ("frames-beyond-the-series", ["--frames", "10:20"], "--frames"),
     ("frames-step-zero", ["--frames", "0:3:0"], "--frames"),
     ("threads-zero", ["--threads", "0"], "--threads"),
+    ("gain-negative", ["--gain-dn-per-e", "-0.5"], "--gain-dn-per-e"),
+    ("gain-nan", ["--gain-dn-per-e", "nan"], "--gain-dn-per-e"),
+    ("gain-text", ["--gain-dn-per-e", "high"], "--gain-dn-per-e"),
 ]:
     case(f"run-{cid}", "recon", lambda e, x=extra: ds_argv(e, *x), needle)
 case(

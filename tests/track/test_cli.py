@@ -370,6 +370,12 @@ def test_uncertainty_model_options(tmp_path, capsys):
     assert "--sigma-systematic-um: expected three numbers Z,Y,X >= 0 separated by commas" in err
     rc, err = _run([*argv, "--sigma-noise-factor", "0"], capsys)
     assert rc == 2 and "expected one number or three numbers Z,Y,X > 0" in err
+    rc, err = _run([*argv, "--sigma-snr-um", "1,-2,0"], capsys)
+    assert rc == 2 and "--sigma-snr-um: expected three numbers Z,Y,X >= 0" in err
+    # the SNR term on volumes that have no camera SNR (not from recon run): one line, nothing
+    rc, err = _run([*argv, "--sigma-snr-um", "5,1,1"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "has no camera SNR" in err, err
+    assert not out.exists()
     opts = ["--sigma-noise-factor", "3,5,5", "--sigma-systematic-um", "3,0.2,0.2"]
     opts += ["--bias-sigma-um", "1.5,0.1,0.1", "--bias-length-um", "5"]
     rc, err = _run([*argv, *opts], capsys)
