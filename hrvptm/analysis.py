@@ -241,14 +241,9 @@ def _uncertainty(
     else:
         u = np.concatenate([x.reshape(-1, 3) for x in displacements]) if errors else e.copy()
     q = np.zeros(len(e))
-    if inv_snr2 is not None:
-        q = (
-            np.concatenate(
-                [np.full(len(x.reshape(-1, 3)), v) for x, v in zip(errors, inv_snr2, strict=True)]
-            )
-            if errors
-            else q
-        )
+    if inv_snr2 is not None and errors:
+        sizes = [len(x.reshape(-1, 3)) for x in errors]
+        q = np.repeat(np.asarray(inv_snr2, dtype=float), sizes)
     return {"error": e, "sigma": s, "displacement": u, "inv_snr2": q}
 
 
