@@ -53,7 +53,7 @@ from .compare import (
     vector_stats,
 )
 from .errors import StageError
-from .stages import VariantPaths
+from .stages import VariantPaths, particle_tables
 
 log = logging.getLogger(__name__)
 
@@ -116,13 +116,15 @@ class VariantData:
         n = study.experiment.frames
         tids, txyz, dets, noise, sigmas = [], [], [], [], []
         record = read_json(paths.dataset / "dataset.json")
+        tables = particle_tables(study, paths)
         recs = {r["frame"]: r for r in record.get("frame_records", [])}
         for k in range(n):
             truth = Particles.from_csv(paths.dataset / "truth" / f"{k:06d}.csv")
             tids.append(np.asarray(truth.ids, dtype=int))
             txyz.append(np.asarray(truth.positions_um, dtype=float))
-            dets.append(read_points_csv(paths.track / "particles" / f"{k:06d}.csv"))
-            sigmas.append(read_point_sigmas(paths.track / "particles" / f"{k:06d}.csv"))
+            table = tables / f"{k:06d}.csv"
+            dets.append(read_points_csv(table))
+            sigmas.append(read_point_sigmas(table))
             spec = study.experiment.noise_for_frame(k)
             nrec = dict(recs.get(k, {}).get("noise", {}))
             noise.append({"snr": nrec.get("snr", spec.snr), "fps": getattr(spec, "fps", None)})
@@ -219,7 +221,7 @@ def _displacement_sigma(study, sigma_a, sigma_b, displacement_um) -> np.ndarray:
         common,
         displacement_um=displacement_um,
         bias_sigma_xyz_um=series.bias_sigma_um[::-1],
-        bias_length_xyz_um=series.bias_length_um[::-1],
+        bias_length_xyz_um=series.bias_lengths_xyz_um,
         bias_period_um=series.bias_period_um,
     )
 

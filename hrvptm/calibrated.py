@@ -238,8 +238,71 @@ def track_volumes_calibrated(
     seconds : dict
         ``detect``, ``axial_calibration`` and ``link`` (s).
     """
+    from track.pipeline import track_clouds
+
+    detect, corrected, secs = detect_volumes_calibrated(
+        volumes,
+        root,
+        model=model,
+        detect=detect,
+        axial=axial,
+        overwrite=overwrite,
+        allow_partial=allow_partial,
+        progress=progress,
+        provenance=provenance,
+        parallel=parallel,
+        own_folder=own_folder,
+    )
+    prov = dict(provenance or {})
+    t2 = time.perf_counter()
+    result = track_clouds(
+        corrected,
+        root / TRACK_DIR,
+        series=series,
+        overwrite=overwrite,
+        allow_partial=allow_partial,
+        progress=progress,
+        vti_encoding=vti_encoding,
+        provenance={**prov, "axial_calibration": str(root / AXIAL_DIR / AXIAL_RECORD)},
+        parallel=parallel,
+        # as track_volumes links its own detections: the shared σ cancels
+        common_sigma_xyz_um=detect.sigma_systematic_um[::-1],
+    )
+    return result, {**secs, "link": time.perf_counter() - t2}
+
+
+def detect_volumes_calibrated(
+    volumes: str | os.PathLike,
+    root: str | os.PathLike,
+    *,
+    model: ReconModel | None = None,
+    detect=None,
+    axial: AxialCalibration | None = None,
+    overwrite: bool = False,
+    allow_partial: bool = False,
+    progress: bool = False,
+    provenance: Mapping[str, Any] | None = None,
+    parallel=None,
+    own_folder: bool = True,
+):
+    """Steps 1 and 2 of the module docstring: detect the particles of every volume and
+    correct them by the bias of their reference (what :func:`track_volumes_calibrated` links;
+    a localization or pairs study's tables).
+
+    Parameters are those of :func:`track_volumes_calibrated`.
+
+    Returns
+    -------
+    detect : track.detect.DetectSettings
+        The detection settings used (``detect`` or the default).
+    tables : list of Path
+        ``root/axial/particles/NNNNNN.csv``, one per volume (a frame whose detection
+        failed: an empty table).
+    seconds : dict
+        ``detect`` and ``axial_calibration`` (s).
+    """
     from track.detect import DetectSettings
-    from track.pipeline import track_clouds, track_volumes
+    from track.pipeline import track_volumes
 
     root = Path(root)
     if root.exists() and not root.is_dir():
@@ -279,22 +342,8 @@ def track_volumes_calibrated(
         progress=progress,
         parallel=parallel,
     )
-    t2 = time.perf_counter()
-    result = track_clouds(
-        corrected,
-        root / TRACK_DIR,
-        series=series,
-        overwrite=overwrite,
-        allow_partial=allow_partial,
-        progress=progress,
-        vti_encoding=vti_encoding,
-        provenance={**prov, "axial_calibration": str(root / AXIAL_DIR / AXIAL_RECORD)},
-        parallel=parallel,
-        # as track_volumes links its own detections: the shared σ cancels
-        common_sigma_xyz_um=detect.sigma_systematic_um[::-1],
-    )
-    t3 = time.perf_counter()
-    return result, {"detect": t1 - t0, "axial_calibration": t2 - t1, "link": t3 - t2}
+    secs = {"detect": t1 - t0, "axial_calibration": time.perf_counter() - t1}
+    return detect, corrected, secs
 
 
 __all__ = [
@@ -304,6 +353,7 @@ __all__ = [
     "TRACK_DIR",
     "ReconModel",
     "correct_series",
+    "detect_volumes_calibrated",
     "reference_settings",
     "track_volumes_calibrated",
 ]

@@ -35,7 +35,7 @@ are relative to the TOML file's folder. Lengths in µm::
 
     [track.link]                   # track.matching.LinkSettings
 
-    [track.axial]                  # track.axial_bias.AxialCalibration (series only)
+    [track.axial]                  # track.axial_bias.AxialCalibration
     method = "none"                # "simulated": subtract the reconstruction's bias measured
                                    # on simulated spheres at the detected positions
 
@@ -346,11 +346,6 @@ def study_from_dict(
         raise StudyConfigError(
             f"{where}: a 'pairs' study needs a multiple of group_size = {st.group_size} frames "
             f"(groups of identical shots), got frames = {exp.frames}"
-        )
-    if tr.axial.enabled and st.kind != "series":
-        raise StudyConfigError(
-            f"{where}: [track.axial] method = {tr.axial.method!r} needs a 'series' study, "
-            f"this one is {st.kind!r}"
         )
     if st.kind == "series" and exp.frames < 2:
         raise StudyConfigError(f"{where}: a 'series' study needs frames >= 2, got {exp.frames}")

@@ -159,7 +159,7 @@ def track_stage(
     from hrvbase.errors import HrvError
     from track.pipeline import track_volumes
 
-    if study.study.kind == "series" and study.track.axial.enabled:
+    if study.track.axial.enabled:
         return track_calibrated(study, paths, progress=progress, parallel=parallel)
     t0 = time.perf_counter()
     series = study.track.series if study.study.kind == "series" else None
@@ -183,34 +183,47 @@ def track_stage(
 def track_calibrated(
     study, paths: VariantPaths, *, progress: bool = True, parallel=None
 ) -> dict[str, float]:
-    """A series tracked with the simulator self-calibration of the reconstruction's bias
-    (:func:`hrvptm.calibrated.track_volumes_calibrated`, as ``hrvptm axial``): ``detect/``,
-    ``axial/`` and ``track/`` of the variant. Returns seconds spent: ``track`` (detection,
-    linking, fields) and ``axial_calibration`` (references and correction)."""
+    """Particles corrected by the simulator self-calibration of the reconstruction's bias
+    (:mod:`hrvptm.calibrated`, as ``hrvptm axial``): ``detect/`` and ``axial/`` of the
+    variant, and for a series ``track/`` (the corrected tables linked and gridded); the
+    tables a study analyses are :func:`particle_tables`. Returns seconds spent: ``track``
+    (detection, linking, fields) and ``axial_calibration`` (references and correction)."""
     from hrvbase.errors import HrvError
     from lfsim.scene import read_optics
     from recon.lenslet_grid import LensletGrid
 
-    from .calibrated import ReconModel, track_volumes_calibrated
+    from .calibrated import ReconModel, detect_volumes_calibrated, track_volumes_calibrated
 
+    common = {
+        "detect": study.track.detect,
+        "axial": study.track.axial,
+        "overwrite": True,  # inside the report: replace only an outdated run of this study
+        "allow_partial": True,
+        "progress": progress,
+        "provenance": {"caller": "hrvptm"},
+        "parallel": parallel,
+        "own_folder": False,  # the variant's folder: dataset, volumes, ...
+    }
     try:
         model = ReconModel(
             read_optics(study.recon_scene), LensletGrid.load(paths.calib), study.recon
         )
-        _, secs = track_volumes_calibrated(
-            paths.volumes,
-            paths.root,
-            model=model,
-            detect=study.track.detect,
-            series=study.track.series,
-            axial=study.track.axial,
-            overwrite=True,  # inside the report: replace only an outdated run of this study
-            allow_partial=True,
-            progress=progress,
-            provenance={"caller": "hrvptm"},
-            parallel=parallel,
-            own_folder=False,  # the variant's folder: dataset, volumes, ...
-        )
+        if study.study.kind == "series":
+            _, secs = track_volumes_calibrated(
+                paths.volumes, paths.root, model=model, series=study.track.series, **common
+            )
+        else:
+            _, _, secs = detect_volumes_calibrated(paths.volumes, paths.root, model=model, **common)
     except HrvError as exc:
         raise StageError(f"tracking {paths.volumes} with the axial calibration: {exc}") from None
-    return {"track": secs["detect"] + secs["link"], "axial_calibration": secs["axial_calibration"]}
+    track_s = secs["detect"] + secs.get("link", 0.0)
+    return {"track": track_s, "axial_calibration": secs["axial_calibration"]}
+
+
+def particle_tables(study, paths: VariantPaths) -> Path:
+    """The folder of the particle tables (``NNNNNN.csv``) a study analyses: ``track/
+    particles`` (what ``track`` detected, or for a series linked), or ``axial/particles``
+    for a localization or pairs study with ``[track.axial]`` on (corrected, not linked)."""
+    if study.track.axial.enabled and study.study.kind != "series":
+        return paths.axial / "particles"
+    return paths.track / "particles"

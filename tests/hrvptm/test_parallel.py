@@ -26,6 +26,7 @@ def test_study_passes_workers_and_scheduler_on(tmp_path, monkeypatch):
 
 def test_stages_hand_parallel_to_the_tools(tmp_path, monkeypatch):
     import hrvptm.stages as stages
+    from track.axial_bias import AxialCalibration
 
     got = {}
     monkeypatch.setattr("lfsim.generate_dataset", lambda *a, **k: got.update(sim=k["parallel"]))
@@ -39,6 +40,7 @@ def test_stages_hand_parallel_to_the_tools(tmp_path, monkeypatch):
 
         class track:
             detect = series = None
+            axial = AxialCalibration()
 
     par = Parallel(workers=3)
     paths = stages.VariantPaths(tmp_path)
