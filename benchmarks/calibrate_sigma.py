@@ -13,7 +13,9 @@ measures it), ``f`` ``sigma_noise_factor`` (one per axis), ``c`` ``sigma_snr_um`
 with ``--snr-term``, else kept at the study file's), ``s`` ``sigma_systematic_um`` and ``b``
 ``bias_sigma_um``; ``L`` (``bias_length_um``) and ``P``
 (``bias_period_um``) are the first study file's, or with ``--fit-lengths`` ``L`` is fitted too
-(one lateral length for x and y, one axial).
+(one lateral length for x and y, one axial), and with ``--fit-lateral-depth`` the move in depth
+over which the lateral bias changes (``bias_lateral_depth_length_um``; runs that move in z,
+such as fig5b, measure it).
 The studies are run *raw* (``f = 1``, ``c = s = b = 0``: σ = ``σ_loc``), so that
 any ``(f, s, b, c)`` can be applied to the same errors afterwards.
 
@@ -67,6 +69,8 @@ AXES = "xyz"  # the analysis's column order
 #: Lines of a study file set by the calibration (removed for the raw runs).
 SIGMA_KEYS = ("sigma_noise_factor", "sigma_systematic_um", "bias_sigma_um", "sigma_snr_um")
 COVER = (0.6827, 0.9545)
+#: Lateral bias's depth lengths tried by ``--fit-lateral-depth`` (µm).
+LATERAL_DEPTHS_UM = (10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0)
 
 
 # -- the runs ----------------------------------------------------------------------------------
@@ -203,23 +207,33 @@ def fit_axis(parts, c_fixed: float | None = 0.0) -> tuple[float, float, float, f
 
 # -- study files -------------------------------------------------------------------------------
 def shipped_model(path: Path) -> tuple:
-    """(L x, y, z; P) of the moving bias as a study file sets them."""
+    """((L x, y, z, lateral depth), P) of the moving bias as a study file sets them."""
     from track.series import SeriesSettings
 
     ser = tomllib.loads(path.read_text(encoding="utf-8")).get("track", {})
-    keys = ("bias_length_um", "bias_period_um")
+    keys = ("bias_length_um", "bias_period_um", "bias_lateral_depth_length_um")
     st = SeriesSettings(**{k: ser[k] for k in keys if k in ser})
-    return tuple(st.bias_length_um[::-1]), st.bias_period_um
+    return st.bias_lengths_xyz_um, st.bias_period_um
 
 
 def fit_model(
-    calib: dict, model: tuple, groups, axes: str, fitted: dict, lengths, snr_term: bool = False
+    calib: dict,
+    model: tuple,
+    groups,
+    axes: str,
+    fitted: dict,
+    lengths,
+    snr_term: bool = False,
+    lateral_depths=None,
 ) -> tuple:
     """Fit (f, s, b) of ``axes`` (and c with ``snr_term``, else the study file's ``c``) for
-    the lateral and axial lengths in ``lengths`` (None: keep ``model``'s); the lengths with
+    the lateral and axial lengths in ``lengths`` (None: keep ``model``'s) and the lateral
+    bias's depth lengths in ``lateral_depths`` (None: keep ``model``'s); the lengths with
     the coverage closest to the goal over the axes, then the most likely. Returns (model,
     params)."""
-    options = [model] if lengths is None else [((a, a, z), model[1]) for a, z in lengths]
+    base = [model[0][:3]] if lengths is None else [(a, a, z) for a, z in lengths]
+    lat = [model[0][3]] if lateral_depths is None else list(lateral_depths)
+    options = [((*L, d), model[1]) for L in base for d in lat]
     best = None
     for m in options:
         params, loss, nll = dict(fitted), 0.0, 0.0
@@ -236,7 +250,10 @@ def fit_model(
             for ax in group:
                 params[ax] = fit
         if len(options) > 1:
-            print(f"  L lateral {m[0][0]:g}, axial {m[0][2]:g} µm: coverage loss {loss:.2e}")
+            print(
+                f"  L lateral {m[0][0]:g}, axial {m[0][2]:g}, lateral in depth {m[0][3]:g} µm: "
+                f"coverage loss {loss:.2e}"
+            )
         if best is None or loss < best[0] - 3e-4 or (loss <= best[0] + 3e-4 and nll < best[1]):
             best = (loss, nll, m, params)
     return best[2], best[3]
@@ -268,7 +285,8 @@ def write_params(params: dict, model: tuple) -> list[Path]:
     s = "[" + ", ".join(_fmt(params[a][1]) for a in zyx) + "]"
     b = "[" + ", ".join(_fmt(params[a][2]) for a in zyx) + "]"
     c = "[" + ", ".join(_fmt(params[a][3]) for a in zyx) + "]"
-    L = "[" + ", ".join(_fmt(v) for v in model[0][::-1]) + "]"
+    L = "[" + ", ".join(_fmt(v) for v in model[0][:3][::-1]) + "]"
+    depth = _fmt(model[0][3])
     period = f"{_fmt(model[1])}   # the lenslet pitch in the object (µm); 0: none"
     done = []
     for path in sorted(EXPERIMENTS.glob("*_test.toml")):
@@ -280,6 +298,13 @@ def write_params(params: dict, model: tuple) -> list[Path]:
             )
         else:
             new = re.sub(r"^bias_period_um\s*=.*$", f"bias_period_um = {period}", new, flags=re.M)
+        if model[0][3] != model[0][2] and "bias_lateral_depth_length_um" not in new:
+            new = re.sub(
+                r"^(bias_length_um\s*=.*\n)",
+                rf"\g<1>bias_lateral_depth_length_um = {depth}\n",
+                new,
+                flags=re.M,
+            )
         if "sigma_snr_um" not in new:
             new = re.sub(
                 r"^(sigma_systematic_um\s*=.*\n)",
@@ -293,6 +318,7 @@ def write_params(params: dict, model: tuple) -> list[Path]:
             ("bias_sigma_um", b),
             ("sigma_snr_um", c),
             ("bias_length_um", L),
+            ("bias_lateral_depth_length_um", depth),
         ):
             new = re.sub(
                 rf"^({key}\s*=\s*)(\[[^\]]*\]|[0-9.eE+-]+)",
@@ -376,6 +402,12 @@ def main(argv=None) -> int:
         "without it, the study file's is kept",
     )
     ap.add_argument(
+        "--fit-lateral-depth",
+        action="store_true",
+        help="fit bias_lateral_depth_length_um (10-1000 µm), the move in depth over which the "
+        "x and y bias changes; needs calibration runs that move in z (e.g. fig5b)",
+    )
+    ap.add_argument(
         "--fit-lengths",
         action="store_true",
         help="fit bias_length_um as well (lateral 2-12 µm, axial 5-20 µm), keeping "
@@ -424,10 +456,12 @@ def main(argv=None) -> int:
         shipped,
         grid if args.fit_lengths else None,
         snr_term=args.snr_term,
+        lateral_depths=LATERAL_DEPTHS_UM if args.fit_lateral_depth else None,
     )
     print(
-        f"\nbias_length_um (z, y, x) {list(model_shipped[0][::-1])} → {list(model[0][::-1])}; "
-        f"bias_period_um {model_shipped[1]:g} → {model[1]:g}"
+        f"\nbias_length_um (z, y, x) {list(model_shipped[0][:3][::-1])} → "
+        f"{list(model[0][:3][::-1])}; bias_lateral_depth_length_um {model_shipped[0][3]:g} → "
+        f"{model[0][3]:g}; bias_period_um {model_shipped[1]:g} → {model[1]:g}"
     )
     print(
         "\n| axis | sigma_noise_factor | sigma_systematic_um | bias_sigma_um | sigma_snr_um |"

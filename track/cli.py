@@ -296,6 +296,14 @@ SERIES_OPTIONS = (
         "P",
     ),
     SettingOption(
+        "bias_lateral_depth_length_um",
+        ("--bias-lateral-depth-length-um",),
+        "move in depth (µm) over which the x and y bias decorrelates (default: the z length "
+        "of --bias-length-um)",
+        _positive_float,
+        "D",
+    ),
+    SettingOption(
         "static_frames",
         ("--static-frames",),
         "the first N frames are at rest: report the spread of the displacements between them "

@@ -8,7 +8,13 @@ import pytest
 from track.errors import InputError
 from track.matching import link_pair
 from track.pipeline import track_clouds
-from track.series import SeriesSettings, link_pairs, match_sigma, noise_floor
+from track.series import (
+    SeriesSettings,
+    bias_decorrelation,
+    link_pairs,
+    match_sigma,
+    noise_floor,
+)
 from track.synthetic import make_series, score_link
 from track.tables import (
     read_match_sigmas,
@@ -72,7 +78,6 @@ def test_the_lenslet_periodic_bias_follows_each_coordinates_own_phase():
     move of one pitch, changes most at half a pitch, is Gaussian for small moves, and a
     lateral coordinate's bias ignores moves along the other lateral axis; the axial one
     follows both. Without a period it is the isotropic Gaussian."""
-    from track.series import bias_decorrelation
 
     L, P = (4.0, 3.0, 10.0), 25.0  # x, y, z
     u = np.array(
@@ -116,6 +121,33 @@ def test_the_lenslet_periodic_bias_follows_each_coordinates_own_phase():
     for bad in (-1.0, float("inf"), "25", True):
         with pytest.raises(InputError, match="bias_period_um"):
             SeriesSettings(bias_period_um=bad)
+
+
+def test_the_lateral_bias_may_change_more_slowly_with_depth():
+    """A fourth length ``L_z,lat``: the lateral coordinates' depth factor, the axial one kept;
+    the settings give it (unset: the z length, as before)."""
+    L, P = (4.0, 3.0, 5.0), 25.0
+    u = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 40.0], [12.5, 0.0, 5.0]])
+    same = bias_decorrelation(u, L, P)
+    np.testing.assert_allclose(bias_decorrelation(u, (*L, 5.0), P), same)
+    slow = bias_decorrelation(u, (*L, 50.0), P)
+    np.testing.assert_allclose(slow[:, 2], same[:, 2])  # the axial bias: unchanged
+    g_lat = np.exp(-0.5 * (u[:, 2] / 50.0) ** 2)
+    np.testing.assert_allclose(slow[:2, :2], np.repeat(1 - g_lat[:2, None], 2, axis=1))
+    k_x = np.exp(-0.5 * (P / (np.pi * 4.0)) ** 2)  # half a period along x
+    np.testing.assert_allclose(slow[2], [1 - k_x * g_lat[2], 1 - g_lat[2], same[2, 2]])
+    assert slow[1, 0] < 0.3 < 0.99 < same[1, 0]  # a 40 µm move in depth: the x bias mostly kept
+    # without a period too
+    iso = bias_decorrelation(u, (*L, 50.0))
+    np.testing.assert_allclose(iso[:, 0], 1 - np.exp(-0.5 * (u[:, 0] / 4.0) ** 2) * g_lat)
+    np.testing.assert_allclose(iso[:, 2], 1 - np.exp(-0.5 * np.sum((u / L) ** 2, axis=1)))
+    st = SeriesSettings(bias_length_um=(5.0, 3.0, 4.0))
+    assert st.bias_lengths_xyz_um == (4.0, 3.0, 5.0, 5.0)
+    st = SeriesSettings(bias_length_um=(5.0, 3.0, 4.0), bias_lateral_depth_length_um=50)
+    assert st.bias_lengths_xyz_um == (4.0, 3.0, 5.0, 50.0)
+    for bad in (0.0, -1.0, float("inf"), "50", True):
+        with pytest.raises(InputError, match="bias_lateral_depth_length_um"):
+            SeriesSettings(bias_lateral_depth_length_um=bad)
 
 
 def test_track_clouds_writes_match_sigmas_and_the_noise_floor(tmp_path, rng):
