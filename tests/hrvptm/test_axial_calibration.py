@@ -49,6 +49,27 @@ def test_axial_option_is_read_and_checked(tmp_path):
     assert loc.study.kind == "localization" and loc.track.axial.enabled
 
 
+def test_the_tables_a_study_analyses(tmp_path):
+    """With the calibration a series analyses the linked corrected tables (track/), a
+    localization or pairs study the corrected ones (axial/, not linked); without it, what
+    track detected (track/)."""
+    from hrvptm.stages import VariantPaths, particle_tables
+
+    paths = VariantPaths(tmp_path)
+    on = "[track.axial]\nmethod = 'simulated'\n"
+    pairs = "[study]\nkind = 'pairs'\ngroup_size = 3\n"
+    for extra, tables in (
+        (MOTION, paths.track),
+        (MOTION + on, paths.track),
+        ("", paths.track),
+        (on, paths.axial),
+        (pairs, paths.track),
+        (pairs + on, paths.axial),
+    ):
+        study = load_study(_write(tmp_path, extra))
+        assert particle_tables(study, paths) == tables / "particles", extra
+
+
 def _off_and_on(tmp_path: Path, name: str, edit=lambda t: t) -> tuple[Path, Path]:
     """The test-size study ``name`` run without, then (on a copy of that report: the same
     dataset and volumes) with the calibration; the two report folders."""
