@@ -240,18 +240,21 @@ def track_volumes_calibrated(
     """
     from track.pipeline import track_clouds
 
+    shared = {
+        "overwrite": overwrite,
+        "allow_partial": allow_partial,
+        "progress": progress,
+        "parallel": parallel,
+    }
     detect, corrected, secs = detect_volumes_calibrated(
         volumes,
         root,
         model=model,
         detect=detect,
         axial=axial,
-        overwrite=overwrite,
-        allow_partial=allow_partial,
-        progress=progress,
         provenance=provenance,
-        parallel=parallel,
         own_folder=own_folder,
+        **shared,
     )
     prov = dict(provenance or {})
     t2 = time.perf_counter()
@@ -259,14 +262,11 @@ def track_volumes_calibrated(
         corrected,
         root / TRACK_DIR,
         series=series,
-        overwrite=overwrite,
-        allow_partial=allow_partial,
-        progress=progress,
         vti_encoding=vti_encoding,
         provenance={**prov, "axial_calibration": str(root / AXIAL_DIR / AXIAL_RECORD)},
-        parallel=parallel,
         # as track_volumes links its own detections: the shared σ cancels
         common_sigma_xyz_um=detect.sigma_systematic_um[::-1],
+        **shared,
     )
     return result, {**secs, "link": time.perf_counter() - t2}
 
