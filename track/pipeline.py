@@ -587,6 +587,11 @@ def _link_and_write(
         "predictor": settings.predictor,
         "bridge_tracks": settings.bridge_tracks,
         "max_gap_frames": settings.max_gap_frames,
+        # the per-match σ model's moving bias (z, y, x; µm)
+        "bias_sigma_um": list(settings.bias_sigma_um),
+        "bias_length_um": list(settings.bias_length_um),
+        "bias_period_um": settings.bias_period_um,
+        "bias_lateral_depth_length_um": settings.bias_lateral_depth_length_um,
         "grid": _settings_dict(settings.grid),
         "link": _settings_dict(settings.link),
     }

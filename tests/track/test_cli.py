@@ -391,6 +391,13 @@ def test_uncertainty_model_options(tmp_path, capsys):
     assert rc == 0, err
     without = tables.read_match_sigmas(out / "matches_000001.csv")
     assert np.all(with_bias >= without) and np.all(with_bias[:, 2] > without[:, 2])
+    # the lateral bias's own depth length: a bad value is one line, a good one is recorded
+    rc, err = _run([*argv, *opts, "--bias-lateral-depth-length-um", "0", "--overwrite"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "--bias-lateral-depth-length-um" in err, err
+    rc, err = _run([*argv, *opts, "--bias-lateral-depth-length-um", "500", "--overwrite"], capsys)
+    assert rc == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["parameters"]["series"]["bias_lateral_depth_length_um"] == 500.0
 
 
 def test_link_options_set_the_bridging_of_tracks():
