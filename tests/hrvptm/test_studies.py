@@ -187,11 +187,12 @@ def test_fig5b_axial_translation_of_a_layer(reports):
     v = _v(reports("fig5b_axial_layer_test"))
     _series_ok(v, min_ratio=0.8)
     s = v["summary"]
-    # measured 5.3 / 0.27 / 0.38 µm (paper: worst 39.1 / 5.4 / 8.7 µm)
-    assert s["worst_u_rmsd_z"] < 10.0
-    assert s["worst_u_rmsd_x"] < 0.6 and s["worst_u_rmsd_y"] < 0.8
-    last = v["rows"][-1]
-    assert last["u_meas_z"] == pytest.approx(last["u_true_z"], abs=15.0)
+    # with the simulator self-calibration of the depth-dependent bias ([track.axial]): measured
+    # 1.72 / 0.165 / 0.274 µm (without it 5.3 / 0.27 / 0.37; paper: worst 39.1 / 5.4 / 8.7 µm)
+    assert s["worst_u_rmsd_z"] < 3.5
+    assert s["worst_u_rmsd_x"] < 0.4 and s["worst_u_rmsd_y"] < 0.55
+    last = v["rows"][-1]  # the layer's mean move, 300 µm: measured within 0.1 µm
+    assert last["u_meas_z"] == pytest.approx(last["u_true_z"], abs=2.0)
     # one layer of particles: no 3-D strain is compared or plotted
     assert all(r["E_rmsd_xx"] is None or r["E_rmsd_xx"] != r["E_rmsd_xx"] for r in v["rows"])
     run = reports("fig5b_axial_layer_test")
