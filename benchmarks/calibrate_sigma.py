@@ -28,8 +28,12 @@ any ``(f, s, b, c)`` can be applied to the same errors afterwards.
    95.4 % (pooled, and for positions and displacements apart), the most likely (Gaussian).
 2. **Validation**: the same studies with the shipped seed are run raw too and the coverage of
    the shipped numbers and of the fitted ones is printed per axis, per study and pooled.
-3. ``--write`` puts the fitted numbers into every ``scenes/experiments/*_test.toml`` that sets
-   them; ``--axes z`` fits (and writes) only z and keeps x and y as they are.
+3. ``--write`` puts the fitted numbers into the test-size study files that set them: for the
+   default group every ``scenes/experiments/*_test.toml`` except those that run
+   ``[track.axial]`` (fitted on their own copies, e.g. ``--studies fig5b_axial_layer_test``),
+   for named studies their own files; ``--axes z`` fits (and writes) only z and keeps x and y
+   as they are. Without positions in the calibration runs (displacements only) the
+   per-particle bias ``s``, which cancels in a displacement, keeps the study file's value.
 
 Usage (from the repository root; the work folder keeps the rendered frames between runs)::
 
@@ -247,8 +251,8 @@ def fit_model(
             c1, c2 = cover(pooled[0], v)
             loss += float((c1 - COVER[0]) ** 2 + (c2 - COVER[1]) ** 2)
             nll += float(np.mean(0.5 * np.log(v) + 0.5 * pooled[0] ** 2 / v))
-            for ax in group:
-                params[ax] = fit
+            for ax in group:  # without positions s (it cancels in displacements) is kept
+                params[ax] = fit if pooled[2].any() else (fit[0], fitted[ax][1], *fit[2:])
         if len(options) > 1:
             print(
                 f"  L lateral {m[0][0]:g}, axial {m[0][2]:g}, lateral in depth {m[0][3]:g} µm: "
@@ -276,10 +280,26 @@ def _fmt(v: float) -> str:
     return f"{v:.3g}"
 
 
-def write_params(params: dict, model: tuple) -> list[Path]:
-    """Put ``params`` and the lengths and period of ``model`` into every test-size study file
-    that sets σ settings (the paper-size groups are written by hand: their files name their
-    fit)."""
+def _runs_axial_calibration(path: Path) -> bool:
+    """Whether the study file subtracts the reconstruction's bias (``[track.axial]``)."""
+    spec = tomllib.loads(path.read_text(encoding="utf-8"))
+    return spec.get("track", {}).get("axial", {}).get("method", "none") != "none"
+
+
+def write_targets(studies: list[str]) -> list[Path]:
+    """The test-size study files a fit of ``studies`` is written into: the named files when
+    they are not the default group; for the default group every test-size file except those
+    that run ``[track.axial]`` (the calibration removes the bias the group's numbers hold:
+    such a study is fitted on its own copies, as its file says)."""
+    if list(studies) != list(STUDIES):
+        return [EXPERIMENTS / f"{s}.toml" for s in studies if s.endswith("_test")]
+    return [p for p in sorted(EXPERIMENTS.glob("*_test.toml")) if not _runs_axial_calibration(p)]
+
+
+def write_params(params: dict, model: tuple, paths: list[Path]) -> list[Path]:
+    """Put ``params`` and the lengths and period of ``model`` into the test-size study files
+    ``paths`` that set σ settings (:func:`write_targets`; the paper-size groups are written by
+    hand: their files name their fit)."""
     zyx = "zyx"
     f = "[" + ", ".join(_fmt(params[a][0]) for a in zyx) + "]"
     s = "[" + ", ".join(_fmt(params[a][1]) for a in zyx) + "]"
@@ -289,7 +309,7 @@ def write_params(params: dict, model: tuple) -> list[Path]:
     depth = _fmt(model[0][3])
     period = f"{_fmt(model[1])}   # the lenslet pitch in the object (µm); 0: none"
     done = []
-    for path in sorted(EXPERIMENTS.glob("*_test.toml")):
+    for path in paths:
         text = path.read_text(encoding="utf-8")
         new = text
         if "bias_period_um" not in new:
@@ -373,7 +393,12 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--axes", default="xyz", help="axes to fit (others keep the shipped numbers)")
     ap.add_argument("--keep-tracks", action="store_true", help="do not redo detection")
-    ap.add_argument("--write", action="store_true", help="update scenes/experiments/*_test.toml")
+    ap.add_argument(
+        "--write",
+        action="store_true",
+        help="update scenes/experiments/*_test.toml: the named studies' files, or for the default "
+        "group every test-size file that does not run [track.axial]",
+    )
     ap.add_argument(
         "--single", action="store_true", help="run the studies without their matched variant"
     )
@@ -476,7 +501,7 @@ def main(argv=None) -> int:
         table("Validation (shipped seed), shipped numbers:", valid, shipped, model_shipped)
         table("Validation (shipped seed), fitted numbers:", valid, fitted, model)
     if args.write:
-        for path in write_params(fitted, model):
+        for path in write_params(fitted, model, write_targets(args.studies)):
             print(f"updated {path.relative_to(ROOT)}")
     return 0
 
