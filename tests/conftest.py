@@ -21,3 +21,12 @@ def backend():
     from lfsim import init_backend
 
     return init_backend()
+
+
+@pytest.fixture(scope="session")
+def corpus_base(backend, tmp_path_factory):
+    """The bad-input corpus's shared valid inputs (:func:`tests.corpus.build_base`), built once
+    for every corpus module."""
+    from tests.corpus import build_base
+
+    return build_base(tmp_path_factory)
