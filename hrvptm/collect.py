@@ -3,7 +3,9 @@
 Each report's ``summary.md`` becomes a section (its headings moved one level down); its
 plots are copied next to the page, under ``<page stem>/<study name>/``, so the page stands
 on its own; plots of an earlier collection of the same page that it no longer shows are
-removed from there. Nothing is written unless every report is complete.
+removed from there. Nothing is written unless every report is complete. The folder's
+:data:`MANIFEST` lists the files ``collect`` wrote there: only those are ever replaced (with
+``--overwrite``) or removed; a file of the user's is never touched.
 
 With the plots goes the report's record (:data:`RECORD_FILES`: its ``summary.md``,
 ``summary.json``, ``study.json`` and ``tables/``), so that such a folder is itself a report
@@ -17,6 +19,7 @@ again from the new reports and the stored records of the others::
 from __future__ import annotations
 
 import logging
+import os
 import re
 from datetime import UTC, datetime
 from pathlib import Path
@@ -28,6 +31,10 @@ log = logging.getLogger(__name__)
 #: A report's files kept beside the page with its plots (its record), and its tables.
 RECORD_FILES = ("summary.md", "summary.json", "study.json")
 RECORD_TABLES = "tables"
+
+#: The record, in the page's plot folder, of the files ``collect`` wrote there (relative
+#: paths): the only files a later collection of the page replaces or removes.
+MANIFEST = "collect.json"
 
 
 def _read_summary(report: Path) -> tuple[str, dict]:
@@ -224,20 +231,97 @@ def _is_stored_record(report: Path, assets: Path) -> bool:
         return False
 
 
-def _store_record(report: Path, folder: Path, written: set[Path]) -> None:
-    """Copy ``report``'s record (:data:`RECORD_FILES` and its tables) into ``folder``."""
-    from hrvbase.io import atomic_write_bytes
-
+def _record_files(report: Path) -> list[Path]:
+    """``report``'s record: :data:`RECORD_FILES` and its tables that exist."""
     files = [report / f for f in RECORD_FILES]
     tables = report / RECORD_TABLES
     files += sorted(tables.glob("*.csv")) if tables.is_dir() else []
-    for src in files:
-        if not src.is_file():
+    return [f for f in files if f.is_file()]
+
+
+def _owned(assets: Path, page: Path) -> tuple[set[Path], bool]:
+    """The files of the plot folder ``assets`` that an earlier collection wrote, and whether
+    its record (:data:`MANIFEST`) is there.
+
+    Without a record, a page ``collect`` wrote owns the plots it links to and the record files
+    (:data:`RECORD_FILES`, tables) of the study folders it links to; a file the page does not
+    name is the user's.
+    """
+    from hrvbase.errors import HrvError
+    from hrvbase.io import read_json
+
+    manifest = assets / MANIFEST
+    if manifest.is_file():
+        try:
+            data = read_json(manifest)
+            ok = (
+                isinstance(data, dict)
+                and data.get("tool") == "hrvptm collect"
+                and isinstance(data.get("files"), list)
+                and all(isinstance(f, str) for f in data["files"])
+            )
+        except HrvError:
+            ok = False
+        if not ok:
+            raise StudyError(
+                f"{manifest} was not written by hrvptm collect; refusing to replace it even "
+                "with --overwrite (move it away or choose another page)"
+            )
+        return {assets / f for f in data["files"] if ".." not in Path(f).parts}, True
+    if not page.is_file() or not assets.is_dir():
+        return set(), False
+    text = page.read_text(encoding="utf-8", errors="replace")
+    if text.split("\n", 1)[0].strip() != MARKER:
+        return set(), False
+    owned: set[Path] = set()
+    for study, plot in re.findall(rf"\]\({re.escape(page.stem)}/([^/)]+)/([^/)]+)\)", text):
+        owned.add(assets / study / plot)
+        owned.update(assets / study / f for f in RECORD_FILES)
+        owned.update((assets / study / RECORD_TABLES).glob("*.csv"))
+    return owned, False
+
+
+def _plan(loaded, names, assets: Path) -> list[tuple[Path, Path]]:
+    """(source, destination) of every plot and record file the page's folder receives."""
+    plan = []
+    for (report, _md, data), name in zip(loaded, names, strict=True):
+        for plot in data.get("plots", []):
+            src = report / plot
+            if not src.is_file():  # a stored record keeps its plots beside its summary
+                src = report / Path(plot).name
+            if src.is_file():
+                plan.append((src, assets / name / Path(plot).name))
+        plan += [(src, assets / name / src.relative_to(report)) for src in _record_files(report)]
+    return plan
+
+
+def _check_plan(plan, assets: Path, owned: set[Path], has_manifest: bool, overwrite: bool):
+    """Refuse, before anything is written, a destination that is the user's file (never
+    replaced), or one ``collect`` wrote without ``overwrite``."""
+    dests = [dst for src, dst in plan if _same(src, dst) is False]
+    dests.append(assets / MANIFEST)
+    for dst in dests:
+        if not os.path.lexists(dst):
             continue
-        dst = folder / src.relative_to(report)
-        if src.resolve() != dst.resolve():
-            atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
-        written.add(dst)
+        if dst not in owned and not (dst.name == MANIFEST and has_manifest):
+            raise StudyError(
+                f"{dst} was not written by hrvptm collect; refusing to replace it even with "
+                "--overwrite (move it away or choose another page)"
+            )
+        if dst.is_dir():
+            raise StudyError(f"{dst} is a folder; expected a file hrvptm collect wrote")
+        if not overwrite:
+            raise StudyError(
+                f"{dst} already exists (written by an earlier hrvptm collect); pass "
+                "--overwrite to replace it"
+            )
+
+
+def _same(src: Path, dst: Path) -> bool:
+    try:
+        return src.resolve() == dst.resolve()
+    except OSError:
+        return False
 
 
 def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
@@ -249,18 +333,20 @@ def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
         Finished study reports (``summary.md`` and ``summary.json``), or records an earlier
         collection of this page stored in ``PAGE_STEM/<study>/``.
     page : path
-        Markdown page; its plots go to the folder ``PAGE_STEM/`` beside it.
+        Markdown page; its plots go to the folder ``PAGE_STEM/`` beside it, whose
+        :data:`MANIFEST` lists the files written there.
     preamble : path, optional
         Markdown file whose text replaces the generated page header.
     overwrite : bool
-        Replace a page that an earlier ``collect`` wrote (a file it did not write, an input,
-        or a path inside a report is always refused).
+        Replace a page, plots and records that an earlier ``collect`` wrote (a file it did not
+        write, an input, or a path inside a report is always refused).
     """
-    from hrvbase.io import atomic_write_bytes, atomic_write_text
+    from hrvbase.io import atomic_write_bytes, atomic_write_text, write_json
+
+    from . import __version__
 
     page = Path(page)
     _check_page(page, reports, preamble, overwrite)
-    replacing = page.exists()
     sections = []
     assets = page.parent / page.stem
     loaded = [(Path(r), *_read_summary(Path(r))) for r in reports]
@@ -284,40 +370,36 @@ def collect(reports, page, preamble=None, *, overwrite: bool = False) -> Path:
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise StudyError(f"study {dupes[0]!r} is given twice; give one report per study")
+    owned, has_manifest = _owned(assets, page)
+    plan = _plan(loaded, names, assets)
+    _check_plan(plan, assets, owned, has_manifest, overwrite)
     written: set[Path] = set()
-    for (report, md, data), name in zip(loaded, names, strict=True):
-        for plot in data.get("plots", []):
-            src = report / plot
-            if not src.is_file():  # a stored record keeps its plots beside its summary
-                src = report / Path(plot).name
-            if src.is_file():
-                dst = assets / name / Path(plot).name
-                if src.resolve() != dst.resolve():
-                    atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
-                written.add(dst)
-        _store_record(report, assets / name, written)
+    for src, dst in plan:
+        if not _same(src, dst):
+            atomic_write_bytes(dst, src.read_bytes(), overwrite=True)
+        written.add(dst)
+    for (_report, md, _data), name in zip(loaded, names, strict=True):
         rel = f"{page.stem}/{name}"
         md = re.sub(r"\]\(plots/([^)]+)\)", lambda m, r=rel: f"]({r}/{m.group(1)})", md)
         md = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", md, flags=re.M)
         sections.append(md)
+    _prune(owned - written, assets)
+    if written or has_manifest:
+        files = sorted(p.relative_to(assets).as_posix() for p in written)
+        record = {"tool": "hrvptm collect", "version": __version__, "page": page.name}
+        write_json(assets / MANIFEST, record | {"files": files}, overwrite=True)
     atomic_write_text(page, "\n".join([MARKER, *lines, *sections]), overwrite=overwrite)
-    if replacing:  # only a page collect wrote before; a new page touches no older files
-        _prune(assets, written)
     return page
 
 
-def _prune(assets: Path, keep: set[Path]) -> None:
-    """Remove the plots (``*.png`` one folder down) and records that an earlier collection of
-    this page wrote and this one does not reference, and folders left empty; nothing else is
-    touched."""
-    if not assets.is_dir():
-        return
-    old = [*assets.glob("*/*.png"), *(p for f in RECORD_FILES for p in assets.glob(f"*/{f}"))]
-    old += assets.glob(f"*/{RECORD_TABLES}/*.csv")
+def _prune(old: set[Path], assets: Path) -> None:
+    """Remove the files an earlier collection of this page wrote (``old``) and this one does
+    not, and the folders below ``assets`` they leave empty; nothing else is touched."""
     for path in sorted(old):
-        if path not in keep:
+        if path.is_file():
             log.info("removing %s (no longer on the page)", path)
             path.unlink()
-    for folder in sorted(assets.glob(f"*/{RECORD_TABLES}")) + sorted(assets.iterdir()):
+    folders = {f for p in old for f in p.parents if assets in f.parents}
+    for folder in sorted(folders, key=lambda p: -len(p.parts)):
         if folder.is_dir() and not any(folder.iterdir()):
             folder.rmdir()

@@ -42,3 +42,71 @@ def test_coverage_is_pooled_over_studies_weighted_by_their_errors():
 @pytest.mark.parametrize("summary", [{}, {"u_coverage_n": 0}])
 def test_no_coverage_table_without_uncertainties(summary):
     assert _coverage_overview([_report("a", mismatched=summary)]) == []
+
+
+# -- the page's plot folder: only what collect wrote is ever replaced ---------------------------
+def _plot_report(folder, name="study_a", text="first"):
+    """A finished report of study ``name`` with the plot ``displacement.png``."""
+    import json
+
+    (folder / "plots").mkdir(parents=True)
+    (folder / "summary.md").write_text(f"# {name}\n\n{text}\n", encoding="utf-8")
+    exp = {"experiment": {"name": name, "frames": 2}}
+    data = {
+        "study": {"experiment": exp},
+        "variants": {},
+        "comparison": [],
+        "plots": ["plots/displacement.png"],
+    }
+    (folder / "summary.json").write_text(json.dumps(data), encoding="utf-8")
+    (folder / "plots" / "displacement.png").write_bytes(f"png {text}".encode())
+    return folder
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_user_files_in_the_plot_folder_are_never_replaced(tmp_path, capsys, overwrite):
+    from hrvptm.cli import main
+
+    report = _plot_report(tmp_path / "rep")
+    page = tmp_path / "page.md"
+    mine = tmp_path / "page" / "study_a" / "displacement.png"
+    mine.parent.mkdir(parents=True)
+    mine.write_bytes(b"my own figure")
+    argv = ["collect", str(report), "-o", str(page), "-q"] + ["--overwrite"] * overwrite
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(mine) in err[0] and "not written by hrvptm collect" in err[0]
+    assert mine.read_bytes() == b"my own figure"
+    assert not page.exists()
+    assert sorted(p.name for p in mine.parent.iterdir()) == ["displacement.png"]
+
+
+def test_overwrite_replaces_only_the_files_collect_wrote(tmp_path, capsys):
+    from hrvptm.cli import main
+
+    page = tmp_path / "page.md"
+    first = _plot_report(tmp_path / "r1", text="first")
+    assert main(["collect", str(first), "-o", str(page), "-q"]) == 0
+    folder = tmp_path / "page" / "study_a"
+    assert (folder / "displacement.png").read_bytes() == b"png first"
+    # the user's own file beside the plots: kept, and replaced neither by a new plot of its
+    # name nor removed as a plot the page no longer shows
+    mine = folder / "strain.png"
+    mine.write_bytes(b"my own figure")
+    second = _plot_report(tmp_path / "r2", text="second")
+    assert main(["collect", str(second), "-o", str(page), "--overwrite", "-q"]) == 0
+    assert (folder / "displacement.png").read_bytes() == b"png second"
+    assert mine.read_bytes() == b"my own figure"
+    data = __import__("json").loads((second / "summary.json").read_text())
+    data["plots"].append("plots/strain.png")
+    (second / "summary.json").write_text(__import__("json").dumps(data), encoding="utf-8")
+    (second / "plots" / "strain.png").write_bytes(b"png strain")
+    assert main(["collect", str(second), "-o", str(page), "--overwrite", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert str(mine) in err and "not written by hrvptm collect" in err
+    assert mine.read_bytes() == b"my own figure"
+    # a page deleted, its plot folder kept: the files it wrote are not replaced silently
+    page.unlink()
+    assert main(["collect", str(first), "-o", str(page), "-q"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (folder / "displacement.png").read_bytes() == b"png second"
