@@ -7,7 +7,8 @@
 - a **glob pattern** (quoted, so that the shell does not expand it, e.g. ``'run3/img_*.tif'``):
   the matching files, in natural order;
 - a **list file**: a text file naming one frame per line (paths relative to the list file);
-  blank lines and lines starting with ``#`` are ignored; the list gives the order;
+  blank lines and lines starting with ``#`` are ignored; the list gives the order, and a frame
+  it names twice is refused;
 - a **TIFF file**: one frame, or, for a multi-page stack (the usual high-speed camera export),
   one frame per page in page order. Explicit files keep the order they are given in.
 
@@ -21,7 +22,9 @@ order explicitly. Gaps in the numbering are reported with a warning (``missing f
 
 Series checks (:func:`build_series`). Every frame must have the same size, pixel type and bit
 depth; this is read from the TIFF headers (no pixels) before anything is reconstructed, and
-the first file that differs is refused.
+the first file that differs is refused. A file may appear once in a series (given twice, or as
+a folder and a file in it, it is refused: it would be reconstructed twice), and no two frames
+may carry the same frame number (:func:`check_distinct`).
 
 Frame numbers and times. Every frame carries its original number: the number in its file
 name, or for a page of a stack its page index (counted on across consecutive stacks, as
@@ -348,6 +351,7 @@ def list_file_frames(path: Path) -> list[Path]:
             f"{str(path)!r} is neither a TIFF image nor a text file listing frames"
         ) from None
     out = []
+    lines: dict[Path, int] = {}  # resolved file -> its first line
     for i, line in enumerate(text.splitlines(), start=1):
         entry = line.strip()
         if not entry or entry.startswith("#"):
@@ -358,6 +362,12 @@ def list_file_frames(path: Path) -> list[Path]:
         if not p.is_file():
             what = "is a folder, not a frame file" if p.is_dir() else "does not exist"
             raise InputError(f"list file {str(path)!r} line {i}: {entry!r} ({p}) {what}")
+        first = lines.setdefault(p.resolve(), i)
+        if first != i:
+            raise InputError(
+                f"list file {str(path)!r} names {entry!r} ({p}) twice (lines {first} and {i}); "
+                "each frame is reconstructed once: remove the repeated line"
+            )
         out.append(p)
     if not out:
         raise InputError(f"list file {str(path)!r} names no frames")
@@ -488,6 +498,38 @@ def check_uniform(headers: Sequence[tuple[Path, TiffHeader]]) -> None:
             )
 
 
+def check_distinct(refs: Sequence[FrameRef]) -> None:
+    """Refuse a series that holds a frame twice or two frames of the same frame number.
+
+    Raises
+    ------
+    InputError
+        One line naming the two frames: the same file (or page of a stack) given twice,
+        or two frames carrying the same original number (e.g. the pages of a stack, numbered
+        0, 1, … and a file named ``img_0.tif``).
+    """
+    seen: dict[tuple[Path, int | None], FrameRef] = {}
+    numbers: dict[int, FrameRef] = {}
+    for r in refs:
+        key = (r.path.resolve(), r.page)
+        if key in seen:
+            raise InputError(
+                f"frame {r.label!r} is given twice (also as {seen[key].label!r}); each frame "
+                "is reconstructed once: give every file once"
+            )
+        seen[key] = r
+        if r.number is None:
+            continue
+        if r.number in numbers:
+            raise InputError(
+                f"frames {numbers[r.number].label!r} and {r.label!r} both carry frame number "
+                f"{r.number} (the pages of stacks are numbered 0, 1, … in series order, a "
+                "single file by the number in its name); rename the files, or reconstruct "
+                "them in separate runs"
+            )
+        numbers[r.number] = r
+
+
 def check_frames(refs: Sequence[FrameRef]) -> dict[Path, TiffHeader]:
     """Check a series from its TIFF headers: files exist, pages exist, equal images.
 
@@ -500,8 +542,10 @@ def check_frames(refs: Sequence[FrameRef]) -> dict[Path, TiffHeader]:
     ------
     InputError
         A missing or unreadable file, a stack given as one frame (``page=None``), a page
-        beyond the end of its stack, or a mixed series (:func:`check_uniform`).
+        beyond the end of its stack, a mixed series (:func:`check_uniform`), a frame given
+        twice or two frames of one number (:func:`check_distinct`).
     """
+    check_distinct(refs)
     headers: dict[Path, TiffHeader] = {}
     for r in refs:
         if r.path not in headers:
@@ -537,7 +581,8 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
     ------
     InputError
         Unreadable files, stacks of unequal images, a mixed series (:func:`check_uniform`),
-        a non-positive ``fps``.
+        a file given twice or two frames of one number (:func:`check_distinct`), a
+        non-positive ``fps``.
     """
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise InputError(f"--fps must be a positive number of frames per second, got {fps!r}")
@@ -564,6 +609,7 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
                 t = None if h.frame_interval_s is None else number * h.frame_interval_s
             refs.append(FrameRef(f, page, number, t))
         pages_before += h.n_images
+    check_distinct(refs)
     if fps is not None:
         unnumbered = [r for r in refs if r.number is None]
         if unnumbered:
@@ -737,6 +783,7 @@ __all__ = [
     "FrameRef",
     "TiffHeader",
     "build_series",
+    "check_distinct",
     "check_frames",
     "check_uniform",
     "expand_argument",

@@ -412,3 +412,45 @@ def test_other_inputs_are_refused_and_a_shorter_run_is_extended(
     assert rc == 0, err
     _check_mapping(vol, ["r_2.tif", "r_3.tif"], scale)
     assert sorted(p.name for p in vol.glob("*.tif")) == ["000000.tif", "000001.tif"]
+
+
+def test_frames_given_twice_or_numbered_alike_are_refused(calib, base_frame, tmp_path, capsys):
+    from lfsim.io import read_json
+
+    write_series(tmp_path / "fx", ["img_0.tif", "img_1.tif"], base_frame)
+    stack = tmp_path / "stack.tif"
+    tifffile.imwrite(stack, np.stack([base_frame] * 2), photometric="minisblack")
+    vol = tmp_path / "v"
+    # A stack's pages (numbered 0, 1) and a file numbered 0 by its name.
+    _refused(
+        *_recon(capsys, stack, tmp_path / "fx" / "img_0.tif", *_opts(calib, vol)),
+        f"{stack} [page 0]",
+        "img_0.tif",
+        "both carry frame number 0",
+    )
+    # Two files of other folders numbered alike.
+    tifffile.imwrite(tmp_path / "img_1.tif", base_frame)
+    _refused(
+        *_recon(capsys, tmp_path / "fx", tmp_path / "img_1.tif", *_opts(calib, vol)),
+        "img_1.tif",
+        "both carry frame number 1",
+    )
+    # A frame listed twice in a list file.
+    lst = tmp_path / "list.txt"
+    lst.write_text("fx/img_0.tif\nfx/img_1.tif\n# again\n./fx/img_0.tif\n")
+    _refused(
+        *_recon(capsys, lst, *_opts(calib, vol)), "list.txt", "img_0.tif", "twice (lines 1 and 4)"
+    )
+    # A file given twice: explicitly, or as a folder and a file in it; a stack given twice.
+    for args in (
+        [tmp_path / "fx" / "img_1.tif", tmp_path / "fx" / "img_1.tif"],
+        [tmp_path / "fx", tmp_path / "fx" / "img_1.tif"],
+        [stack, stack],
+    ):
+        _refused(*_recon(capsys, *args, *_opts(calib, vol)), str(args[-1]), "given twice")
+    assert not vol.exists()
+    # Numbers that do not collide are kept: pages 0, 1, then the file numbered 7.
+    tifffile.imwrite(tmp_path / "img_7.tif", base_frame)
+    rc, _, err = _recon(capsys, stack, tmp_path / "img_7.tif", *_opts(calib, vol))
+    assert rc == 0, err
+    assert [f["number"] for f in read_json(vol / "recon.json")["frames"]] == [0, 1, 7]
