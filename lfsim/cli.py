@@ -481,9 +481,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--rotation-deg",
         float,
         0.0,
-        "rotation of the reticle about the optical axis in degrees, from +x towards +y, |·| < 45",
+        "rotation of the reticle about the optical axis in degrees, from +x towards +y, "
+        "in [-90, 90]",
     )
-    value(m, "--z-um", float, 0.0, "depth of the reticle in µm (0: native object plane)")
+    value(
+        m,
+        "--z-um",
+        float,
+        0.0,
+        "depth of the reticle in µm, i.e. its defocus (0: native object plane, in focus)",
+    )
     image_options(m, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="micrometer image")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)
 

@@ -193,10 +193,12 @@ def micrometer_sources(
     z_um : float
         Depth of the reticle (µm; 0 = native object plane).
     rotation_deg : float
-        Rotation of the whole reticle about the optical axis (degrees, from +x towards +y;
-        |rotation| < 45°). A rotated line is a row of short axis-aligned boxes whose centres
+        Rotation of the whole reticle about the optical axis (degrees, from +x towards +y,
+        in [-90, 90]). A rotated line is a row of short axis-aligned boxes whose centres
         follow the rotated line; each is short enough that the steps between them stay below
-        5 % of the line width.
+        5 % of the line width. Beyond ±45° the reticle is drawn as the one along the other
+        axis rotated by ``rotation_deg ∓ 90`` (the same ruling: its scale runs at
+        ``rotation_deg`` from ``axis``), so that the boxes stay within 45° of their line.
 
     Returns
     -------
@@ -213,8 +215,13 @@ def micrometer_sources(
         )
     if axis not in ("x", "y"):
         raise ConfigError(f"axis must be 'x' or 'y', got {axis!r}")
-    if not np.isfinite(rotation_deg) or abs(rotation_deg) >= 45.0:
-        raise ConfigError(f"rotation_deg must lie in (-45, 45), got {rotation_deg!r}")
+    if not np.isfinite(rotation_deg) or abs(rotation_deg) > 90.0:
+        raise ConfigError(f"rotation_deg must lie in [-90, 90] degrees, got {rotation_deg!r}")
+    if abs(rotation_deg) > 45.0:
+        # The scale at rotation_deg from axis is the scale along the other axis at
+        # rotation_deg ∓ 90: drawn that way, its boxes stay within 45° of their line.
+        axis = "y" if axis == "x" else "x"
+        rotation_deg = rotation_deg - math.copysign(90.0, rotation_deg)
     if not np.isfinite(z_um):
         raise ConfigError(f"z_um must be a finite depth in µm, got {z_um!r}")
     if z_um <= -optics.f_objective_um or abs(z_um) > max_depth_um(optics):

@@ -326,7 +326,7 @@ for cid, extra, needle in [
     ("line-wider-than-division", ["--line-width-um", "20"], "--line-width-um"),
     ("rays-per-line-zero", ["--rays-per-line", "0"], "--rays-per-line"),
     ("axis-z", ["--axis", "z"], "--axis"),
-    ("rotation-45", ["--rotation-deg", "45"], "--rotation-deg"),
+    ("rotation-beyond-90", ["--rotation-deg", "91"], "--rotation-deg"),
     ("rotation-nan", ["--rotation-deg", "nan"], "--rotation-deg"),
     ("z-nan", ["--z-um", "nan"], "--z-um"),
     ("z-behind-the-objective", ["--z-um", "-1e6"], "--z-um"),

@@ -365,3 +365,30 @@ def test_cli_bad_inputs(true_micrometer, tmp_path, capsys):
         assert rc == 2 and "input" in err and err.count("\n") == 1, err
     assert true_micrometer.read_bytes() == before
     assert not out.exists()
+
+
+# -- rotated and defocused micrometers ------------------------------------------------------
+@pytest.mark.parametrize(("axis", "rotation"), [("x", 60.0), ("x", -90.0), ("y", 80.0)])
+def test_micrometer_sources_at_any_rotation(nominal, axis, rotation):
+    """Beyond ±45° the reticle's lines still lie every division along its rotated scale."""
+    from lfsim.render import micrometer_sources
+
+    src = micrometer_sources(nominal, 10.0, 2.0, axis, rotation_deg=rotation)
+    t = math.radians(rotation + (90.0 if axis == "y" else 0.0))
+    along = src.centers_um[:, :2] @ np.array([math.cos(t), math.sin(t)])
+    assert np.allclose(along / 10.0, np.round(along / 10.0), atol=1e-6)
+    assert len(np.unique(np.round(along / 10.0))) >= 25
+    # Each box is one line width across the scale's nearest image axis.
+    assert np.all(np.min(src.sizes_um[:, :2], axis=1) <= 2.0 + 1e-9)
+
+
+def test_lfsim_micrometer_rotation_and_depth(backend, tmp_path):
+    from lfsim.io import read_tiff
+
+    out = tmp_path / "m60.tif"
+    _lfsim(
+        "micrometer", SCENE, "-o", out, "--rotation-deg", "60", "--z-um", "50",
+        "--tracer", "paraxial", "--rays-per-line", "2000",
+    )  # fmt: skip
+    _, meta = read_tiff(out)
+    assert meta["rotation_deg"] == 60 and meta["z_um"] == 50
