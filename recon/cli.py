@@ -420,7 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--background",
         default="auto",
-        help="constant subtracted, in grey levels: a number, 'auto' (the image median; "
+        help="constant subtracted, in grey levels: a number >= 0, 'auto' (the image median; "
         "default) or 'none'",
     )
     run.add_argument(
@@ -625,9 +625,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
             background = float(background)
         except ValueError:
             background = math.nan
-        if not math.isfinite(background):
+        if not (math.isfinite(background) and background >= 0):
             raise InputError(
-                f"--background must be a finite number, 'auto' or 'none', got {args.background!r}"
+                "--background must be a finite number >= 0 (grey levels), 'auto' or 'none', "
+                f"got {args.background!r}"
             )
     dark = read_frame(args.dark, what="dark frame") if args.dark else None
     if not (math.isfinite(args.gain_dn_per_e) and args.gain_dn_per_e >= 0):
@@ -637,6 +638,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         background=background,
         hot_pixels=args.hot_pixels,
         gain_dn_per_e=args.gain_dn_per_e,
+        dark_name=f"--dark {str(args.dark)!r}",
     )
     make_writer(args.format, args.output, zarr_chunk_z=args.zarr_chunk_z)  # checks the options
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])

@@ -34,7 +34,7 @@ from .deconvolve import richardson_lucy
 from .errors import InputError
 from .filters import DepthFilter
 from .geometry import ReconGrid
-from .preprocess import Preprocess, prepare_image, read_frame
+from .preprocess import Preprocess, check_dark, prepare_image, read_frame
 from .projector import make_projector
 from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
 from .settings import ReconSettings, default_z_step_um
@@ -218,7 +218,8 @@ def reconstruct_series(
     Raises
     ------
     InputError
-        Missing, unreadable or mixed frames; frames of another size than the calibration's.
+        Missing, unreadable or mixed frames; frames of another size than the calibration's;
+        a dark frame brighter than the first frame (:func:`recon.preprocess.check_dark`).
     OutputExistsError
         ``out_dir`` holds something else, or volumes made from other inputs or settings
         (without ``overwrite``). Nothing is written then.
@@ -257,6 +258,8 @@ def reconstruct_series(
             f"frame {refs[0].label!r} is {first.shape[1]} × {first.shape[0]} px but the "
             f"calibration was made on {grid.image_shape[1]} × {grid.image_shape[0]} px images"
         )
+    if pp.dark is not None:
+        check_dark(first, pp.dark, frame=f"frame {refs[0].label!r}", dark_name=pp.dark_name)
     _, geom = _rectify_roi(rectify, first, grid, n, st.roi_px)
     nx, ny = geom.n_lenslets
     check_depths_resolvable(optics, depths, (nx, ny))
@@ -482,7 +485,8 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
     Raises
     ------
     InputError
-        The frame cannot be read, or its size is not the series'.
+        The frame cannot be read, its size is not the series', or the dark frame is brighter
+        than it (:func:`recon.preprocess.check_dark`).
     """
     from .rectify import rectify
 
@@ -494,6 +498,9 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
         raise InputError(
             f"frame {ref.label!r} is {raw.shape} px, the series started with {model.image_shape}"
         )
+    pp = model.preprocess
+    if pp.dark is not None:
+        check_dark(raw, pp.dark, frame=f"frame {ref.label!r}", dark_name=pp.dark_name)
     modelled = st.background_model == "model"
     img, pinfo = prepare_image(raw, model.preprocess, subtract_background=not modelled)
     rect, _ = _rectify_roi(rectify, img, model.grid, model.n, st.roi_px)

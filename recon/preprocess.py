@@ -3,7 +3,9 @@
 Real light-field frames arrive as 8-, 12- or 16-bit TIFFs with a black level, hot pixels and
 often a region of interest smaller than the sensor (vignetting). :func:`prepare_image`
 applies, in order: conversion to float32, dark-frame or constant background subtraction,
-hot-pixel suppression, and clipping at zero (Richardson–Lucy needs non-negative data).
+hot-pixel suppression, and clipping at zero (Richardson–Lucy needs non-negative data). A dark
+frame brighter than a frame (:func:`check_dark`) and a negative constant background are
+refused: either would add light to every pixel instead of removing the black level.
 The region of interest is applied later, by choosing which lenslets to rectify
 (:func:`recon.pipeline.lenslet_window`), so that the lenslet grid stays that of the full
 calibration image.
@@ -85,9 +87,11 @@ class Preprocess:
     Parameters
     ----------
     dark : ndarray or None
-        Dark frame (same shape as the images) subtracted pixel by pixel.
+        Dark frame (same shape as the images) subtracted pixel by pixel; it must not be
+        brighter than the images (:func:`check_dark`).
     background : float or "auto" or None
-        Constant subtracted after the dark frame. ``"auto"`` uses the image's median: in a
+        Constant (≥ 0 grey levels) subtracted after the dark frame. ``"auto"`` uses the
+        image's median: in a
         light-field image of sparse fluorescent particles most pixels see only the camera's
         black level (and its noise). ``None``: nothing.
     hot_pixels : bool
@@ -98,6 +102,9 @@ class Preprocess:
         The camera's conversion gain (grey levels per photo-electron, from its data sheet or
         a photon-transfer measurement), for the shot noise of the signal in
         :func:`frame_snr`; 0 (default): the noise is taken as additive (the background's).
+    dark_name : str
+        How messages name the dark frame (``recon run``: the ``--dark`` option and file);
+        not a setting of the result.
     """
 
     dark: np.ndarray | None = None
@@ -105,11 +112,13 @@ class Preprocess:
     hot_pixels: bool = False
     hot_threshold: float = 8.0
     gain_dn_per_e: float = 0.0
+    dark_name: str = "the dark frame"
 
     def __post_init__(self) -> None:
         b = self.background
-        if not (b is None or b == "auto" or (isinstance(b, int | float) and np.isfinite(b))):
-            raise InputError(f"background must be a number, 'auto' or None, got {b!r}")
+        number = isinstance(b, int | float) and not isinstance(b, bool) and np.isfinite(b)
+        if not (b is None or b == "auto" or (number and b >= 0)):
+            raise InputError(f"background must be a number >= 0, 'auto' or None, got {b!r}")
         if self.hot_threshold <= 0:
             raise InputError(f"hot_threshold must be > 0, got {self.hot_threshold!r}")
         g = self.gain_dn_per_e
@@ -171,6 +180,50 @@ def frame_snr(image: np.ndarray, gain_dn_per_e: float = 0.0) -> dict:
         "signal_dn": signal,
         "snr": signal / noise if noise > 0 else None,
     }
+
+
+#: A dark frame is refused when the median of ``frame − dark`` lies below minus this many
+#: times the noise of that difference (:func:`check_dark`).
+DARK_NOISE_FACTOR = 3.0
+
+
+def check_dark(image: np.ndarray, dark: np.ndarray, *, frame: str, dark_name: str) -> None:
+    """Refuse a dark frame brighter than a frame.
+
+    A dark frame holds the camera's black level (taken with no light, at the frames'
+    exposure), so the median of ``image − dark`` is the light that reaches most pixels and is
+    never markedly negative. It is refused when that median lies below ``−max(3 σ, 1)`` grey
+    levels, σ being the noise of the difference (:func:`frame_snr`): e.g. the white image
+    given as dark frame, which would make a background of minus its level and volumes of
+    the wrong sign and scale.
+
+    Parameters
+    ----------
+    image, dark : ndarray, shape (height, width)
+        A frame and the dark frame (grey levels).
+    frame, dark_name : str
+        How the message names them.
+
+    Raises
+    ------
+    InputError
+        The two shapes differ, or the dark frame is brighter than the frame (one line with
+        both medians in grey levels, DN).
+    """
+    img = np.asarray(image, dtype=np.float32)
+    drk = np.asarray(dark, dtype=np.float32)
+    if drk.shape != img.shape:
+        raise InputError(f"{dark_name} has shape {drk.shape}, {frame} {img.shape}")
+    diff = img - drk
+    level = float(np.median(diff))
+    tolerance = max(DARK_NOISE_FACTOR * frame_snr(diff)["noise_dn"], 1.0)
+    if level < -tolerance:
+        raise InputError(
+            f"{dark_name} is brighter than {frame}: median {float(np.median(drk)):.1f} DN "
+            f"against the frame's {float(np.median(img)):.1f} DN (frame − dark {level:.1f} DN, "
+            f"below −{tolerance:.1f} DN, {DARK_NOISE_FACTOR:g} × its noise); expected a dark "
+            "frame of this camera taken without light at the frames' exposure"
+        )
 
 
 def prepare_image(

@@ -175,3 +175,36 @@ def test_record_without_volumes_does_not_block(calib, frame, tmp_path, capsys):
     rc, _, err = run(capsys, "run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out)
     assert rc == 0, err
     assert json.loads((out / "recon.json").read_text())["status"] == "complete"
+
+
+# -- dark frame and background ------------------------------------------------------------
+def test_dark_frame_brighter_than_the_frames_is_refused(calib, frame, base_frame, tmp_path, capsys):
+    """A "dark" frame brighter than the frames (e.g. the white image) made a background of
+    about −21 000 DN and volumes 1000 times too bright."""
+    import numpy as np
+
+    from lfsim.io import read_json
+
+    args = ["run", frame, "--scene", SCENE, "--calib", calib, *FAST]
+    bright = tmp_path / "white.tif"
+    tifffile.imwrite(bright, np.full(base_frame.shape, 21000, np.uint16))
+    out = tmp_path / "v"
+    rc, stdout, err = run(capsys, *args, "--dark", bright, "-o", out)
+    median = float(np.median(base_frame))
+    refused(
+        rc, stdout, err, "--dark", "white.tif", "brighter than", "21000.0 DN", f"{median:.1f} DN"
+    )
+    assert not out.exists()
+    # A dark frame at the camera's black level is accepted, and so is one a few grey levels
+    # (its noise) above the frame's median.
+    for level in (40, median + 2):
+        dark = tmp_path / f"dark_{level:g}.tif"
+        tifffile.imwrite(dark, np.full(base_frame.shape, level, np.float32))
+        rc, _, err = run(capsys, *args, "--dark", dark, "-o", tmp_path / f"ok_{level:g}")
+        assert rc == 0, err
+        record = read_json(tmp_path / f"ok_{level:g}" / "recon.json")["frames"][0]
+        assert abs(record["preprocess"]["background"] - (median - level)) < 1e-3
+    # A negative constant background is refused too.
+    rc, stdout, err = run(capsys, *args, "--background", "-20", "-o", out)
+    refused(rc, stdout, err, "--background", ">= 0", "-20")
+    assert not out.exists()
