@@ -583,6 +583,12 @@ def _resolve_inputs(args: argparse.Namespace):
         )
         recorded = dataset_optics(dataset)
         source = f"the optics dataset {str(dataset)!r} was rendered with"
+    elif dataset is not None:
+        raise InputError(
+            f"dataset folder {str(dataset)!r} has no white image to calibrate the lenslet grid "
+            f"({str(dataset / 'white.tif')!r} does not exist); give --calib CALIB.json (make one "
+            "with `recon calibrate`)"
+        )
     else:
         raise InputError("--calib is required (make one with `recon calibrate`)")
     check_optics(optics, grid, recorded, scene=scene, source=source, allow=allow)

@@ -208,3 +208,14 @@ def test_dark_frame_brighter_than_the_frames_is_refused(calib, frame, base_frame
     rc, stdout, err = run(capsys, *args, "--background", "-20", "-o", out)
     refused(rc, stdout, err, "--background", ">= 0", "-20")
     assert not out.exists()
+
+
+def test_dataset_without_its_white_image_names_the_missing_file(frame, tmp_path, capsys):
+    ds = tmp_path / "ds"
+    (ds / "frames").mkdir(parents=True)
+    (ds / "dataset.json").write_text(json.dumps({"scene": {"path": str(SCENE)}}))
+    tifffile.imwrite(ds / "frames" / "000000.tif", tifffile.imread(frame))
+    out = tmp_path / "v"
+    rc, stdout, err = run(capsys, "run", ds, *FAST, "-o", out)
+    refused(rc, stdout, err, str(ds / "white.tif"), "does not exist", "--calib")
+    assert not out.exists()
