@@ -10,7 +10,7 @@ files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, a
 
 * ``link_s``, ``fields_s``, ``write_s``: wall / CPU seconds (all threads of this process;
   with ``--workers N`` the workers' CPU is not counted) of each stage, and
-  ``(f+w)/link`` = (fields + write) / link, the figure issue 13 asks to bring to ≤ 2;
+  ``(f+w)/link`` = (fields + write) / link, whose goal is ≤ 2;
   ``load``: the 1-min load average before the case (on a shared machine the wall times grow
   with the other load, the CPU seconds much less);
 * ``E_rmse``: RMSE of the six Green–Lagrange strain components of the total fields against

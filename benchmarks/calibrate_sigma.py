@@ -1,5 +1,4 @@
-"""Calibrate the standard uncertainties of the test-size studies and measure their coverage
-(issue 12 §4).
+"""Calibrate the standard uncertainties of the test-size studies and measure their coverage.
 
 The σ model (``track.detect`` and ``track.series.match_sigma``), per axis ``a``:
 

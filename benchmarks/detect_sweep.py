@@ -1,4 +1,4 @@
-"""Particle detection across reconstruction settings and microscopes (issue 12 §2).
+"""Particle detection across reconstruction settings and microscopes.
 
 A handful of seeded particles (well apart, away from the faces) is rendered through ideal
 lenslets (:func:`lfsim.tracer.trace_paraxial`, expected photon counts), Gaussian noise of a
