@@ -5,7 +5,7 @@ Measures, side by side in one run, each case in a fresh subprocess (so peak memo
 - rays per second of the Mitsuba-scene tracer with ideal and glass lenslet arrays and of the
   direct Dr.Jit (paraxial) tracer;
 - time and peak resident memory of one paper-size frame: 1280 × 800 px, 60 particles of
-  15 µm, 10⁵ rays each (issue targets: ≤ 2 s ideal, ≤ 4 s glass, direct path ≥ 50 M rays/s).
+  15 µm, 10⁵ rays each (targets: ≤ 2 s ideal, ≤ 4 s glass, direct path ≥ 50 M rays/s).
 
 The first render of a process compiles its kernels (cached on disk by Dr.Jit afterwards);
 "cold" is that first call, "warm" the best of the following repeats.

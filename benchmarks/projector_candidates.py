@@ -1,8 +1,8 @@
 """Alternative light-field projectors, kept to measure against the production one.
 
-The issue behind :mod:`recon.projector` asked for the fastest of three formulations per
-backend, all exact adjoints. The production projector (Dr.Jit gathers over the sparse PSF
-bank, ``recon.projector.LightFieldProjector``) won on the CPU; these are the two others,
+Three formulations of the projector, all exact adjoints, are measured per backend; the
+production one (Dr.Jit gathers over the sparse PSF bank,
+``recon.projector.LightFieldProjector``) is the fastest on the CPU; these are the two others,
 run by ``benchmarks/bench_projectors.py`` and checked by
 ``tests/recon/test_projector_candidates.py``:
 
