@@ -428,14 +428,16 @@ class _Detections:
     being detected. :meth:`finish` waits for all and returns the :class:`FrameDetections`.
     """
 
-    def __init__(self, vols, settings, out: Path, summary: dict, prev, progress, parallel):
+    def __init__(
+        self, vols, checksums, settings, out: Path, summary: dict, prev, progress, parallel
+    ):
         from hrvbase.parallel import WorkerContext, frame_map
 
         self.vols, self.out, self.summary = vols, out, summary
         prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
         frames = [
-            {"index": v.index, "input": v.source(), "input_sha256": volume_checksum(v)}
-            for v in vols
+            {"index": v.index, "input": v.source(), "input_sha256": sha}
+            for v, sha in zip(vols, checksums, strict=True)
         ]
         summary["frames"] = frames
         summary["inputs"] = [{"path": f["input"], "sha256": f["input_sha256"]} for f in frames]
@@ -942,6 +944,8 @@ def track_volumes(
             )
         params["frame_snr"] = [v.snr for v in vols]
     fp = _fingerprint({**where, **params})
+    # every volume read once before out_dir is touched: a damaged file is refused here
+    checksums = [volume_checksum(v) for v in vols]
     out = Path(out_dir)
     prev = _open_results(out, fp, overwrite)
     command = "detect" if series is None else "run"
@@ -951,7 +955,7 @@ def track_volumes(
 
     # one local cluster for the detection and the increments' fields (not one each)
     with shared_cluster(parallel) as parallel:
-        detections = _Detections(vols, settings, out, summary, prev, progress, parallel)
+        detections = _Detections(vols, checksums, settings, out, summary, prev, progress, parallel)
         if series is None:
             return _finish(out, summary, t0, allow_partial, command, detections.finish())
         common = settings.sigma_systematic_um[::-1]  # shared by a particle's images: cancels

@@ -25,6 +25,7 @@ TIFF copied without its ``recon.json`` keeps its period; volumes from elsewhere 
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import logging
 import math
@@ -266,11 +267,32 @@ def _imagej_calibration(ij: Mapping | None, page) -> tuple[tuple | None, tuple |
     return vs, origin
 
 
-def _data_end(tif) -> int:
-    """Byte just past the last voxel data of the first series (headers only)."""
+@contextlib.contextmanager
+def _quiet(*names: str):
+    """Hold the loggers ``names`` to errors: tifffile logs each unreadable page header of a
+    damaged file, and asyncio the pending reads of a failed Zarr decode, on stderr; the one
+    :class:`InputError` that follows says it."""
+    loggers = [logging.getLogger(n) for n in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
+def _data_end(tif, n_voxels: int | None = None) -> int:
+    """Byte just past the last voxel data of the first series (headers only).
+
+    ``n_voxels``: the voxels the file declares (its shape tag); contiguous data then end
+    ``n_voxels`` items after the first, even where the page headers past the cut are lost.
+    """
     series = tif.series[0]
     if series.dataoffset is not None:  # contiguous data
-        return int(series.dataoffset) + int(series.nbytes)
+        n = int(series.nbytes) if n_voxels is None else n_voxels * series.dtype.itemsize
+        return int(series.dataoffset) + max(int(series.nbytes), n)
     end = 0
     for page in tif.pages:
         for offset, count in zip(page.dataoffsets, page.databytecounts, strict=True):
@@ -283,17 +305,20 @@ def _tiff_header(path: Path) -> _Header:
     import tifffile
 
     try:
-        with tifffile.TiffFile(path) as tif:
+        with _quiet("tifffile"), tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
             desc = page.description or ""
             tagvals = {}
             for code in (_SHAPE_TAG, _METADATA_TAG):
                 tag = page.tags.get(code)
                 tagvals[code] = tag.value if tag is not None else None
-            shape = tuple(tif.series[0].shape)
+            shape = readable = tuple(tif.series[0].shape)
             dtype = tif.series[0].dtype
+            if tagvals[_SHAPE_TAG] is not None:
+                with contextlib.suppress(ValueError, KeyError, TypeError):
+                    shape = tuple(int(n) for n in json.loads(tagvals[_SHAPE_TAG])["shape"])
             ij_vs, ij_origin = _imagej_calibration(tif.imagej_metadata, page)
-            end = _data_end(tif)
+            end = _data_end(tif, math.prod(shape))
     except Exception as exc:  # tifffile raises assorted types on corrupt files
         raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
     size = path.stat().st_size
@@ -302,9 +327,12 @@ def _tiff_header(path: Path) -> _Header:
             f"TIFF volume {path} is truncated: its voxels end at byte {end} but the file has "
             f"{size} bytes (an interrupted copy or write?)"
         )
-    if tagvals[_SHAPE_TAG] is not None:
-        with contextlib.suppress(ValueError, KeyError, TypeError):
-            shape = tuple(json.loads(tagvals[_SHAPE_TAG])["shape"])
+    if math.prod(readable) != math.prod(shape):
+        raise InputError(
+            f"TIFF volume {path} is truncated or damaged: it declares "
+            f"{' × '.join(map(str, shape))} voxels but its pages hold "
+            f"{' × '.join(map(str, readable))}"
+        )
     if len(shape) == 2:
         shape = (1, *shape)
     if len(shape) != 3:
@@ -596,22 +624,30 @@ def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
 
 def volume_checksum(info: VolumeInfo) -> str:
     """SHA-256 identifying a volume: of its file, or of a Zarr frame's values
-    (:func:`hrvbase.io.array_sha256`)."""
+    (:func:`hrvbase.io.array_sha256`; the frame is read, so that a damaged chunk or a
+    frame holding NaN, e.g. one never written, is an :class:`InputError` here)."""
     from hrvbase.io import array_sha256, sha256_file
 
     if info.dataset is None:
         return sha256_file(info.path)
-    return array_sha256(_read_zarr(info))
+    return array_sha256(read_volume(info))
 
 
 def _read_zarr(info: VolumeInfo) -> np.ndarray:
     import zarr
 
     try:
-        arr = zarr.open_array(store=str(info.path), path=info.dataset, mode="r")
-        return np.asarray(arr[(*info.lead, Ellipsis)])
+        with _quiet("asyncio"):
+            try:
+                arr = zarr.open_array(store=str(info.path), path=info.dataset, mode="r")
+                return np.asarray(arr[(*info.lead, Ellipsis)])
+            except Exception:
+                gc.collect()  # the reads still pending after the failure end here, quietly
+                raise
     except Exception as exc:  # zarr and its codecs raise assorted types on corrupt chunks
-        raise InputError(f"cannot read volume {info.name}: {exc}") from None
+        raise InputError(
+            f"cannot read volume {info.source()} (a truncated or damaged chunk?): {exc}"
+        ) from None
 
 
 def read_volume(info: VolumeInfo | str | os.PathLike) -> np.ndarray:
@@ -630,12 +666,19 @@ def read_volume(info: VolumeInfo | str | os.PathLike) -> np.ndarray:
         arr = _read_zarr(info)
     else:
         try:
-            arr = tifffile.imread(path)
+            with _quiet("tifffile"):
+                arr = tifffile.imread(path)
         except Exception as exc:  # tifffile raises assorted types on corrupt files
             raise InputError(f"cannot read TIFF volume {path}: {exc}") from exc
     if arr.ndim == 2:
         arr = arr[None]
     if isinstance(info, VolumeInfo):
+        if arr.size != math.prod(info.shape):
+            declared = " × ".join(map(str, info.shape))
+            raise InputError(
+                f"volume {where} holds {arr.size} voxels, not the {declared} its header "
+                "declares (changed, truncated or damaged since the series was read?)"
+            )
         arr = arr.reshape(info.shape)
     if arr.ndim != 3:
         raise InputError(f"{where}: expected a (z, y, x) volume, got shape {arr.shape}")

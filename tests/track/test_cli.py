@@ -410,3 +410,44 @@ def test_link_options_set_the_bridging_of_tracks():
     assert series_settings(args).bridge_tracks is False
     args = p.parse_args(["link", "a.csv", "b.csv", "-o", "out", "--max-gap-frames", "0"])
     assert series_settings(args).max_gap_frames == 0
+
+
+def _hyperstacks(folder: Path, n_frames=3) -> Path:
+    """The volumes of :func:`_volumes` rewritten as ``recon run`` writes them (ImageJ
+    hyperstacks of ``lfsim.io.write_tiff``, every page's header after the voxels)."""
+    from lfsim.io import write_tiff
+
+    _volumes(folder, n_frames=n_frames)
+    for p in sorted(folder.glob("*.tif")):
+        vol = tifffile.imread(p)
+        p.unlink()
+        write_tiff(p, vol, metadata={"frame": int(p.stem)}, pixel_size_um=VOXEL)
+    return folder
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9])
+def test_a_truncated_hyperstack_is_one_line_naming_it(tmp_path, capsys, keep):
+    vols = _hyperstacks(tmp_path / "vols")
+    p = vols / "000001.tif"
+    data = p.read_bytes()
+    p.write_bytes(data[: int(len(data) * keep)])
+    out = tmp_path / "res"
+    rc, err = _run(["run", vols, "-o", out, "--no-progress"], capsys)
+    assert rc == 2 and err.count("\n") == 1, err
+    assert err.startswith("track: error: TIFF volume ") and f"{p} is truncated" in err
+    assert not out.exists()
+
+
+def test_a_truncated_zarr_chunk_is_one_line_naming_the_frame(tmp_path, capsys):
+    from .test_zarr_volumes import write_ngff
+
+    rng = np.random.default_rng(1)
+    data = rng.normal(10, 1, (3, 8, 16, 16)).astype(np.float32)
+    store = write_ngff(tmp_path / "v.zarr", data, "tzyx", (1, 2, 1, 1))
+    chunk = next(p for p in sorted((store / "0" / "c" / "1").rglob("*")) if p.is_file())
+    chunk.write_bytes(chunk.read_bytes()[:10])
+    out = tmp_path / "res"
+    rc, err = _run(["run", store, "-o", out, "--no-progress"], capsys)
+    assert rc == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"track: error: cannot read volume {store}[t=1]")
+    assert not out.exists()
