@@ -533,7 +533,11 @@ def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
 
 
 def _resolve_inputs(args: argparse.Namespace):
-    """Frames, optics and lenslet grid from the command line (and a dataset folder)."""
+    """Frames, optics and lenslet grid from the command line (and a dataset folder).
+
+    Also the input folders: those given, and the folders of the frames a glob pattern or a
+    list file names (an output inside them is refused, as inside a folder given).
+    """
     from lfsim.io import read_json
     from lfsim.scene import read_optics
 
@@ -547,6 +551,7 @@ def _resolve_inputs(args: argparse.Namespace):
 
     files: list[Path] = []
     explicit: list[Path] = []
+    folders: list[Path] = []
     dataset = None
     for f in args.frames:
         if f.is_dir() and (f / "dataset.json").is_file():
@@ -559,6 +564,8 @@ def _resolve_inputs(args: argparse.Namespace):
         files += paths
         if kind == "file":
             explicit += paths
+        elif kind in ("pattern", "list"):
+            folders += [p.parent for p in paths if p.parent not in folders]
     warn_if_unordered(explicit)
     frames = select_frames(build_series(files, fps=args.fps), args.select)
     scene = args.scene
@@ -592,7 +599,7 @@ def _resolve_inputs(args: argparse.Namespace):
     else:
         raise InputError("--calib is required (make one with `recon calibrate`)")
     check_optics(optics, grid, recorded, scene=scene, source=source, allow=allow)
-    return frames, optics, grid, scene
+    return frames, optics, grid, scene, folders
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -649,8 +656,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     make_writer(args.format, args.output, zarr_chunk_z=args.zarr_chunk_z)  # checks the options
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
     check_output_folder(args.output)
-    frames, optics, grid, scene = _resolve_inputs(args)
-    guard_output(args.output, sorted({f.path for f in frames}))
+    frames, optics, grid, scene, folders = _resolve_inputs(args)
+    guard_output(args.output, [*folders, *sorted({f.path for f in frames})])
     if dark is not None and dark.shape != tuple(grid.image_shape):
         (h, w), (gh, gw) = dark.shape, grid.image_shape
         raise InputError(

@@ -454,3 +454,21 @@ def test_frames_given_twice_or_numbered_alike_are_refused(calib, base_frame, tmp
     rc, _, err = _recon(capsys, stack, tmp_path / "img_7.tif", *_opts(calib, vol))
     assert rc == 0, err
     assert [f["number"] for f in read_json(vol / "recon.json")["frames"]] == [0, 1, 7]
+
+
+def test_output_inside_the_folder_of_a_pattern_or_list_is_refused(
+    calib, base_frame, tmp_path, capsys
+):
+    write_series(tmp_path / "fx", ["img_0.tif", "img_1.tif"], base_frame)
+    lst = tmp_path / "list.txt"
+    lst.write_text("fx/img_0.tif\nfx/img_1.tif\n")
+    for frames in (tmp_path / "fx", tmp_path / "fx" / "img_*.tif", lst):
+        out = tmp_path / "fx" / "v"
+        _refused(
+            *_recon(capsys, frames, *_opts(calib, out), "--overwrite"),
+            f"-o {out} lies inside the input folder {tmp_path / 'fx'}",
+        )
+        assert not out.exists()
+    # An explicit file's folder is not an input folder: `recon run img.tif -o v` is usual.
+    rc, _, err = _recon(capsys, tmp_path / "fx" / "img_0.tif", *_opts(calib, tmp_path / "fx" / "v"))
+    assert rc == 0, err
