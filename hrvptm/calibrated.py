@@ -46,6 +46,14 @@ DETECT_DIR, AXIAL_DIR, TRACK_DIR = "detect", "axial", "track"
 _LAYOUT = (DETECT_DIR, AXIAL_DIR, TRACK_DIR)
 #: What :func:`track_volumes_calibrated` writes in ``axial/``.
 AXIAL_RECORD = "axial_calibration.json"
+#: A reference sphere wider than this many times the particles' lateral FWHM measured in the
+#: volumes (plus half a voxel for its count of voxels) is refused: a reconstructed sphere is
+#: never narrower than 0.87 of its diameter (its projection's width at half height), so such
+#: spheres are not the particles, and their offsets are of another size and sign.
+SPHERE_MAX_FWHM = 1.5
+#: A reference sphere narrower than the particles' lateral FWHM over this factor is warned of
+#: (small particles are widened by the resolution, so it may be right).
+SPHERE_MIN_FWHM = 4.0
 
 
 @dataclass(frozen=True)
@@ -117,6 +125,81 @@ def reference_settings(axial: AxialCalibration):
     given = {"sphere_diameter_um": axial.sphere_diameter_um}
     given["rays_per_particle"] = axial.rays_per_particle
     return ReferenceSettings(**{k: v for k, v in given.items() if v is not None})
+
+
+def particle_size_um(volumes: str | os.PathLike) -> tuple[float, float, str] | None:
+    """Lateral size of the particles of a series as the detector measures it: the median
+    full width at half maximum across x and y (:func:`track.psf_estimate.particle_fwhm_vox`)
+    of its first volume.
+
+    Returns
+    -------
+    (fwhm_um, voxel_um, source) or None
+        The mean of the y and x widths and of the y and x voxel sizes (µm), and the volume
+        measured; None when the volume has no clear particle maximum.
+    """
+    from track.psf_estimate import particle_fwhm_vox
+    from track.volumes import read_volume, scan_volumes
+
+    first = scan_volumes(volumes)[0]
+    fwhm = particle_fwhm_vox(read_volume(first))
+    if fwhm is None:
+        return None
+    _dz, dy, dx = first.voxel_size_um
+    size = (fwhm[1] * dy + fwhm[2] * dx) / 2.0
+    return float(size), float((dy + dx) / 2.0), first.source()
+
+
+def check_sphere_diameter(
+    volumes: str | os.PathLike,
+    axial: AxialCalibration,
+    name: str = "[track.axial] sphere_diameter_um",
+) -> None:
+    """Refuse reference spheres far wider than the particles the volumes hold, and warn of
+    far narrower ones (:data:`SPHERE_MAX_FWHM`, :data:`SPHERE_MIN_FWHM`).
+
+    Parameters
+    ----------
+    volumes : path
+        The series (its first volume is measured, :func:`particle_size_um`).
+    axial : AxialCalibration
+        Its ``sphere_diameter_um`` (None: the default of
+        :class:`recon.reference.ReferenceSettings`) is checked.
+    name : str
+        How the message names the diameter (the option or the table key that set it).
+
+    Raises
+    ------
+    InputError
+        A diameter above :data:`SPHERE_MAX_FWHM` × (FWHM + half a voxel).
+    """
+    diameter = reference_settings(axial).sphere_diameter_um
+    if axial.sphere_diameter_um is None:
+        name = f"the default {name}"
+    measured = particle_size_um(volumes)
+    if measured is None:
+        log.warning(
+            "%s: no clear particle maximum; %s %g µm is not checked", volumes, name, diameter
+        )
+        return
+    fwhm, voxel, source = measured
+    limit = SPHERE_MAX_FWHM * (fwhm + voxel / 2.0)
+    said = (
+        f"{name} {diameter:g} µm, particles measured in {source}: lateral FWHM {fwhm:.3g} µm "
+        f"on {voxel:.3g} µm voxels"
+    )
+    if diameter > limit:
+        raise InputError(
+            f"{said}; reference spheres wider than {limit:.3g} µm are not these particles (their "
+            "offsets have another size and sign): give the particles' diameter"
+        )
+    if diameter < fwhm / SPHERE_MIN_FWHM:
+        log.warning(
+            "%s; spheres under a %gth of that may not show the particles' bias: check that it "
+            "is the particles' diameter",
+            said,
+            SPHERE_MIN_FWHM,
+        )
 
 
 def _half_boxes(frames: list, detect) -> list:
@@ -209,6 +292,7 @@ def track_volumes_calibrated(
     provenance: Mapping[str, Any] | None = None,
     parallel=None,
     own_folder: bool = True,
+    diameter_name: str = "[track.axial] sphere_diameter_um",
 ):
     """Detect, calibrate and track a series of volumes (module docstring).
 
@@ -230,6 +314,9 @@ def track_volumes_calibrated(
     own_folder : bool
         ``root`` holds nothing but these three folders: one with other contents is refused
         (default). ``False``: ``root`` is shared (a study's variant folder).
+    diameter_name : str
+        How messages name the reference spheres' diameter (:func:`check_sphere_diameter`,
+        before any work).
 
     Returns
     -------
@@ -254,6 +341,7 @@ def track_volumes_calibrated(
         axial=axial,
         provenance=provenance,
         own_folder=own_folder,
+        diameter_name=diameter_name,
         **shared,
     )
     prov = dict(provenance or {})
@@ -284,6 +372,7 @@ def detect_volumes_calibrated(
     provenance: Mapping[str, Any] | None = None,
     parallel=None,
     own_folder: bool = True,
+    diameter_name: str = "[track.axial] sphere_diameter_um",
 ):
     """Steps 1 and 2 of the module docstring: detect the particles of every volume and
     correct them by the bias of their reference (what :func:`track_volumes_calibrated` links;
@@ -319,6 +408,7 @@ def detect_volumes_calibrated(
         raise InputError("the axial calibration method is 'none': nothing to calibrate")
     detect = detect or DetectSettings()
     model = model or ReconModel.from_record(volumes)
+    check_sphere_diameter(volumes, axial, diameter_name)
     prov = dict(provenance or {})
     t0 = time.perf_counter()
     track_volumes(
@@ -350,10 +440,14 @@ __all__ = [
     "AXIAL_DIR",
     "AXIAL_RECORD",
     "DETECT_DIR",
+    "SPHERE_MAX_FWHM",
+    "SPHERE_MIN_FWHM",
     "TRACK_DIR",
     "ReconModel",
+    "check_sphere_diameter",
     "correct_series",
     "detect_volumes_calibrated",
+    "particle_size_um",
     "reference_settings",
     "track_volumes_calibrated",
 ]

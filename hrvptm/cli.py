@@ -227,6 +227,9 @@ def cmd_axial(args) -> int:
             progress=not args.quiet,
             provenance={"argv": list(args.argv)},
             parallel=parallel,
+            diameter_name="--sphere-diameter-um"
+            if args.sphere_diameter_um is not None or spec.axial.sphere_diameter_um is None
+            else f"[track.axial] sphere_diameter_um of {args.track_config}",
         )
     except FailedFramesError as exc:
         line = failure_message(exc.failures, hint="--allow-partial")

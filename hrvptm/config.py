@@ -351,7 +351,36 @@ def study_from_dict(
         raise StudyConfigError(f"{where}: a 'series' study needs frames >= 2, got {exp.frames}")
     study = Study(exp, st, rc, tr, Path(source) if source else None)
     _check_recon_scene(where, study)
+    _check_sphere_diameter(where, study)
     return study
+
+
+#: ``[track.axial] sphere_diameter_um`` may differ from ``[particles] diameter_um`` by at most
+#: this factor either way: the reference spheres are the particles.
+SPHERE_TOLERANCE = 1.5
+
+
+def _check_sphere_diameter(where: str, study: Study) -> None:
+    """Refuse reference spheres of another size than the particles the study seeds (a table
+    of particles, ``kind = "csv"``, is checked on the volumes, by
+    :func:`hrvptm.calibrated.check_sphere_diameter`)."""
+    from .calibrated import reference_settings
+
+    axial, seeding = study.track.axial, study.experiment.particles
+    if not axial.enabled or seeding.kind == "csv":
+        return
+    d, p = reference_settings(axial).sphere_diameter_um, seeding.diameter_um
+    if not p / SPHERE_TOLERANCE <= d <= p * SPHERE_TOLERANCE:
+        key = (
+            "sphere_diameter_um"
+            if axial.sphere_diameter_um is not None
+            else ("sphere_diameter_um (unset: the default)")
+        )
+        raise StudyConfigError(
+            f"{where}: [track.axial] {key} = {d:g} µm is not the particles' diameter "
+            f"([particles] diameter_um = {p:g} µm; at most {SPHERE_TOLERANCE:g}× apart): the "
+            f"reference spheres are the particles, give sphere_diameter_um = {p:g}"
+        )
 
 
 def _check_recon_scene(where: str, study: Study) -> None:

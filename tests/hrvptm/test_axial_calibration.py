@@ -248,3 +248,23 @@ def test_self_calibration_on_another_microscope(tmp_path):
     assert b["worst_abs_mean_z"] < 0.6 * a["worst_abs_mean_z"]
     for ax in "xy":
         assert b[f"pooled_rmsd_{ax}"] < 1.1 * a[f"pooled_rmsd_{ax}"], ax
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        ("sphere_diameter_um = 60\n", "sphere_diameter_um = 60 µm"),
+        ("sphere_diameter_um = 5000\n", "sphere_diameter_um = 5000 µm"),
+        ("sphere_diameter_um = 2\n", "sphere_diameter_um = 2 µm"),
+    ],
+)
+def test_sphere_diameter_is_the_particles(tmp_path, extra, needle):
+    """[track.axial] sphere_diameter_um far from the study's particles (15 µm) is refused
+    when the study file is read, naming both."""
+    text = MOTION + "[track.axial]\nmethod = 'simulated'\n" + extra
+    with pytest.raises(StudyConfigError, match="diameter_um = 15 µm") as info:
+        load_study(_write(tmp_path, text))
+    msg = str(info.value)
+    assert needle in msg and "study.toml" in msg and "\n" not in msg
+    ok = load_study(_write(tmp_path, MOTION + "[track.axial]\nmethod = 'simulated'\n"))
+    assert ok.track.axial.sphere_diameter_um is None
