@@ -156,11 +156,10 @@ def test_camera_files_to_tracks(camera_export, tmp_path, capsys):
     truth0 = np.loadtxt(dataset / "truth" / "000000.csv", delimiter=",", skiprows=1)[:, 1:4]
     ids, counts = np.unique(tracks["track_id"], return_counts=True)
     full = ids[counts == 4]
-    # Detection finds all 18 particles in every frame (it found 10 before its scales followed
-    # the volume, issue 12 §2); every track found must be right. The particles it once
-    # rejected as elongated include ones whose long axial images (FWHM ≈ 100 µm) overlap a
-    # neighbour's (one 42 µm off laterally, 84 µm axially) steps 7.65 µm instead of 6 once;
-    # all others stay within 0.8 µm.
+    # Detection finds all 18 particles in every frame (its scales follow the volume); every
+    # track found must be right. Some particles' long axial
+    # images (FWHM ≈ 100 µm) overlap a neighbour's: one of them (42 µm off laterally, 84 µm
+    # axially) steps 7.65 µm instead of 6 once; all others stay within 0.8 µm.
     assert len(full) >= 16
     xyz = np.stack([tracks["x_um"], tracks["y_um"], tracks["z_um"]], axis=1)
     within = 0

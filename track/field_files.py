@@ -37,7 +37,7 @@ def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool 
     and, when the field has them, ``u_std, F_std, e_std``).
 
     Stored without compression: deflate saves about a quarter of the size of these float64
-    arrays but took 25× as long (3.2 s instead of 0.13 s for a 50 000-node field, issue 13).
+    arrays but takes 25× as long (3.2 s instead of 0.13 s for a 50 000-node field).
     """
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
         arrays = {k: getattr(fld, k) for k in _FIELD_ARRAYS}

@@ -1,4 +1,4 @@
-"""The reconstruction's axial bias against the lateral lenslet phase (issue 12 §3).
+"""The reconstruction's axial bias against the lateral lenslet phase.
 
 A particle's axial position in a Richardson–Lucy light-field volume is biased by an amount
 that depends on its depth and on where it sits under its lenslet. In a translation that

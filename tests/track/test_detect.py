@@ -276,7 +276,7 @@ def test_detect_settings_validation(kwargs, name):
         DetectSettings(**kwargs)
 
 
-# -- independence of the reconstruction settings (issue 12 §2) -------------------------------
+# -- independence of the reconstruction settings ---------------------------------------------
 def _rippled_scene(rng, sigma, ripple, pedestal, snr=30.0, shape=(60, 64, 64)):
     """Particles as reconstructions with few or many iterations make them: Gaussians of
     ``sigma`` voxels, their axial profile modulated by ``1 + ripple · cos(2π z / 3 voxels)``
@@ -433,7 +433,7 @@ def test_resolved_neighbours_are_split_not_rejected(rng):
     assert det.report["split_components"] == 0
 
 
-# -- lenslet-phase noise (issue 12 §2) -------------------------------------------------------
+# -- lenslet-phase noise ---------------------------------------------------------------------
 def _phase_noise_scene(seed=1, s=5, spike=0.8):
     """Six particles (peak 1) in white noise (σ 0.03) whose voxels at one sub-lenslet phase
     (rows 2 mod s, columns 4 mod s) carry noise of σ ``spike`` at every depth: the 1-voxel
@@ -484,7 +484,7 @@ def test_detection_with_the_lenslet_period_ignores_phase_noise():
     assert det.n == len(truth)
     dist, _ = _match(det.positions_vox, truth)
     assert np.all(dist < 0.5)
-    # None is today's behaviour exactly
+    # lenslet_period_vox=None is the same as leaving it out
     same = detect_particles(vol, VOXEL, lenslet_period_vox=None)
     assert np.array_equal(same.positions_vox, plain.positions_vox)
     for kwargs in ({"lenslet_period_vox": 0}, {"lenslet_period_vox": 2.5}):

@@ -354,7 +354,7 @@ def test_gcv_on_a_subset_inside_the_field_fit():
     assert np.all(e_sub < 0.75 * e_exact), e_sub / e_exact
 
 
-# -- the fast global spline and the grid that follows the particles (issue 13) -----------------
+# -- the fast global spline and the grid that follows the particles ---------------------------
 def test_global_spline_equals_scipy_with_exact_gradients():
     """One eigen-decomposition for u_x, u_y, u_z with their own λ gives RBFInterpolator's fit
     (measured 2e-12 µm), and the analytic gradient equals central differences of the values.
@@ -405,7 +405,7 @@ def test_grid_follows_the_particle_spacing():
             GridSettings(nodes_per_spacing=bad)
 
 
-# -- standard uncertainties of the gridded fields (issue 12 §4) -----------------------------
+# -- standard uncertainties of the gridded fields ---------------------------------------------
 def _unit_fits(X, lam, Q):
     """Weights W (Q, 3, N) and gradient weights (Q, 3, 3, N) of the fit with λ = ``lam`` at
     ``Q``, column by column from unit data (brute force)."""
