@@ -66,6 +66,7 @@ from hrvbase.cli import (
     add_parallel_options,
     add_setting_options,
     int_in,
+    number,
     parallel_from_args,
     settings_from_args,
 )
@@ -193,6 +194,12 @@ def _cmd_pixel_size(args: argparse.Namespace) -> int:
     return 0
 
 
+def _none_or_fraction(text: str) -> float | None:
+    """argparse type of ``--stop-rel-change``: ``none`` (no early stop) or a number >= 0."""
+    value = number(lambda v: v >= 0, "a number >= 0", keyword="none")(text)
+    return None if value == "none" else value
+
+
 #: ``recon run`` options that set :class:`recon.settings.ReconSettings` fields (their defaults
 #: and checks are the dataclass's).
 RUN_SETTINGS = (
@@ -210,8 +217,8 @@ RUN_SETTINGS = (
         "stop_rel_change",
         ("--stop-rel-change",),
         "stop early when the volume changes by less than this fraction (relative L1) in one "
-        "iteration; none: run all iterations",
-        float,
+        "iteration; 'none' (the default): run all iterations",
+        _none_or_fraction,
         "X",
     ),
     SettingOption(
@@ -413,8 +420,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="depths in µm from the native focal plane (default: from the optics, "
         "±6 lenslet-radii of defocus; ±730 for the paper's microscope)",
     )
+    # --stop-rel-change has no derived default: its help says the default itself
+    stop = next(o for o in RUN_SETTINGS if o.field == "stop_rel_change")
     add_setting_options(
-        run, ReconSettings, RUN_SETTINGS, derived="from the optics (see recon.settings)"
+        run,
+        ReconSettings,
+        [o for o in RUN_SETTINGS if o is not stop],
+        derived="from the optics (see recon.settings)",
+    )
+    run.add_argument(
+        *stop.flags,
+        dest=f"setting_{stop.field}",
+        type=stop.type,
+        default=None,
+        metavar=stop.metavar,
+        help=stop.help,
     )
     path_option(run, "--dark", "DARK.tif", "dark frame subtracted pixel by pixel (default: none)")
     run.add_argument(

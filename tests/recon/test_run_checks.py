@@ -219,3 +219,21 @@ def test_dataset_without_its_white_image_names_the_missing_file(frame, tmp_path,
     rc, stdout, err = run(capsys, "run", ds, *FAST, "-o", out)
     refused(rc, stdout, err, str(ds / "white.tif"), "does not exist", "--calib")
     assert not out.exists()
+
+
+def test_stop_rel_change_accepts_none_as_its_help_says(calib, frame, tmp_path, capsys):
+    from lfsim.io import read_json
+
+    assert main(["run", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "'none' (the default): run all iterations" in text
+    args = ["run", frame, "--scene", SCENE, "--calib", calib, *FAST]
+    for value, recorded in (("none", None), ("0.01", 0.01)):
+        out = tmp_path / f"v_{value}"
+        rc, _, err = run(capsys, *args, "--stop-rel-change", value, "-o", out)
+        assert rc == 0, err
+        assert read_json(out / "recon.json")["settings"]["stop_rel_change"] == recorded
+    for bad in ("never", "-0.1", "nan"):
+        rc, stdout, err = run(capsys, *args, "--stop-rel-change", bad, "-o", tmp_path / "x")
+        refused(rc, stdout, err, "--stop-rel-change", "'none' or a number >= 0", repr(bad))
+    assert not (tmp_path / "x").exists()
