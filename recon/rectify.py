@@ -1,6 +1,6 @@
 """Rectification: resample a light-field image onto whole pixels per lenslet.
 
-Design decision (recon issue, part 1): reconstruction works on *rectified* images, as oLaF
+Design decision: reconstruction works on *rectified* images, as oLaF
 does. The raw image is resampled onto a grid aligned with the lenslet array with an integer
 number ``n`` of pixels per lenslet, so that lenslet ``(u0 + U, v0 + V)`` occupies exactly the
 output block ``[V n, (V + 1) n) × [U n, (U + 1) n)``. The forward model can then use the exact
