@@ -24,10 +24,13 @@ Every file is written atomically. The volumes may be detected on Dask workers (`
 the others are still being detected; the increments' fields are then fitted and gridded on
 the same kind of workers (:func:`track.series.track_series`); the results are the same.
 Resuming: the SHA-256 of each volume is recorded and the detection of volumes whose particle
-table exists with the same checksum is skipped; linking and fields are recomputed. A folder
-made from other inputs or detection settings is refused unless ``overwrite`` (which then
-deletes only files ``track`` writes); a non-empty folder without a ``summary.json`` written
-by ``track`` is always refused.
+table exists with the same checksum is skipped; linking and fields are recomputed, written
+into the hidden folder ``.track-linking`` and moved into place once all are written, so that
+an earlier run's matches, tracks and fields stay until the new ones are ready (and the
+volumes to detect again are read before anything is replaced: a damaged one leaves the
+folder as it was). A folder made from other inputs or detection settings is refused unless
+``overwrite`` (which then deletes only files ``track`` writes); a non-empty folder without a
+``summary.json`` written by ``track`` is always refused.
 
 Failures: a pair that cannot be linked (fewer than ``min_particles`` particles, no
 consistent matches), a field that cannot be gridded or (detection only) a volume without
@@ -230,9 +233,14 @@ def _fingerprint(obj: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+#: Hidden folder of a results folder where linking writes its outputs until all are ready.
+STAGING = ".track-linking"
+
+
 def _our_outputs(out: Path) -> list[Path]:
     """Files and folders ``track`` writes in a results folder."""
     items = [out / "particles", out / "fields", out / "tracks.csv", out / SUMMARY]
+    items.append(out / STAGING)
     items += sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv"))
     return [p for p in items if p.exists()]
 
@@ -271,14 +279,31 @@ def _open_results(out: Path, fingerprint: str, overwrite: bool) -> dict | None:
     return None
 
 
-def _clear_derived(out: Path) -> None:
-    """Remove the linking outputs of an earlier run (they are recomputed)."""
+def _new_staging(out: Path) -> Path:
+    """An empty :data:`STAGING` folder (what an interrupted run left there is removed)."""
+    stage = out / STAGING
+    if stage.exists():
+        shutil.rmtree(stage)
+    stage.mkdir()
+    return stage
+
+
+def _publish_derived(stage: Path, out: Path) -> None:
+    """Move the linking outputs written in ``stage`` into ``out``, replacing those of an
+    earlier run; its files the new run did not write (a pair no longer in the series, fields
+    no longer requested) are removed only then."""
+    new = {p.name for p in stage.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv")}
+    for name in [*sorted(new), "tracks.csv"]:
+        if (stage / name).exists():
+            os.replace(stage / name, out / name)
     for p in sorted(out.glob("matches_[0-9][0-9][0-9][0-9][0-9][0-9].csv")):
-        p.unlink()
-    if (out / "tracks.csv").exists():
-        (out / "tracks.csv").unlink()
+        if p.name not in new:
+            p.unlink()
     if (out / "fields").is_dir():
-        shutil.rmtree(out / "fields")
+        os.replace(out / "fields", stage / "fields.old")
+    if (stage / "fields").is_dir():
+        os.replace(stage / "fields", out / "fields")
+    shutil.rmtree(stage)
 
 
 def _new_summary(command: str, fingerprint: str, parameters: dict, provenance) -> dict:
@@ -461,6 +486,10 @@ class _Detections:
                         v.name,
                     )
         todo = [i for i in range(len(vols)) if self.clouds[i] is None]
+        if prev is not None:  # the earlier results stay unless the volumes to detect are sound
+            for i in todo:
+                if vols[i].dataset is None:  # (a Zarr frame was read for its checksum)
+                    read_volume(vols[i])
         if todo:
             log.info("detecting particles in %d of %d volumes", len(todo), len(vols))
         else:
@@ -601,7 +630,8 @@ def _link_and_write(
         raise InputError(f"linking needs at least 2 frames, got {len(clouds)}")
     if settings.compute_fields and clouds[0].shape[0] >= settings.min_particles:
         check_grid(np.ptp(clouds[0], axis=0), settings.grid, where="frame 0's particles")
-    _clear_derived(out)
+    # the earlier run's outputs stay until this run's are all written (_publish_derived)
+    stage = _new_staging(out)
     t0 = time.perf_counter()
     n_pairs = len(clouds) - 1
     with _bar(n_pairs, progress, "link", "pair") as bar:
@@ -641,7 +671,7 @@ def _link_and_write(
             def field_done(k: int, total, inc) -> None:
                 bar.update()
                 def_id = frame_ids[pairs[k].def_frame]
-                _write_fields(out, def_id, total, inc, vti_encoding, writes)
+                _write_fields(stage, def_id, total, inc, vti_encoding, writes)
 
             res = track_series(
                 clouds,
@@ -652,10 +682,11 @@ def _link_and_write(
                 parallel=parallel,
             )
         t2 = time.perf_counter()
-        _write_increments(out, res, clouds, frame_ids, settings, writes, increments, outcomes)
+        _write_increments(stage, res, clouds, frame_ids, settings, writes, increments, outcomes)
     ids = np.asarray(frame_ids, dtype=np.int64)
     tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
-    write_tracks_csv(out / "tracks.csv", tracks, overwrite=True)
+    write_tracks_csv(stage / "tracks.csv", tracks, overwrite=True)
+    _publish_derived(stage, out)
     summary["increments"] = increments
     summary["counts"] = {
         "frames": len(clouds),

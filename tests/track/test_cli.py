@@ -451,3 +451,43 @@ def test_a_truncated_zarr_chunk_is_one_line_naming_the_frame(tmp_path, capsys):
     assert rc == 2 and err.count("\n") == 1, err
     assert err.startswith(f"track: error: cannot read volume {store}[t=1]")
     assert not out.exists()
+
+
+def _snapshot(folder: Path) -> dict:
+    import hashlib
+
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.mark.parametrize("damage", ["truncated", "nan"])
+def test_a_rerun_on_a_damaged_volume_keeps_the_previous_results(tmp_path, capsys, damage):
+    """A finished run, then one volume truncated (or holding NaN): the rerun is one line
+    naming the file and leaves every previous result as it was."""
+    vols = _hyperstacks(tmp_path / "vols")
+    out = tmp_path / "res"
+    argv = ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4"]
+    rc, err = _run([*argv, "--no-progress"], capsys)
+    assert rc == 0, err
+    before = _snapshot(out)
+    assert "tracks.csv" in before and "matches_000002.csv" in before
+    p = vols / "000002.tif"
+    good = p.read_bytes()
+    if damage == "truncated":
+        p.write_bytes(good[: len(good) // 2])
+    else:
+        from lfsim.io import read_tiff, write_tiff
+
+        vol, meta = read_tiff(p)
+        vol[3, 4, 5] = np.nan
+        write_tiff(p, vol, metadata=meta, pixel_size_um=VOXEL, overwrite=True)
+    rc, err = _run([*argv, "--no-progress"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and str(p) in err, err
+    assert _snapshot(out) == before
+    p.write_bytes(good)
+    rc, err = _run([*argv, "--no-progress"], capsys)
+    assert rc == 0, err
+    assert _snapshot(out).keys() == before.keys()
