@@ -581,11 +581,12 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
     ------
     InputError
         Unreadable files, stacks of unequal images, a mixed series (:func:`check_uniform`),
-        a file given twice or two frames of one number (:func:`check_distinct`), a
-        non-positive ``fps``.
+        a file given twice or two frames of one number (:func:`check_distinct`), an ``fps``
+        that is not a finite number > 0 or that gives a frame a time that is not finite
+        (``--fps 1e-320``).
     """
     if fps is not None and not (math.isfinite(fps) and fps > 0):
-        raise InputError(f"--fps must be a positive number of frames per second, got {fps!r}")
+        raise InputError(f"--fps must be a finite number > 0 (frames per second), got {fps!r}")
     headers: dict[Path, TiffHeader] = {}
     for f in files:
         if f not in headers:
@@ -610,6 +611,13 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
             refs.append(FrameRef(f, page, number, t))
         pages_before += h.n_images
     check_distinct(refs)
+    for r in refs:
+        if r.time_s is not None and not math.isfinite(r.time_s):
+            raise InputError(
+                f"--fps {fps!r} gives frame {r.label!r} (number {r.number}) a time of "
+                f"{r.number} / {fps!r} s, which is not a finite number; expected a frame rate "
+                "in frames per second (e.g. 500)"
+            )
     if fps is not None:
         unnumbered = [r for r in refs if r.number is None]
         if unnumbered:

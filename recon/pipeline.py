@@ -282,7 +282,8 @@ def reconstruct_series(
     )
     checksums = frame_checksums(refs)
     meta_path = out / RECON_JSON
-    previous = _check_output(writer, fp, refs, checksums, overwrite)
+    fps = (provenance or {}).get("fps")
+    previous = _check_output(writer, fp, refs, checksums, overwrite, fps=fps)
     created = not out.exists()
     done, skipped, secs = [], [], {}
     try:
@@ -572,14 +573,36 @@ def _clean_up_failed_start(writer, created: bool, done: list) -> None:
             out.rmdir()
 
 
-def _check_output(writer, fp: str, refs, checksums, overwrite: bool) -> dict | None:
+def _time_text(t) -> str:
+    return "unknown" if t is None else f"{t:g} s"
+
+
+def _source_change(entry: dict, ref, fps_then, fps_now) -> str | None:
+    """How the frame number or time of a kept volume's frame differs from this run's (its
+    ``recon.json`` entry and the volume's own metadata record them), or ``None``."""
+    changes = []
+    if "number" in entry and entry["number"] != ref.number:
+        changes.append(f"frame number {entry['number']}, this run {ref.number}")
+    if "time_s" in entry and entry["time_s"] != ref.time_s:
+        text = f"time {_time_text(entry['time_s'])}, this run {_time_text(ref.time_s)}"
+        if fps_then != fps_now:
+            then = "none" if fps_then is None else f"{fps_then:g}"
+            now = "none" if fps_now is None else f"{fps_now:g}"
+            text += f" (--fps {then} then, {now} now)"
+        changes.append(text)
+    return "; ".join(changes) or None
+
+
+def _check_output(writer, fp: str, refs, checksums, overwrite: bool, fps=None) -> dict | None:
     """Check the output folder before anything is written; the previous record to resume.
 
     A folder that is not empty must hold a ``recon.json``. Its volumes must come from the
     same settings (fingerprint) and from the same inputs as this run's frames of the same
-    index (checksums; a run may extend a shorter one); otherwise it is refused, or with
-    ``overwrite`` the volumes that do not belong to this run are deleted. A record of another
-    format (TIFF volumes, a Zarr image) is refused, even with ``overwrite``.
+    index (checksums; a run may extend a shorter one), with the same frame numbers and times
+    (``fps``: this run's frame rate, for the message), which the volumes record; otherwise it
+    is refused, or with ``overwrite`` the volumes that do not belong to this run are deleted
+    (and reconstructed). A record of another format (TIFF volumes, a Zarr image) is refused,
+    even with ``overwrite``.
     """
     from lfsim.io import read_json
 
@@ -621,6 +644,21 @@ def _check_output(writer, fp: str, refs, checksums, overwrite: bool) -> dict | N
         for k in volumes
         if k >= len(refs) or prev_frames.get(k, {}).get("input_sha256") != checksums[k]
     ]
+    retimed = {
+        k: change
+        for k in volumes
+        if k not in stale
+        and (change := _source_change(prev_frames[k], refs[k], previous.get("fps"), fps))
+    }
+    if retimed and not stale and not overwrite:
+        k, change = next(iter(retimed.items()))
+        raise OutputExistsError(
+            f"output {str(out)!r} holds volumes of other frame numbers or times than this "
+            f"run's (volume {writer.label(k)}, {refs[k].label!r}: {change}); run with the "
+            "same --fps, use a new folder, or --overwrite to reconstruct them (nothing was "
+            "written)"
+        )
+    stale = sorted({*stale, *retimed})
     if stale and not overwrite:
         k = stale[0]
         was = prev_frames.get(k, {})

@@ -472,3 +472,69 @@ def test_output_inside_the_folder_of_a_pattern_or_list_is_refused(
     # An explicit file's folder is not an input folder: `recon run img.tif -o v` is usual.
     rc, _, err = _recon(capsys, tmp_path / "fx" / "img_0.tif", *_opts(calib, tmp_path / "fx" / "v"))
     assert rc == 0, err
+
+
+def test_camera_numbers_and_times_agree_in_recon_json_and_volumes(
+    calib, base_frame, tmp_path, capsys
+):
+    """Frames numbered 0, 1, 5 by the camera keep their numbers and times (number / fps) in
+    recon.json and in each volume's metadata; a resume with another --fps is refused (the kept
+    volumes hold the earlier times), --overwrite writes the new times everywhere."""
+    from lfsim.io import read_json, read_tiff
+
+    write_series(tmp_path / "fx", ["img_0.tif", "img_1.tif", "img_5.tif"], base_frame)
+    vol = tmp_path / "v"
+
+    def recorded(fps: float) -> None:
+        frames = read_json(vol / "recon.json")["frames"]
+        assert [(f["index"], f["number"]) for f in frames] == [(0, 0), (1, 1), (2, 5)]
+        assert [f["time_s"] for f in frames] == [n / fps for n in (0, 1, 5)]
+        for f in frames:
+            meta = read_tiff(vol / f"{f['index']:06d}.tif")[1]
+            assert (meta["frame"], meta["number"], meta["time_s"]) == (
+                f["index"],
+                f["number"],
+                f["time_s"],
+            )
+
+    rc, _, err = _recon(capsys, tmp_path / "fx", "--fps", "100", *_opts(calib, vol))
+    assert rc == 0, err
+    recorded(100.0)
+    before = {p.name: p.read_bytes() for p in vol.iterdir()}
+    _refused(
+        *_recon(capsys, tmp_path / "fx", "--fps", "50", *_opts(calib, vol)),
+        "volume 000001.tif",
+        "time 0.01 s",
+        "0.02 s",
+        "--fps 100 then, 50 now",
+        "--overwrite",
+    )
+    _refused(
+        *_recon(capsys, tmp_path / "fx", *_opts(calib, vol)),
+        "volume 000000.tif",
+        "time 0 s, this run unknown (--fps 100 then, none now)",
+    )
+    assert {p.name: p.read_bytes() for p in vol.iterdir()} == before
+    rc, _, err = _recon(capsys, tmp_path / "fx", "--fps", "50", "--overwrite", *_opts(calib, vol))
+    assert rc == 0, err
+    recorded(50.0)
+    # The same frame rate resumes.
+    rc, out, err = _recon(capsys, tmp_path / "fx", "--fps", "50", *_opts(calib, vol), quiet=False)
+    assert rc == 0 and "0 volume(s) reconstructed, 3 already done" in out, err
+
+
+@pytest.mark.parametrize(
+    ("fps", "what"),
+    [
+        ("1e-320", "not a finite number"),
+        ("inf", "finite number > 0"),
+        ("-inf", "finite number > 0"),
+        ("0", "finite number > 0"),
+        ("fast", "invalid float value: 'fast'"),
+    ],
+)
+def test_fps_must_give_finite_times(calib, base_frame, tmp_path, capsys, fps, what):
+    write_series(tmp_path / "fx", ["img_0.tif", "img_1.tif"], base_frame)
+    out = tmp_path / "v"
+    _refused(*_recon(capsys, tmp_path / "fx", f"--fps={fps}", *_opts(calib, out)), "--fps", what)
+    assert not out.exists()

@@ -217,3 +217,26 @@ def test_frames_written_concurrently_by_other_processes(tmp_path):
     np.testing.assert_array_equal(np.stack([writer.read(k) for k in range(6)]), vols)
     # A frame's record does not fit another frame.
     assert not writer.verify(1, records[0]) and not writer.verify(1, {**records[1], "t": 0})
+
+
+def test_resume_with_another_frame_rate(series, tmp_path, capsys):
+    """The t axis and recon.json give the same times after a resume: another --fps is refused
+    (nothing touched), with --overwrite every frame is written again with the new times."""
+    dataset, _, original = series
+    store = tmp_path / "vol.zarr"
+    shutil.copytree(original, store)
+    before = chunk_files(store)
+    zarr_json = (store / "zarr.json").read_bytes()
+    args = ["run", dataset, *FAST, "--iterations", "2", "--format", "zarr", "--zarr-chunk-z", "4"]
+    rc, _, err = run(capsys, "-q", *args, "--fps", "50", "-o", store)
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "vol.zarr[t=1]" in err and "time 0.01 s, this run 0.02 s (--fps 100 then, 50 now)" in err
+    assert chunk_files(store) == before and (store / "zarr.json").read_bytes() == zarr_json
+    rc, _, err = run(capsys, "-q", *args, "--fps", "50", "--overwrite", "-o", store)
+    assert rc == 0, err
+    meta = json.loads((store / "recon.json").read_text())
+    assert [f["time_s"] for f in meta["frames"]] == [0.0, 0.02, 0.04] and meta["fps"] == 50
+    ome = json.loads((store / "zarr.json").read_text())["attributes"]["ome"]
+    scale, translation = ome["multiscales"][0]["datasets"][0]["coordinateTransformations"]
+    assert scale["scale"][0] == pytest.approx(0.02) and translation["translation"][0] == 0.0
+    assert {k: v[0] for k, v in chunk_files(store).items()} == {k: v[0] for k, v in before.items()}
