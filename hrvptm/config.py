@@ -130,6 +130,9 @@ class StudySpec:
             object.__setattr__(self, "recon_scene", Path(self.recon_scene))
 
 
+#: Keys of ``[study]``.
+STUDY_KEYS = tuple(f.name for f in dataclasses.fields(StudySpec))
+
 #: Sub-tables of ``[track]`` and the settings dataclass each one builds (its keys are the
 #: dataclass's fields; ``[track]`` itself holds the scalar fields of SeriesSettings).
 TRACK_TABLES = {
@@ -335,6 +338,16 @@ def study_from_dict(
     except HrvError as exc:
         raise StudyConfigError(str(exc)) from None
     spec = data.get("study")
+    if spec is not None and not isinstance(spec, Mapping):
+        hint = (
+            f" (write [study] with kind = {spec!r})"
+            if isinstance(spec, str) and spec in KINDS
+            else ""
+        )
+        raise StudyConfigError(
+            f"{where}: [study] must be a table of the keys {', '.join(STUDY_KEYS)}{hint}, "
+            f"got {type(spec).__name__} {spec!r}"
+        )
     if spec is not None and "kind" not in spec:
         spec = {**spec, "kind": "series" if exp.motion is not None else "localization"}
     if spec is None:

@@ -141,3 +141,34 @@ def test_every_section_key_is_a_settings_field():
 
     assert not hasattr(config, "ReconSpec")
     assert {f.name for f in dataclasses.fields(config.TrackSpec)} == {"detect", "series", "axial"}
+
+
+@pytest.mark.parametrize(
+    ("top", "extra", "needle"),
+    [
+        ('study = "series"\n', "", "[study] must be a table"),
+        ('study = ["series"]\n', "", "[study] must be a table"),
+        ("", '[[study]]\nkind = "series"\n', "[study] must be a table"),
+        ("recon = 3\n", "", "[recon] must be a table"),
+        ("track = [1, 2]\n", "", "[track] must be a table"),
+        ("", "[track]\ndetect = 3\n", "[track.detect] must be a table"),
+        ("", "[[track.axial]]\nmethod = 'simulated'\n", "[track.axial] must be a table"),
+        ("", "[track]\naxial = 'simulated'\n", "[track.axial] must be a table"),
+        ("", "[study.kind]\nname = 'series'\n", "[study] kind must be a string"),
+        ("", "[track.mode]\nname = 'incremental'\n", "[track] mode must be a string"),
+    ],
+)
+def test_wrong_type_sections_and_keys_are_one_line_errors(tmp_path, top, extra, needle):
+    p = _write(tmp_path, extra)
+    p.write_text(top + p.read_text(encoding="utf-8"), encoding="utf-8")
+    with pytest.raises(StudyConfigError) as info:
+        load_study(p)
+    msg = str(info.value)
+    assert needle in msg and "study.toml" in msg and "\n" not in msg, msg
+
+
+def test_a_study_kind_given_as_the_section_says_how_to_write_it(tmp_path):
+    p = _write(tmp_path, "")
+    p.write_text('study = "series"\n' + p.read_text(encoding="utf-8"), encoding="utf-8")
+    with pytest.raises(StudyConfigError, match=r"write \[study\] with kind = 'series'"):
+        load_study(p)
