@@ -548,7 +548,13 @@ _RESULT_KEYS = ("seconds", "iterations", "preprocess", "rel_change", "output")
 
 
 def _frame_entry(k: int, ref, sha: str) -> dict:
-    """The ``recon.json`` record of frame ``k``: index, source and checksum."""
+    """The ``recon.json`` record of frame ``k``: index, source, checksum (of the file, or of a
+    stack page's pixels), and the file's size (bytes) and modification time (UTC), which say
+    what changed when a resumed run finds another input."""
+    from datetime import UTC, datetime
+
+    st = os.stat(ref.path)
+    mtime = datetime.fromtimestamp(st.st_mtime, UTC).isoformat(timespec="seconds")
     return {
         "index": k,
         "input": str(ref.path),
@@ -556,7 +562,31 @@ def _frame_entry(k: int, ref, sha: str) -> dict:
         "number": ref.number,
         "time_s": ref.time_s,
         "input_sha256": sha,
+        "input_bytes": st.st_size,
+        "input_mtime": mtime.replace("+00:00", "Z"),
     }
+
+
+def _input_change(was: dict, now: dict) -> str:
+    """What differs between the input a volume was made from (its ``recon.json`` entry) and
+    this run's frame of the same index (:func:`_frame_entry`), as text for a message."""
+
+    def label(e: dict) -> str:
+        return e.get("input", "an unknown frame") + (
+            f" [page {e['page']}]" if e.get("page") is not None else ""
+        )
+
+    parts = [f"SHA-256 {str(was.get('input_sha256'))[:12]}… then, {now['input_sha256'][:12]}… now"]
+    if was.get("input_bytes") is not None:
+        if was["input_bytes"] == now["input_bytes"]:
+            parts.append(f"same size ({now['input_bytes']} bytes)")
+        else:
+            parts.append(f"{was['input_bytes']} bytes then, {now['input_bytes']} now")
+    if was.get("input_mtime") is not None and was["input_mtime"] != now["input_mtime"]:
+        parts.append(f"modified {was['input_mtime']} then, {now['input_mtime']} now")
+    if label(was) == label(now):
+        return f"was made from {label(was)!r}, which has changed since: {'; '.join(parts)}"
+    return f"was made from {label(was)!r}, now {label(now)!r}: {'; '.join(parts)}"
 
 
 def _clean_up_failed_start(writer, created: bool, done: list) -> None:
@@ -658,20 +688,22 @@ def _check_output(writer, fp: str, refs, checksums, overwrite: bool, fps=None) -
             "same --fps, use a new folder, or --overwrite to reconstruct them (nothing was "
             "written)"
         )
-    stale = sorted({*stale, *retimed})
     if stale and not overwrite:
         k = stale[0]
         was = prev_frames.get(k, {})
-        was_label = was.get("input", "an unknown frame")
-        if was.get("page") is not None:
-            was_label += f" [page {was['page']}]"
-        now = f"now {refs[k].label!r}" if k < len(refs) else f"this run has {len(refs)} frame(s)"
+        if k < len(refs):
+            what = _input_change(was, _frame_entry(k, refs[k], checksums[k]))
+        else:
+            was_label = was.get("input", "an unknown frame")
+            if was.get("page") is not None:
+                was_label += f" [page {was['page']}]"
+            what = f"was made from {was_label!r}, this run has {len(refs)} frame(s)"
         raise OutputExistsError(
             f"output folder {str(out)!r} holds volumes made from other inputs or settings "
-            f"(volume {writer.label(k)} was made from {was_label!r}, {now}); use a new folder or "
-            "--overwrite (nothing was written)"
+            f"(volume {writer.label(k)} {what}); use a new folder or --overwrite (nothing was "
+            "written)"
         )
-    for k in stale:
+    for k in sorted({*stale, *retimed}):
         writer.remove(k)
     return previous
 

@@ -538,3 +538,36 @@ def test_fps_must_give_finite_times(calib, base_frame, tmp_path, capsys, fps, wh
     out = tmp_path / "v"
     _refused(*_recon(capsys, tmp_path / "fx", f"--fps={fps}", *_opts(calib, out)), "--fps", what)
     assert not out.exists()
+
+
+def test_a_changed_input_frame_is_refused_saying_what_changed(calib, base_frame, tmp_path, capsys):
+    import os
+
+    from lfsim.io import read_json
+
+    write_series(tmp_path / "fx", ["img_0.tif", "img_1.tif"], base_frame)
+    vol = tmp_path / "v"
+    rc, _, err = _recon(capsys, tmp_path / "fx", *_opts(calib, vol))
+    assert rc == 0, err
+    frame = tmp_path / "fx" / "img_1.tif"
+    entry = read_json(vol / "recon.json")["frames"][1]
+    assert entry["input_bytes"] == frame.stat().st_size and entry["input_mtime"].endswith("Z")
+    # Other pixels, same size, a later time.
+    tifffile.imwrite(frame, (base_frame.astype(np.int64) * 2).astype(np.uint16))
+    assert frame.stat().st_size == entry["input_bytes"]
+    os.utime(frame, (2e9, 2e9))
+    _refused(
+        *_recon(capsys, tmp_path / "fx", *_opts(calib, vol)),
+        f"volume 000001.tif was made from {str(frame)!r}, which has changed since",
+        f"SHA-256 {entry['input_sha256'][:12]}… then",
+        f"same size ({entry['input_bytes']} bytes)",
+        f"modified {entry['input_mtime']} then, 2033-05-18T03:33:20Z now",
+        "--overwrite",
+    )
+    # A file of another size (compressed): its size is named too.
+    tifffile.imwrite(frame, base_frame, compression="zlib")
+    size = frame.stat().st_size
+    _refused(
+        *_recon(capsys, tmp_path / "fx", *_opts(calib, vol)),
+        f"{entry['input_bytes']} bytes then, {size} now",
+    )
