@@ -15,6 +15,19 @@ behind it (a relay lens between array and camera is folded into ``pixel_um``, th
 referred to that plane). The image through the 4f system is inverted; the sensor's pixel grid
 is read out so that object +x runs along increasing columns and +y along increasing rows.
 
+The specimen (docs/conventions.md §2). The objective is designed for an immersion medium of
+index ``immersion_ior`` (1 for a dry objective) and, optionally, for a cover glass of
+thickness ``coverslip_corrected_um``; the thin-lens model above holds in that medium (ray slopes
+are taken in the immersion medium). Between the objective and the particles lie, in order, the
+immersion medium, an optional cover glass (or dish bottom) of thickness
+``coverslip_thickness_um`` and index ``coverslip_ior``, and the specimen of index
+``medium_ior``, which fills the half-space beyond the cover glass. ``focus_depth_um`` is the
+user's focus setting: how far the stage moved the nominal focal plane into the specimen past
+its near surface. Rays refract exactly (Snell's law) at the planar interfaces; a cover glass the
+objective is corrected for is compensated exactly. The native object plane then lies
+:attr:`Optics.focal_shift_um` beyond the nominal focal plane, and object coordinates ``z`` are
+true distances in the specimen from it.
+
 All lengths are micrometres.
 """
 
@@ -90,8 +103,23 @@ class Optics:
     mla_thickness_um : float
         Glass array thickness from the lenslet vertices to the flat back.
     medium_ior : float
-        Refractive index of the specimen medium. Only 1.0 (the paper's paraxial model, which
-        ignores the focal shift of a water/gel immersion) is supported today.
+        Refractive index of the specimen (1.0 air, 1.33 water, ≈ 1.35 a 10 % polyacrylamide
+        gel, 1.41 PDMS).
+    immersion_ior : float
+        Index of the medium the objective is designed for (1.0 dry, 1.333 water, 1.518 oil);
+        ``na`` must stay below it.
+    coverslip_thickness_um : float
+        Thickness of the cover glass or dish bottom between the immersion medium and the
+        specimen (0: none).
+    coverslip_ior : float
+        Refractive index of the cover glass.
+    coverslip_corrected_um : float
+        Cover-glass thickness (of index ``coverslip_ior``) the objective is corrected for
+        (0: not corrected, as most low-magnification dry objectives).
+    focus_depth_um : float
+        Focus setting: distance by which the stage moved the nominal focal plane into the
+        specimen past its near surface (the cover glass's far face). Used only where the
+        specimen has an interface (:attr:`has_interfaces`).
     axis_px : tuple of float, optional
         Sensor position ``(column, row)`` of the optical axis in continuous pixel coordinates
         (pixel ``i`` spans ``[i, i + 1)``). Default: the centre of the lenslet nearest to the
@@ -111,11 +139,39 @@ class Optics:
     mla_ior: float = 1.5
     mla_thickness_um: float = 300.0
     medium_ior: float = 1.0
+    immersion_ior: float = 1.0
+    coverslip_thickness_um: float = 0.0
+    coverslip_ior: float = 1.523
+    coverslip_corrected_um: float = 0.0
+    focus_depth_um: float = 0.0
     axis_px: tuple[float, float] | None = field(default=None)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.na, int | float) or not (0 < self.na < 1):
-            raise ConfigError(f"na must lie in (0, 1), got {self.na!r}")
+        for name in ("medium_ior", "immersion_ior", "coverslip_ior"):
+            v = getattr(self, name)
+            if not isinstance(v, int | float) or not math.isfinite(v) or not (1.0 <= v < 4.0):
+                raise ConfigError(f"{name} must be a refractive index in [1, 4), got {v!r}")
+        if not isinstance(self.na, int | float) or not (0 < self.na < self.immersion_ior):
+            raise ConfigError(
+                f"na must lie in (0, immersion_ior = {self.immersion_ior:g}), got {self.na!r}"
+            )
+        for name in ("coverslip_thickness_um", "coverslip_corrected_um"):
+            v = getattr(self, name)
+            if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                raise ConfigError(f"{name} must be a finite thickness >= 0 µm, got {v!r}")
+        if not isinstance(self.focus_depth_um, int | float) or not math.isfinite(
+            self.focus_depth_um
+        ):
+            raise ConfigError(
+                f"focus_depth_um must be a finite number, got {self.focus_depth_um!r}"
+            )
+        if self.has_interfaces and self.paraxial_native_plane_depth_um < 0:
+            raise ConfigError(
+                f"focus_depth_um={self.focus_depth_um:g} puts the native object plane "
+                f"{-self.paraxial_native_plane_depth_um:.4g} µm in front of the specimen; focus "
+                "at least "
+                f"{-self._coverslip_residual_um:.4g} µm into it"
+            )
         for name in (
             "f_objective_um",
             "f_tube_um",
@@ -130,8 +186,6 @@ class Optics:
             raise ConfigError(f"mla_kind must be one of {MLA_KINDS}, got {self.mla_kind!r}")
         if not (1.0 < self.mla_ior < 4.0):
             raise ConfigError(f"mla_ior must lie in (1, 4), got {self.mla_ior!r}")
-        if self.medium_ior != 1.0:
-            raise ConfigError("medium_ior other than 1.0 is not supported yet")
         sp = tuple(self.sensor_px)
         if len(sp) != 2 or any(int(v) != v or v < 1 for v in sp):
             raise ConfigError(f"sensor_px must be two positive integers, got {self.sensor_px!r}")
@@ -181,8 +235,116 @@ class Optics:
 
     @property
     def theta_max(self) -> float:
-        """Half-angle (rad) of the acceptance cone in object space, ``asin(NA)``."""
-        return math.asin(self.na)
+        """Half-angle (rad) of the acceptance cone in the immersion medium,
+        ``asin(NA / n_immersion)``."""
+        return math.asin(self.na / self.immersion_ior)
+
+    @property
+    def emission_half_angle(self) -> float:
+        """Half-angle (rad) of the cone of rays, in the specimen, that can reach the sensor.
+
+        ``n sin θ`` is conserved across planar interfaces, so it is
+        ``asin(min(NA, n_medium, n_cover) / n_medium)``: a specimen of lower index than the NA
+        (a dry specimen under an oil objective) or a thinner cover glass index caps it.
+        """
+        caps = [self.na, self.medium_ior]
+        if self.coverslip_thickness_um > 0:
+            caps.append(self.coverslip_ior)
+        return math.asin(min(caps) / self.medium_ior)
+
+    # -- the specimen ---------------------------------------------------------------------
+    @property
+    def has_interfaces(self) -> bool:
+        """Whether any interface lies between the objective and the specimen (a specimen of
+        another index than the immersion medium, or a cover glass present or corrected for)."""
+        return (
+            self.medium_ior != self.immersion_ior
+            or self.coverslip_thickness_um > 0
+            or self.coverslip_corrected_um > 0
+        )
+
+    @property
+    def _coverslip_residual_um(self) -> float:
+        """Paraxial focal shift of the cover glass the objective is not corrected for, in the
+        immersion medium: ``(t − t₀)(1 − n_imm / n_cover)``."""
+        dt = self.coverslip_thickness_um - self.coverslip_corrected_um
+        return dt * (1.0 - self.immersion_ior / self.coverslip_ior)
+
+    def _focus_terms(self, n_quad: int = 2048) -> tuple[float, float]:
+        """``(a, b)`` of the least-squares axial crossing ``Z(d) = a·d + b`` (nominal frame, µm)
+        of the rays a point at true depth ``d`` below the specimen's surface sends into the
+        objective, by Snell's law in closed form.
+
+        A ray at angle θ in the specimen leaves the cover glass's front face at the lateral
+        offset ``r = d tan θ + t tan θ_cover + t₀ (tan θ_imm − tan θ_glass,imm)`` with slope
+        ``tan θ_imm`` (``n sin θ`` conserved), so it crosses the axis at
+        ``Z_front + r / tan θ_imm``; the crossings are averaged with the weights
+        ``tan² θ_imm`` that minimise the rays' mean squared distance from the axis point, over
+        the emission cone (uniform in solid angle, midpoint rule in ``cos θ``).
+        """
+        import numpy as np
+
+        c0 = math.cos(self.emission_half_angle)
+        cos = c0 + (1.0 - c0) * (np.arange(n_quad) + 0.5) / n_quad
+        sin = np.sqrt(1.0 - cos**2)
+        s_i = self.medium_ior * sin / self.immersion_ior
+        tan_i = s_i / np.sqrt(1.0 - s_i**2)
+        slope = (sin / cos) / tan_i  # d(crossing)/d(depth) of each ray
+        offset = np.zeros_like(sin)
+        if self.coverslip_thickness_um > 0:
+            s_c = self.medium_ior * sin / self.coverslip_ior
+            offset += self.coverslip_thickness_um * s_c / np.sqrt(1.0 - s_c**2)
+        if self.coverslip_corrected_um > 0:
+            s_g = self.immersion_ior * s_i / self.coverslip_ior
+            offset += self.coverslip_corrected_um * (tan_i - s_g / np.sqrt(1.0 - s_g**2))
+        w = tan_i**2 / np.sum(tan_i**2)
+        z_front = -self.focus_depth_um - self.coverslip_thickness_um
+        return float(np.sum(w * slope)), float(z_front + np.sum(w * offset / tan_i))
+
+    @property
+    def native_plane_depth_um(self) -> float:
+        """True depth (µm) of the native object plane below the specimen's near surface.
+
+        The depth of the point whose rays converge, in the least-squares sense, on the nominal
+        focal plane (:meth:`_focus_terms`). Paraxially it is
+        ``(n_medium / n_imm) · (focus_depth_um + (t − t₀)(1 − n_imm / n_cover))``; the rays of a
+        finite NA focus a little deeper (spherical aberration of the planar interfaces: +2.4 %
+        of the shift at 0.2 NA into a gel of index 1.35). Without interfaces it is
+        ``focus_depth_um``.
+        """
+        if not self.has_interfaces:
+            return self.focus_depth_um
+        a, b = self._focus_terms()
+        return -b / a
+
+    @property
+    def paraxial_native_plane_depth_um(self) -> float:
+        """The paraxial value of :attr:`native_plane_depth_um` (µm)."""
+        if not self.has_interfaces:
+            return self.focus_depth_um
+        ratio = self.medium_ior / self.immersion_ior
+        return ratio * (self.focus_depth_um + self._coverslip_residual_um)
+
+    @property
+    def focal_shift_um(self) -> float:
+        """Distance (µm) from the nominal focal plane to the native object plane (positive: the
+        native plane lies deeper, away from the objective). 0 without interfaces."""
+        return self.native_plane_depth_um - self.focus_depth_um
+
+    @property
+    def surface_z_um(self) -> float:
+        """Object ``z`` (µm) of the specimen's near surface: sources must lie beyond it."""
+        return -self.native_plane_depth_um
+
+    @property
+    def axial_scale(self) -> float:
+        """Ratio of apparent to true axial distances in the specimen: how far the least-squares
+        focus moves per µm of true depth (:meth:`_focus_terms`); paraxially
+        ``n_imm / n_medium`` (0.741 for a dry objective into a gel of index 1.35, 0.733 with
+        the rays of 0.2 NA). 1 without interfaces."""
+        if not self.has_interfaces:
+            return 1.0
+        return self._focus_terms()[0]
 
     @property
     def stop_radius_um(self) -> float:
@@ -191,8 +353,9 @@ class Optics:
 
     @property
     def cone_fraction(self) -> float:
-        """Fraction of isotropic emission inside the acceptance cone, ``(1 − cos θmax)/2``."""
-        return 0.5 * (1.0 - math.cos(self.theta_max))
+        """Fraction of isotropic emission inside the cone that reaches the objective,
+        ``(1 − cos θ)/2`` with θ the :attr:`emission_half_angle` in the specimen."""
+        return 0.5 * (1.0 - math.cos(self.emission_half_angle))
 
     @property
     def image_na(self) -> float:
@@ -289,14 +452,15 @@ class Optics:
     def spot_spacing_px(self, z_um: float) -> float:
         """Predicted spacing of the spot grid made by a point at depth ``z_um``.
 
-        A point at depth z images ``M² |z|`` from the array; each lenslet projects it onto the
+        A point at (apparent, paraxial: ``z · axial_scale``) depth z images ``M² |z|`` from
+        the array; each lenslet projects it onto the
         sensor, so spots repeat every ``p (1 ± f_l / (M² |z|))`` — the sign depends on the side
         of focus (``+`` for z > 0 with this project's axes, where the image forms in front of
         the array).
         """
         if z_um == 0:
             raise ConfigError("the spot spacing is undefined on the native object plane")
-        d = self.magnification**2 * z_um
+        d = self.magnification**2 * z_um * self.axial_scale
         return self.px_per_lenslet * (1.0 + self.mla_focal_um / d)
 
     def to_dict(self) -> dict:

@@ -36,13 +36,15 @@ def max_depth_um(optics) -> float:
     """Largest ``|z|`` (µm) whose light still falls mostly on the sensor.
 
     A point at depth ``z`` from the native focal plane spreads its light over a disc of
-    object-space diameter ``2 |z| tan(asin NA)``; beyond the depth where that disc is as wide
-    as the narrower side of the field of view (``Optics.field_of_view_um``), a particle is no
-    longer imaged, only a faint uniform background.
+    object-space diameter ``2 |z| a tan θ`` (θ the acceptance half-angle in the immersion
+    medium, ``a`` the ratio of apparent to true depth in the specimen: ``2 |z| tan(asin NA)``
+    in air); beyond the depth where that disc is as wide as the narrower side of the field of
+    view (``Optics.field_of_view_um``), a particle is no longer imaged, only a faint uniform
+    background.
     """
     x0, x1, y0, y1 = optics.field_of_view_um
     width = min(x1 - x0, y1 - y0)
-    return width / (2.0 * math.tan(math.asin(optics.na)))
+    return width / (2.0 * math.tan(optics.theta_max) * optics.axial_scale)
 
 
 def check_depths(optics, positions_um: np.ndarray, ids=None, what: str = "particles") -> None:
@@ -52,8 +54,14 @@ def check_depths(optics, positions_um: np.ndarray, ids=None, what: str = "partic
     limit = max_depth_um(optics)
     behind = p[:, 2] <= -optics.f_objective_um
     far = np.abs(p[:, 2]) > limit
+    outside = p[:, 2] < optics.surface_z_um if optics.has_interfaces else np.zeros(len(p), bool)
     for bad, why in (
         (behind, f"lie behind the objective (z <= -{optics.f_objective_um:.0f} µm)"),
+        (
+            outside,
+            f"lie in front of the specimen's near surface (z < {optics.surface_z_um:.1f} µm; "
+            "focus_depth_um sets it)",
+        ),
         (far, f"lie outside the imaged depth range |z| <= {limit:.0f} µm"),
     ):
         if np.any(bad):
@@ -135,7 +143,10 @@ def white_sources(optics, thickness_um: float = 2.0, margin_um: float | None = N
     xs = np.arange(x0 - margin_um, x1 + margin_um, step) + step / 2
     ys = np.arange(y0 - margin_um, y1 + margin_um, step) + step / 2
     gx, gy = np.meshgrid(xs, ys)
-    centers = np.c_[gx.ravel(), gy.ravel(), np.zeros(gx.size)]
+    # In a specimen whose surface is within half a slide of the native plane, the slide lies
+    # just inside the specimen.
+    z = max(0.0, optics.surface_z_um + thickness_um / 2) if optics.has_interfaces else 0.0
+    centers = np.c_[gx.ravel(), gy.ravel(), np.full(gx.size, z)]
     return Sources.boxes(centers, (step, step, thickness_um))
 
 

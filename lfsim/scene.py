@@ -14,9 +14,18 @@ id                    element
                       instanced spherical-cap mesh (``mla_lenslet_*``) and the flat
                       back ``mla_back`` (``dielectric``)
 ``sensor``            ``lfm_sensor`` at the lenslets' back focal plane
+``specimen_surface``  with a specimen interface: ``dielectric`` plane at the
+                      specimen's near surface (interior: the specimen)
+``coverslip_front``   with a cover glass: ``dielectric`` plane at its face
+                      towards the objective (interior: the glass)
+``coverslip_correction``  with a corrected cover-glass thickness: a ``null``
+                      plane just in front of the cover glass, where the tracer
+                      undoes that thickness of glass (:func:`lfsim.tracer.to_immersion`)
 ====================  =========================================================
 
-The native object plane lies at ``z = −2 f_tube − 2 f_obj``. The file starts with one
+The nominal focal plane lies at ``z = −2 f_tube − 2 f_obj``; the native object plane lies
+:attr:`~lfsim.optics.Optics.focal_shift_um` beyond it (towards −z), the specimen's near surface
+``focus_depth_um`` in front of it. The file starts with one
 ``<default>`` per :class:`~lfsim.optics.Optics` field: that block is what
 :func:`read_optics` returns, and it checks that every element agrees with it, so a file edited
 by hand either stays consistent or fails with a message naming the element.
@@ -57,18 +66,24 @@ class Layout:
     tube_z: float
     mla_z: float
     sensor_z: float
+    surface_z: float
+    coverslip_front_z: float
 
     @classmethod
     def of(cls, optics: Optics) -> Layout:
         fo = optics.f_objective_um / UM_PER_MM
         ft = optics.f_tube_um / UM_PER_MM
+        nominal = -2 * ft - 2 * fo
+        surface = nominal + optics.focus_depth_um / UM_PER_MM
         return cls(
-            object_z=-2 * ft - 2 * fo,
+            object_z=nominal - optics.focal_shift_um / UM_PER_MM,
             objective_z=-2 * ft - fo,
             stop_z=-2 * ft,
             tube_z=-ft,
             mla_z=0.0,
             sensor_z=optics.sensor_distance_um / UM_PER_MM,
+            surface_z=surface,
+            coverslip_front_z=surface + optics.coverslip_thickness_um / UM_PER_MM,
         )
 
 
@@ -230,6 +245,8 @@ def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "
         s = _rect(root, "mla_back", xc, yc, lay.mla_z + t, mla_hw, mla_hh)
         ET.SubElement(s, "ref", id="mla_glass")
 
+    _write_specimen(root, optics, lay, 2.0 * r_obj)
+
     s = _rect(root, "sensor", xc, yc, lay.sensor_z, hw, hh)
     _bsdf(
         s,
@@ -242,6 +259,49 @@ def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "
     ET.indent(root, space="    ")
     data = ET.tostring(root, encoding="unicode") + "\n"
     return atomic_write_text(path, data, overwrite=True)
+
+
+def _dielectric(parent, sid, z, half, int_ior, ext_ior):
+    s = _rect(parent, sid, 0, 0, z, half, half)
+    _bsdf(s, "dielectric", int_ior=float(int_ior), ext_ior=float(ext_ior))
+    return s
+
+
+#: Offset (mm) of the cover-glass correction plane in front of the cover glass.
+CORRECTION_GAP_MM = 1e-2
+
+
+def _write_specimen(root, optics: Optics, lay: Layout, half: float) -> None:
+    """The specimen's interfaces (rectangles normal to z, interior on the specimen's side)."""
+    if not optics.has_interfaces:
+        return
+    n_m, n_i = optics.medium_ior, optics.immersion_ior
+    if optics.coverslip_thickness_um > 0:
+        _dielectric(root, "specimen_surface", lay.surface_z, half, n_m, optics.coverslip_ior)
+        _dielectric(root, "coverslip_front", lay.coverslip_front_z, half, optics.coverslip_ior, n_i)
+    elif n_m != n_i:
+        _dielectric(root, "specimen_surface", lay.surface_z, half, n_m, n_i)
+    if optics.coverslip_corrected_um > 0:
+        # A disk, not a rectangle: Mitsuba merges rectangles of equal BSDFs (the glass array's
+        # null diffraction plane) into one shape, and the tracer must tell the two apart.
+        s = ET.SubElement(root, "shape", type="disk", id="coverslip_correction")
+        tr = ET.SubElement(s, "transform", name="to_world")
+        ET.SubElement(tr, "scale", x=_fmt(half), y=_fmt(half), z="1")
+        ET.SubElement(
+            tr, "translate", x="0", y="0", z=_fmt(lay.coverslip_front_z + CORRECTION_GAP_MM)
+        )
+        ET.SubElement(s, "bsdf", type="null")
+
+
+#: Optics fields a scene file may omit (the specimen: files written before it was modelled
+#: describe air behind a dry objective, which these defaults are).
+OPTIONAL_FIELDS = (
+    "immersion_ior",
+    "coverslip_thickness_um",
+    "coverslip_ior",
+    "coverslip_corrected_um",
+    "focus_depth_um",
+)
 
 
 # -- reader ---------------------------------------------------------------------------------
@@ -268,7 +328,12 @@ def read_optics(path: str | os.PathLike) -> Optics:
     if root.tag != "scene":
         raise SceneError(f"{path}: root element is <{root.tag}>, expected <scene>")
     defaults = {d.get("name"): d.get("value") for d in root.findall("default")}
-    needed = [*_SCALAR_FIELDS, "mla_kind", "sensor_width_px", "sensor_height_px"]
+    needed = [
+        *(f for f in _SCALAR_FIELDS if f not in OPTIONAL_FIELDS),
+        "mla_kind",
+        "sensor_width_px",
+        "sensor_height_px",
+    ]
     missing = [k for k in needed if k not in defaults]
     if missing:
         raise SceneError(
@@ -278,7 +343,8 @@ def read_optics(path: str | os.PathLike) -> Optics:
     kw: dict = {}
     try:
         for name in _SCALAR_FIELDS:
-            kw[name] = float(defaults[name])
+            if name in defaults:
+                kw[name] = float(defaults[name])
         kw["sensor_px"] = (int(defaults["sensor_width_px"]), int(defaults["sensor_height_px"]))
         if "axis_x_px" in defaults:
             kw["axis_px"] = (float(defaults["axis_x_px"]), float(defaults["axis_y_px"]))
@@ -344,6 +410,7 @@ def _check_elements(path: Path, root: ET.Element, optics: Optics) -> None:
     _check(
         path, "sensor", "height_px", _prop(path, sensor, "sensor", "height_px"), optics.sensor_px[1]
     )
+    _check_specimen(path, root, optics, lay)
     mla = _shape(path, root, "mla")
     if optics.mla_kind == "ideal":
         p = optics.mla_pitch_um / UM_PER_MM
@@ -369,6 +436,38 @@ def _check_elements(path: Path, root: ET.Element, optics: Optics) -> None:
             )
 
 
+def _check_specimen(path: Path, root: ET.Element, optics: Optics, lay: Layout) -> None:
+    """The specimen's planes are where the optics block puts them, with its indices."""
+    ids = {s.get("id") for s in root.findall("shape")}
+    want: list[tuple[str, float, float | None, float | None]] = []
+    if optics.has_interfaces:
+        n_m, n_i = optics.medium_ior, optics.immersion_ior
+        if optics.coverslip_thickness_um > 0:
+            want += [
+                ("specimen_surface", lay.surface_z, n_m, optics.coverslip_ior),
+                ("coverslip_front", lay.coverslip_front_z, optics.coverslip_ior, n_i),
+            ]
+        elif n_m != n_i:
+            want.append(("specimen_surface", lay.surface_z, n_m, n_i))
+        if optics.coverslip_corrected_um > 0:
+            want.append(
+                ("coverslip_correction", lay.coverslip_front_z + CORRECTION_GAP_MM, None, None)
+            )
+    names = {w[0] for w in want}
+    for sid in ("specimen_surface", "coverslip_front", "coverslip_correction"):
+        if sid in ids and sid not in names:
+            raise SceneError(
+                f"{path}: element {sid!r} does not belong to the optics block's specimen; "
+                "regenerate the scene with `lfsim scene`"
+            )
+    for sid, z, n_int, n_ext in want:
+        e = _shape(path, root, sid)
+        _check(path, sid, "z (mm)", _z(e), z)
+        if n_int is not None:
+            _check(path, sid, "int_ior", _prop(path, e, sid, "int_ior"), n_int)
+            _check(path, sid, "ext_ior", _prop(path, e, sid, "ext_ior"), n_ext)
+
+
 # -- loading into Mitsuba ------------------------------------------------------------------
 @dataclass
 class LightFieldScene:
@@ -382,6 +481,12 @@ class LightFieldScene:
     mi_scene : mitsuba.Scene
     sensor, mla : mitsuba.Shape
         Shapes whose hits the tracer bins into pixels / blurs by diffraction.
+    correction : mitsuba.Shape or None
+        The plane where the tracer undoes the cover glass the objective is corrected for.
+    interfaces : tuple of mitsuba.Shape
+        The specimen's planes (interfaces and correction plane), far from the scene origin:
+        the tracer continues rays from them along their new direction, not from an offset
+        along the normal.
     layout : Layout
     """
 
@@ -391,6 +496,8 @@ class LightFieldScene:
     sensor: object
     mla: object
     layout: Layout
+    correction: object = None
+    interfaces: tuple = ()
 
 
 def load_scene(path: str | os.PathLike) -> LightFieldScene:
@@ -417,7 +524,20 @@ def load_scene(path: str | os.PathLike) -> LightFieldScene:
     for sid in ("sensor", "mla"):
         if sid not in by_id:
             raise SceneError(f"{path}: loaded scene has no shape {sid!r}")
-    return LightFieldScene(optics, path, scene, by_id["sensor"], by_id["mla"], Layout.of(optics))
+    return LightFieldScene(
+        optics,
+        path,
+        scene,
+        by_id["sensor"],
+        by_id["mla"],
+        Layout.of(optics),
+        by_id.get("coverslip_correction"),
+        tuple(
+            by_id[k]
+            for k in ("specimen_surface", "coverslip_front", "coverslip_correction")
+            if k in by_id
+        ),
+    )
 
 
 def scene_from_optics(optics: Optics, cache_dir: str | os.PathLike | None = None):

@@ -41,6 +41,10 @@ from .errors import ConfigError
 log = logging.getLogger(__name__)
 
 MODES = ("photons", "expected")
+
+#: Axial step (mm) by which a ray leaves a specimen plane in the Mitsuba tracer (well above the
+#: float32 spacing of scene coordinates 500 mm from the origin, 6e-5 mm).
+INTERFACE_STEP_MM = 1e-3
 UM_PER_MM = 1000.0
 
 
@@ -155,6 +159,22 @@ def _seed_words(seed: int) -> tuple[int, int]:
     return a, mix(a)
 
 
+def _check_inside_specimen(sources: Sources, optics) -> None:
+    """Every source lies wholly beyond the specimen's near surface (where there is one)."""
+    if not optics.has_interfaces or len(sources) == 0:
+        return
+    half = sources.sizes_um / 2 if sources.kind == "sphere" else sources.sizes_um[:, 2] / 2
+    near = sources.centers_um[:, 2] - half
+    bad = np.flatnonzero(near < optics.surface_z_um - 1e-6)
+    if len(bad):
+        k = int(bad[0])
+        raise ConfigError(
+            f"{len(bad)} source(s) reach in front of the specimen's near surface at "
+            f"z = {optics.surface_z_um:.4g} µm (first: #{k} at z = "
+            f"{sources.centers_um[k, 2]:.4g} µm); move them deeper or raise focus_depth_um"
+        )
+
+
 class _Emitter:
     """Samples ray origins (µm, object frame) and unit directions for a batch of rays."""
 
@@ -177,9 +197,10 @@ class _Emitter:
             self.size = [mi.Float((sources.sizes_um / 2).astype(np.float32))]
         else:
             self.size = [mi.Float(sources.sizes_um[:, k].astype(np.float32)) for k in range(3)]
+        _check_inside_specimen(sources, optics)
         w = sources.weights if settings.mode == "expected" else np.ones(len(sources))
         self.weight = mi.Float(w.astype(np.float32))
-        theta = min(optics.theta_max * (1.0 + settings.cone_margin), math.pi / 2)
+        theta = min(optics.emission_half_angle * (1.0 + settings.cone_margin), math.pi / 2)
         self.cos_cutoff = math.cos(theta)
         self.seed = _seed_words(settings.seed)
 
@@ -216,6 +237,81 @@ class _Emitter:
         )
         w = dr.gather(mi.Float, self.weight, src)
         return rng, o, d, w, src
+
+
+def _specimen_layers(optics) -> list[tuple[float, float, float]]:
+    """Planar interfaces from the specimen to the immersion medium, in the order light meets
+    them: ``(travel_um, n_from, n_to)``, ``travel_um`` being the axial path in the layer
+    *before* the interface (0 for the specimen itself, whose path depends on the source)."""
+    layers = []
+    n = optics.medium_ior
+    if optics.coverslip_thickness_um > 0:
+        layers.append((0.0, n, optics.coverslip_ior))
+        layers.append((optics.coverslip_thickness_um, optics.coverslip_ior, optics.immersion_ior))
+    elif n != optics.immersion_ior:
+        layers.append((0.0, n, optics.immersion_ior))
+    return layers
+
+
+def _fresnel_transmittance(dr, mi, cos_i, n_from: float, n_to: float):
+    """Unpolarised Fresnel transmittance of a planar interface (Mitsuba's ``fresnel``)."""
+    f, _cos_t, _eta_it, _eta_ti = mi.fresnel(cos_i, mi.Float(n_to / n_from))
+    return 1.0 - f
+
+
+def to_immersion(optics, o, d, dr, mi):
+    """Carry rays from the specimen through its planar interfaces into the immersion medium.
+
+    Exact Snell refraction at every interface (the transverse direction cosines scale by
+    ``n_from / n_to``), total internal reflection dropped, and the cover glass the objective is
+    corrected for (``coverslip_corrected_um`` of index ``coverslip_ior``) undone exactly: the
+    ray is displaced laterally by ``t₀ (u_imm − u_glass)``, the difference a slab of that glass
+    would have made, so the objective sees the ray it was designed for.
+
+    Parameters
+    ----------
+    o : mitsuba.Point3f
+        Ray origins, object frame (µm; ``z`` true distance in the specimen from the native
+        object plane, growing away from the objective).
+    d : mitsuba.Vector3f
+        Unit directions in the specimen, ``d.z > 0`` towards the objective.
+
+    Returns
+    -------
+    x, y, z : mitsuba.Float
+        A point of the ray in the immersion medium, in the nominal frame (µm; ``z`` from the
+        nominal focal plane, growing away from the objective).
+    u, v : mitsuba.Float
+        Slopes ``dx/dz``, ``dy/dz`` in the immersion medium, per unit of axial travel.
+    transmittance : mitsuba.Float
+        Product of the interfaces' Fresnel transmittances (0 for totally reflected rays).
+    """
+    if not optics.has_interfaces:
+        return o.x, o.y, o.z, d.x / d.z, d.y / d.z, mi.Float(1.0)
+    z = o.z + optics.focal_shift_um  # nominal frame
+    z_surface = -optics.focus_depth_um
+    inside = z >= z_surface
+    x, y = o.x + d.x / d.z * (z - z_surface), o.y + d.y / d.z * (z - z_surface)
+    z = mi.Float(z_surface)
+    dx, dy, dz = d.x, d.y, d.z
+    trans = dr.select(inside, mi.Float(1.0), 0.0)
+    for travel, n_from, n_to in _specimen_layers(optics):
+        if travel > 0:
+            x, y, z = x + dx / dz * travel, y + dy / dz * travel, z - travel
+        trans *= _fresnel_transmittance(dr, mi, dz, n_from, n_to)
+        a = n_from / n_to
+        dx, dy = dx * a, dy * a
+        sin2 = dx * dx + dy * dy
+        trans = dr.select(sin2 < 1.0, trans, 0.0)
+        dz = dr.sqrt(dr.maximum(1.0 - sin2, 1e-12))
+    t0 = optics.coverslip_corrected_um
+    if t0 > 0:
+        a = optics.immersion_ior / optics.coverslip_ior
+        gx, gy = dx * a, dy * a
+        gz = dr.sqrt(dr.maximum(1.0 - (gx * gx + gy * gy), 1e-12))
+        x = x + t0 * (dx / dz - gx / gz)
+        y = y + t0 * (dy / dz - gy / gz)
+    return x, y, z, dx / dz, dy / dz, trans
 
 
 class _Film:
@@ -276,7 +372,19 @@ def _propagate(scene, film, ray, rng, w, sensor_blur, blur_mla, max_bounces) -> 
     mi_scene = scene.mi_scene
     sensor_ptr = mi.ShapePtr(scene.sensor)
     mla_ptr = mi.ShapePtr(scene.mla)
+    interfaces = [mi.ShapePtr(sh) for sh in scene.interfaces]
     gx, gy, s_sen = sensor_blur
+    correction = None
+    if scene.correction is not None:
+        t0 = scene.optics.coverslip_corrected_um / UM_PER_MM
+        a = scene.optics.immersion_ior / scene.optics.coverslip_ior
+
+        def shift(d):  # t₀ (u_imm − u_glass), the cover glass the objective expects, undone
+            gx_, gy_ = d.x * a, d.y * a
+            gz_ = dr.sqrt(dr.maximum(1.0 - (gx_ * gx_ + gy_ * gy_), 1e-12))
+            return mi.Vector3f(t0 * (d.x / d.z - gx_ / gz_), t0 * (d.y / d.z - gy_ / gz_), 0.0)
+
+        correction = (mi.ShapePtr(scene.correction), shift)
     ctx = mi.BSDFContext()
 
     def cond(ray, active, depth, rng):
@@ -291,11 +399,25 @@ def _propagate(scene, film, ray, rng, w, sensor_blur, blur_mla, max_bounces) -> 
         film.splat(x_um, y_um, w, on_sensor)
         active &= ~on_sensor
         si.p = dr.select(active & (si.shape == mla_ptr), si.p + blur_mla, si.p)
+        if correction is not None:
+            si.p = dr.select(
+                active & (si.shape == correction[0]), si.p + correction[1](ray.d), si.p
+            )
         bsdf = si.bsdf(ray)
         bs, weight = bsdf.sample(ctx, si, rng.next_float32(active), mi.Point2f(0.5), active)
         depth += 1
         active &= (weight[0] > 0.0) & (depth < max_bounces)
-        ray = mi.Ray3f(si.spawn_ray(si.to_world(bs.wo)))
+        wo = si.to_world(bs.wo)
+        ray = mi.Ray3f(si.spawn_ray(wo))
+        if interfaces:
+            # Mitsuba offsets a spawned ray along the normal by ~1e-4 of the distance to the
+            # origin (45 µm at the specimen, 500 mm away): a lateral error of slope × 45 µm.
+            # From the specimen's planes, step along the ray itself instead.
+            on_plane = mi.Bool(False)
+            for ptr in interfaces:
+                on_plane |= si.shape == ptr
+            step = INTERFACE_STEP_MM / dr.maximum(dr.abs(wo.z), 1e-3)
+            ray.o = dr.select(active & on_plane, si.p + wo * step, ray.o)
         return ray, active, depth, rng
 
     dr.while_loop(
@@ -326,7 +448,7 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     lay = scene.layout
     s_mla = optics.sigma_mla_um / UM_PER_MM if settings.diffraction else 0.0
     s_sen = optics.sigma_sensor_um if settings.diffraction else 0.0
-    max_bounces = 6 if optics.mla_kind == "ideal" else 12
+    max_bounces = (6 if optics.mla_kind == "ideal" else 12) + 3 * optics.has_interfaces
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
         rng, o, d, w, _src = emitter.batch(start, n)
@@ -387,10 +509,10 @@ def trace_paraxial(
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
         rng, o, d, w, src = emitter.batch(start, n)
-        u, v = d.x / d.z, d.y / d.z
+        x, y, z, u, v, trans = to_immersion(optics, o, d, dr, mi)
         # Object point -> objective (distance f_obj + z: z grows away from the objective).
-        t = fo + o.z
-        x, y = o.x + u * t, o.y + v * t
+        t = fo + z
+        x, y = x + u * t, y + v * t
         ok = x * x + y * y <= r_obj * r_obj
         u, v = u - x / fo, v - y / fo
         x, y = x + u * fo, y + v * fo  # aperture stop
@@ -403,6 +525,11 @@ def trace_paraxial(
             gx, gy = _gauss2(rng, dr, mi)
             hx, hy = _gauss2(rng, dr, mi)
             x, y = x + hx * s_mla, y + hy * s_mla
+        if optics.has_interfaces:  # Fresnel losses: a weight, or a photon's survival
+            if settings.mode == "expected":
+                w = w * trans
+            else:
+                ok &= rng.next_float32() < trans
         sx, sy = p * dr.round(x / p), p * dr.round(y / p)
         u, v = u - (x - sx) / fl, v - (y - sy) / fl
         x, y = x + u * fl, y + v * fl  # sensor

@@ -44,7 +44,8 @@ def cutoff_cycles_per_voxel(optics, depths_um, s: int) -> np.ndarray:
     -------
     ndarray, shape (nz,)
     """
-    z = np.abs(np.asarray(depths_um, dtype=np.float64))
+    # True depths in the specimen → apparent depths (what the optics images).
+    z = np.abs(np.asarray(depths_um, dtype=np.float64)) * optics.axial_scale
     d = optics.magnification**2 * z  # image distance from the array (µm)
     with np.errstate(divide="ignore"):
         period = s * np.minimum(1.0, optics.mla_focal_um / np.where(d > 0, d, 1e-30))

@@ -204,15 +204,18 @@ class ReconSettings:
 
 
 def default_z_step_um(optics) -> float:
-    """A third of the native depth of field ``λ / NA²`` (µm), rounded to 0.5 µm (≥ 0.5)."""
-    dof = optics.wavelength_um / optics.na**2
+    """A third of the native depth of field ``λ n / NA²`` in the specimen of index ``n`` (µm),
+    rounded to 0.5 µm (≥ 0.5)."""
+    dof = optics.wavelength_um * optics.medium_ior / optics.na**2
     return max(0.5, round(dof / 3 * 2) / 2)
 
 
 def default_z_limit_um(optics, z_step_um: float) -> float:
-    """Half-width of the default depth range: ``6 p_obj / tan(asin NA)``, a multiple of the
-    step (µm)."""
-    zlim = RANGE_PATTERN_LENSLETS * optics.lenslet_object_um / math.tan(math.asin(optics.na))
+    """Half-width of the default depth range: ``6 p_obj / (tan θ · a)``, a multiple of the
+    step (µm), with θ the acceptance half-angle in the immersion medium and ``a`` the ratio of
+    apparent to true depth in the specimen (``6 p_obj / tan(asin NA)`` in air)."""
+    slope = math.tan(optics.theta_max) * optics.axial_scale
+    zlim = RANGE_PATTERN_LENSLETS * optics.lenslet_object_um / slope
     return math.floor(zlim / z_step_um) * z_step_um
 
 

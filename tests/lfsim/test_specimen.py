@@ -1,0 +1,294 @@
+"""The specimen in the optics: indices, cover glass, focus setting; exact refraction in both
+tracers; the focal shift against an independent ray computation."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from lfsim import ConfigError, Optics, paper_optics, small_optics
+from lfsim.scene import load_scene, read_optics, write_scene
+from lfsim.tracer import RenderSettings, Sources, to_immersion, trace_mitsuba, trace_paraxial
+
+#: The paper's specimen: a 10 % polyacrylamide gel on a 170 µm glass-bottomed dish, seen by a
+#: dry objective not corrected for cover glass, focused 300 µm into the gel.
+GEL = {
+    "medium_ior": 1.35,
+    "coverslip_thickness_um": 170.0,
+    "coverslip_ior": 1.523,
+    "focus_depth_um": 300.0,
+}
+
+
+def gel_optics(**kw) -> Optics:
+    return small_optics(**{**GEL, **kw})
+
+
+# -- the optics ---------------------------------------------------------------------------------
+def test_air_is_unchanged():
+    o = paper_optics()
+    assert not o.has_interfaces
+    assert o.focal_shift_um == 0.0
+    assert o.axial_scale == 1.0
+    assert o.theta_max == pytest.approx(math.asin(0.2))
+    assert o.emission_half_angle == pytest.approx(math.asin(0.2))
+
+
+def test_paraxial_focal_shift_of_a_gel_behind_a_cover_glass():
+    o = gel_optics()
+    residual = 170.0 * (1 - 1 / 1.523)  # the uncorrected cover glass, in air
+    assert o.paraxial_native_plane_depth_um == pytest.approx(1.35 * (300.0 + residual))
+    # The rays of 0.2 NA focus deeper than the paraxial ones (1.36 instead of 1.35 per µm).
+    paraxial_shift = 0.35 * 300.0 + 1.35 * residual
+    assert o.focal_shift_um == pytest.approx(paraxial_shift, rel=0.04)
+    assert o.focal_shift_um > paraxial_shift
+    assert o.surface_z_um == pytest.approx(-o.native_plane_depth_um)
+    assert o.axial_scale == pytest.approx(1 / 1.35, rel=0.02)
+    assert 1 / o.axial_scale == pytest.approx(1.36, abs=0.005)
+    # A cover glass the objective is corrected for shifts nothing.
+    c = gel_optics(coverslip_corrected_um=170.0)
+    assert c.focal_shift_um == pytest.approx(
+        small_optics(**{**GEL, "coverslip_thickness_um": 0.0}).focal_shift_um, rel=1e-3
+    )
+    # A water objective into water: no shift at all, only the cover glass it is corrected for.
+    w = small_optics(
+        na=0.8,
+        immersion_ior=1.333,
+        medium_ior=1.333,
+        coverslip_thickness_um=170.0,
+        coverslip_corrected_um=170.0,
+        focus_depth_um=50.0,
+    )
+    assert w.focal_shift_um == pytest.approx(0.0, abs=1e-6)
+    assert w.theta_max == pytest.approx(math.asin(0.8 / 1.333))
+
+
+def test_high_na_immersion_objectives_are_accepted():
+    o = small_optics(na=1.4, immersion_ior=1.518, medium_ior=1.33, focus_depth_um=10.0)
+    # n sin θ is conserved: water caps what an oil objective of NA 1.4 collects at 1.33.
+    assert o.emission_half_angle == pytest.approx(math.pi / 2)
+    assert o.theta_max == pytest.approx(math.asin(1.4 / 1.518))
+
+
+@pytest.mark.parametrize(
+    ("kw", "needle"),
+    [
+        ({"na": 1.0}, "immersion_ior"),
+        ({"na": 1.2, "immersion_ior": 1.0}, "immersion_ior"),
+        ({"medium_ior": 0.9}, "medium_ior"),
+        ({"immersion_ior": float("nan")}, "immersion_ior"),
+        ({"coverslip_ior": 5.0}, "coverslip_ior"),
+        ({"coverslip_thickness_um": -1.0}, "coverslip_thickness_um"),
+        ({"coverslip_corrected_um": float("inf")}, "coverslip_corrected_um"),
+        ({"focus_depth_um": float("nan")}, "focus_depth_um"),
+        ({"medium_ior": 1.35, "focus_depth_um": -10.0}, "focus_depth_um"),
+    ],
+)
+def test_contradictions_are_refused_by_name(kw, needle):
+    with pytest.raises(ConfigError, match=needle):
+        small_optics(**kw)
+
+
+def test_scene_files_carry_the_specimen(tmp_path, backend):
+    for o in (gel_optics(), gel_optics(coverslip_corrected_um=170.0, mla_kind="glass")):
+        path = write_scene(o, tmp_path / f"{o.mla_kind}.xml")
+        assert read_optics(path) == o
+        scene = load_scene(path)
+        assert (scene.correction is not None) == (o.coverslip_corrected_um > 0)
+    text = path.read_text()
+    assert 'id="specimen_surface"' in text and 'id="coverslip_front"' in text
+    # An edited specimen plane is refused by name.
+    bad = tmp_path / "bad.xml"
+    bad.write_text(text.replace('name="int_ior" value="1.35"', 'name="int_ior" value="1.33"'))
+    with pytest.raises(Exception, match="specimen_surface"):
+        read_optics(bad)
+
+
+def test_scene_files_without_the_specimen_fields_describe_air(tmp_path):
+    path = write_scene(small_optics(), tmp_path / "air.xml")
+    text = path.read_text()
+    for name in ("immersion_ior", "coverslip_thickness_um", "focus_depth_um"):
+        text = "\n".join(ln for ln in text.splitlines() if f'name="{name}"' not in ln)
+    old = tmp_path / "old.xml"
+    old.write_text(text)
+    assert read_optics(old) == small_optics()
+
+
+def test_sources_in_front_of_the_specimen_are_refused(backend):
+    o = gel_optics()
+    z_surface = o.surface_z_um
+    src = Sources.spheres([[0.0, 0.0, z_surface + 5.0]], 15.0)  # reaches 2.5 µm out
+    with pytest.raises(ConfigError, match="front of the specimen"):
+        trace_paraxial(o, src, RenderSettings(rays_per_particle=1000))
+
+
+# -- refraction -----------------------------------------------------------------------------
+def _rays(n: int, half_angle: float, z_um: float, seed: int = 0):
+    import drjit as dr  # noqa: F401
+    import mitsuba as mi
+
+    rng = np.random.default_rng(seed)
+    cos = rng.uniform(math.cos(half_angle), 1.0, n)
+    phi = rng.uniform(0, 2 * math.pi, n)
+    sin = np.sqrt(1 - cos**2)
+    d = np.c_[sin * np.cos(phi), sin * np.sin(phi), cos]
+    o = np.c_[rng.uniform(-20, 20, (n, 2)), np.full(n, z_um)]
+    return (
+        mi.Point3f(*(mi.Float(o[:, k].astype(np.float32)) for k in range(3))),
+        mi.Vector3f(*(mi.Float(d[:, k].astype(np.float32)) for k in range(3))),
+        d,
+    )
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        GEL,
+        {**GEL, "coverslip_thickness_um": 0.0},
+        {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.35, "focus_depth_um": 40.0},
+    ],
+    ids=["gel-cover-glass", "gel-bare", "water-objective"],
+)
+def test_snell_law_at_every_interface(backend, kw):
+    import drjit as dr
+    import mitsuba as mi
+
+    o = small_optics(**kw)
+    origin, direction, d = _rays(4000, o.emission_half_angle, 50.0)
+    _x, _y, _z, u, v, trans = to_immersion(o, origin, direction, dr, mi)
+    u, v, trans = (np.asarray(a.numpy(), np.float64) for a in (u, v, trans))
+    # n sin θ is the same in the specimen and in the immersion medium (slopes → sines).
+    sin_out = np.hypot(u, v) / np.sqrt(1 + u**2 + v**2)
+    sin_in = np.hypot(d[:, 0], d[:, 1])
+    ok = trans > 0
+    assert ok.all()
+    np.testing.assert_allclose(o.immersion_ior * sin_out, o.medium_ior * sin_in, atol=1e-6)
+    # The plane of incidence is kept.
+    np.testing.assert_allclose(np.arctan2(v, u), np.arctan2(d[:, 1], d[:, 0]), atol=1e-5)
+    # Fresnel: normal incidence loses ((n1 − n2)/(n1 + n2))² per interface.
+    assert trans.max() <= 1.0
+    n = [o.medium_ior, *([o.coverslip_ior] if o.coverslip_thickness_um else []), o.immersion_ior]
+    normal = np.prod([1 - ((a - b) / (a + b)) ** 2 for a, b in itertools.pairwise(n)])
+    assert trans[np.argmin(sin_in)] == pytest.approx(normal, rel=1e-3)
+
+
+def test_mitsuba_dielectric_planes_obey_snell(tmp_path, backend):
+    import mitsuba as mi
+
+    o = gel_optics()
+    scene = load_scene(write_scene(o, tmp_path / "gel.xml"))
+    lay = scene.layout
+    by_id = {s.id(): s for s in scene.mi_scene.shapes()}
+    ctx = mi.BSDFContext()
+    for sid, z, n1, n2 in [
+        ("specimen_surface", lay.surface_z, o.medium_ior, o.coverslip_ior),
+        ("coverslip_front", lay.coverslip_front_z, o.coverslip_ior, o.immersion_ior),
+    ]:
+        for sin_in in (0.05, 0.12, 0.19):
+            d = mi.Vector3f(sin_in, 0.0, math.sqrt(1 - sin_in**2))
+            ray = mi.Ray3f(mi.Point3f(0.0, 0.0, z - 1e-3), d)
+            si = scene.mi_scene.ray_intersect(ray)
+            assert si.shape == mi.ShapePtr(by_id[sid])
+            bs, _w = si.bsdf(ray).sample(ctx, si, 0.999, mi.Point2f(0.5))  # transmission
+            out = si.to_world(bs.wo)
+            assert out.z[0] > 0
+            assert n2 * out.x[0] == pytest.approx(n1 * sin_in, abs=1e-6)
+
+
+# -- the two tracers agree --------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {**GEL, "coverslip_thickness_um": 0.0},
+        GEL,
+        {**GEL, "coverslip_corrected_um": 170.0},
+        {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.35, "focus_depth_um": 40.0},
+    ],
+    ids=["gel-bare", "gel-cover-glass", "gel-corrected-glass", "water-objective"],
+)
+def test_mitsuba_and_direct_tracers_agree_through_the_specimen(tmp_path, backend, kw):
+    o = small_optics(**kw)
+    scene = load_scene(write_scene(o, tmp_path / "specimen.xml"))
+    src = Sources.spheres([[10.0, -20.0, 120.0], [-60.0, 40.0, -30.0]], 5.0)
+    s0 = RenderSettings(rays_per_particle=100_000, seed=0)
+    s1 = RenderSettings(rays_per_particle=100_000, seed=1)
+    mit = trace_mitsuba(scene, src, s0)
+    par0 = trace_paraxial(o, src, s0)
+    noise = l1(par0, trace_paraxial(o, src, s1))  # sampling noise of two independent renders
+    # The same rays up to the Fresnel draws (Mitsuba samples the interfaces' reflections,
+    # the direct tracer their transmittance): far below the sampling noise.
+    assert l1(mit, par0) < 0.5 * noise
+    # Fresnel losses alike: ≈ 2.6 % at two glass interfaces, 0.3 % at a bare gel.
+    assert abs(int(mit.sum()) - int(par0.sum())) < 4 * math.sqrt(par0.sum())
+    assert par0.sum() < 2 * 100_000
+
+
+def l1(a, b) -> float:
+    return float(np.abs(a.astype(np.float64) - b).sum() / b.sum())
+
+
+# -- the focal shift ----------------------------------------------------------------------------
+def _least_squares_focus_um(o: Optics, z_um: float) -> float:
+    """Nominal-frame depth where the tracer's rays from a point at true ``z_um`` converge best
+    (least-squares distance of the immersion-space rays to the axis point)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    origin, direction, _d = _rays(20000, o.emission_half_angle, z_um, seed=3)
+    origin = mi.Point3f(origin.x * 0, origin.y * 0, origin.z)
+    x, _y, z, u, _v, _t = to_immersion(o, origin, direction, dr, mi)
+    x, z, u = (np.asarray(a.numpy(), np.float64) for a in (x, z, u))
+    # x(Z) = x + u (z − Z): the Z that minimises Σ x(Z)² (uniform over the emission cone).
+    return float(np.sum(u * (x + u * z)) / np.sum(u * u))
+
+
+def _exact_focus_um(o: Optics, z_um: float, n_quad: int = 4000) -> float:
+    """The same least-squares focus from Snell's law in closed form, by quadrature over the
+    cone (independent of the tracer): a ray at angle θ in the specimen crosses each layer of
+    thickness t and index n at lateral offset t·tan θₙ, sin θₙ = n_m sin θ / n."""
+    depth = z_um + o.native_plane_depth_um  # true depth below the surface
+    cos = np.linspace(math.cos(o.emission_half_angle), 1.0, n_quad + 1)
+    cos = 0.5 * (cos[1:] + cos[:-1])  # uniform in solid angle
+    sin = np.sqrt(1 - cos**2)
+    tan_m = sin / cos
+    s_i = o.medium_ior * sin / o.immersion_ior
+    tan_i = s_i / np.sqrt(1 - s_i**2)
+    r = depth * tan_m  # lateral offset at the surface
+    if o.coverslip_thickness_um > 0:
+        s_c = o.medium_ior * sin / o.coverslip_ior
+        r += o.coverslip_thickness_um * s_c / np.sqrt(1 - s_c**2)
+    if o.coverslip_corrected_um > 0:
+        s_g = o.immersion_ior * s_i / o.coverslip_ior
+        r += o.coverslip_corrected_um * (tan_i - s_g / np.sqrt(1 - s_g**2))
+    z_front = -o.focus_depth_um - o.coverslip_thickness_um  # nominal frame
+    # Each ray leaves the front at lateral offset r (towards −φ) with slope tan_i; the axis
+    # crossing is at Z = z_front + r / tan_i; least squares weighted by tan_i² (as above).
+    cross = z_front + r / tan_i
+    return float(np.sum(tan_i**2 * cross) / np.sum(tan_i**2))
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        GEL,
+        {**GEL, "coverslip_corrected_um": 170.0},
+        {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.333, "focus_depth_um": 100.0},
+        {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.38, "focus_depth_um": 100.0},
+    ],
+    ids=["dry-gel", "dry-gel-corrected", "water-water", "water-gel"],
+)
+def test_focal_shift_agrees_with_the_exact_ray_optics(backend, kw):
+    o = small_optics(**kw)
+    # The tracer's rays from a point on the native plane converge where closed-form Snell optics
+    # says they do.
+    traced = _least_squares_focus_um(o, 0.0)
+    exact = _exact_focus_um(o, 0.0)
+    assert traced == pytest.approx(exact, abs=0.05)
+    # The measured focal shift (the nominal-frame depth of the point whose rays converge on the
+    # nominal focal plane) agrees with the optics' value within 1 %.
+    z_star = -traced / (_least_squares_focus_um(o, 50.0) - traced) * 50.0
+    measured = o.focal_shift_um + z_star
+    assert measured == pytest.approx(o.focal_shift_um, rel=0.01, abs=0.1)
