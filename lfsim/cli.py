@@ -185,6 +185,37 @@ def _write_noisy_slide(args, scene, clean, kind: str, **extra) -> Path:
     return _write_image(args, scene, img, meta)
 
 
+def _warn_overlaps(particles, path, shown: int = 3) -> None:
+    """One warning naming the rows (1-based data rows of the table) and positions of
+    particles at the same place or overlapping (:meth:`lfsim.particles.Particles.overlaps`)."""
+    coincident, overlapping = particles.overlaps()
+    if not coincident and not overlapping:
+        return
+    pos, diam = particles.positions_um, particles.diameter_um
+
+    def at(i: int) -> str:
+        return "(" + ", ".join(f"{v:g}" for v in pos[i]) + ")"
+
+    def rows(group) -> str:
+        return ", ".join(str(i + 1) for i in group)
+
+    parts = [f"rows {rows(g)} coincide at {at(g[0])} µm" for g in coincident[:shown]]
+    parts += [
+        f"rows {i + 1} and {j + 1} overlap, {d:.3g} µm apart at {at(i)} and {at(j)} µm "
+        f"(diameters {diam[i]:g} and {diam[j]:g} µm)"
+        for i, j, d in overlapping[:shown]
+    ]
+    more = max(len(coincident) - shown, 0) + max(len(overlapping) - shown, 0)
+    tail = f"; and {more} more" if more else ""
+    log.warning(
+        "particle table %s: %s%s; rendered as given (a row given twice renders one bead twice "
+        "as bright)",
+        path,
+        "; ".join(parts),
+        tail,
+    )
+
+
 def cmd_render(args) -> int:
     from .experiment import DEFAULT_NOISE
     from .io import sha256_file
@@ -201,6 +232,7 @@ def cmd_render(args) -> int:
             f"particle table {args.particles} holds no particles (a header only); expected one "
             "row per particle"
         )
+    _warn_overlaps(particles, args.particles)
     if args.float and (args.snr is not None or args.bit_depth is not None or args.noise):
         raise ConfigError(
             "--float writes the noise-free image; it takes no --noise/--snr/--bit-depth"

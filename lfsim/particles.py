@@ -190,6 +190,51 @@ class Particles:
             and np.array_equal(self.ids, other.ids)
         )
 
+    def overlaps(self, coincident_um: float = 1e-3) -> tuple[list[list[int]], list[tuple]]:
+        """Particles at the same place, and pairs that overlap.
+
+        Parameters
+        ----------
+        coincident_um : float
+            Centres closer than this (µm) are the same place.
+
+        Returns
+        -------
+        coincident : list of list of int
+            Groups of row indices (0-based, ascending) of particles at the same place: almost
+            surely a table mistake (a row given twice).
+        overlapping : list of (int, int, float)
+            Other pairs of rows ``(i, j, distance_um)``, ``i < j``, whose centres are closer
+            than the mean of their diameters (the spheres intersect).
+        """
+        from scipy.spatial import cKDTree
+
+        n = len(self)
+        if n < 2:
+            return [], []
+        pos, diam = self.positions_um, self.diameter_um
+        pairs = cKDTree(pos).query_pairs(float(diam.max()), output_type="ndarray")
+        parent = list(range(n))
+
+        def root(i: int) -> int:
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        overlapping = []
+        for i, j in sorted(map(tuple, pairs.tolist())):
+            dist = float(np.linalg.norm(pos[i] - pos[j]))
+            if dist < coincident_um:
+                parent[root(j)] = root(i)
+            elif dist < (diam[i] + diam[j]) / 2.0:
+                overlapping.append((i, j, dist))
+        groups: dict[int, list[int]] = {}
+        for i in range(n):
+            groups.setdefault(root(i), []).append(i)
+        coincident = sorted(g for g in groups.values() if len(g) > 1)
+        return coincident, overlapping
+
     def with_positions(self, new_positions_um) -> Particles:
         """The same particles (ids, diameters, brightnesses) at new positions.
 

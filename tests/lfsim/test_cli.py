@@ -208,3 +208,21 @@ def test_outputs_never_land_on_inputs_even_with_overwrite(backend, tmp_path, cap
         assert "is an input" in error_line(capsys)
     assert {p: p.read_bytes() for p in saved} == saved
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.csv", "s.xml"]
+
+
+def test_render_warns_of_coincident_and_overlapping_particles(backend, tmp_path, capsys):
+    """Three identical rows (almost surely a table mistake) and two overlapping beads are
+    rendered, with a warning naming the rows and positions."""
+    table = tmp_path / "p.csv"
+    table.write_text(
+        "x_um,y_um,z_um\n0,0,150\n0,0,150\n0,0,150\n-80,60,250\n-75,60,250\n", encoding="utf-8"
+    )
+    out = tmp_path / "img.tif"
+    assert main(["render", SMALL, "--particles", str(table), "-o", str(out), "--rays", "1000"]) == 0
+    err = capsys.readouterr().err
+    warnings = [ln for ln in err.splitlines() if ln.startswith("lfsim: warning: ")]
+    assert len(warnings) == 1, err
+    line = warnings[0]
+    assert "rows 1, 2, 3" in line and "(0, 0, 150)" in line and "coincide" in line, line
+    assert "rows 4 and 5" in line and "5 µm apart" in line and "p.csv" in line, line
+    assert out.is_file()

@@ -156,3 +156,22 @@ def test_missing_csv_names_file(tmp_path):
     path = tmp_path / "nope.csv"
     with pytest.raises(ConfigError, match=r"nope\.csv"):
         Particles.from_csv(path)
+
+
+def test_overlaps_name_coincident_groups_and_overlapping_pairs():
+    pos = np.array(
+        [
+            [0.0, 0.0, 150.0],
+            [0.0, 0.0, 150.0],
+            [100.0, 0.0, 150.0],
+            [0.0, 0.0, 150.0],
+            [105.0, 0.0, 150.0],  # 5 µm from row 2: overlapping 15 µm spheres
+            [130.0, 0.0, 150.0],  # 25 µm from row 4: clear
+        ]
+    )
+    coincident, overlapping = Particles(pos).overlaps()
+    assert coincident == [[0, 1, 3]]
+    assert overlapping == [(2, 4, pytest.approx(5.0))]
+    assert Particles(pos[[0, 2, 5]]).overlaps() == ([], [])
+    # the diameters decide: 4 µm beads 5 µm apart do not overlap
+    assert Particles(pos[[2, 4]], diameter_um=4.0).overlaps() == ([], [])
