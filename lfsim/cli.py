@@ -109,6 +109,17 @@ def _read_scene(path: str):
     return load_scene(p)
 
 
+def _check_tracer(args, scene) -> None:
+    """Refuse ``--tracer paraxial`` on a scene whose lenslets it does not model."""
+    kind = getattr(getattr(scene, "optics", scene), "mla_kind", "ideal")
+    if args.tracer == "paraxial" and kind != "ideal":
+        raise ConfigError(
+            f"--tracer paraxial models ideal lenslets only, but scene {args.scene} has a "
+            f"{kind!r} microlens array: use --tracer mitsuba (the default), or a scene with "
+            "ideal lenslets (`lfsim scene --mla ideal`)"
+        )
+
+
 def _noise_seed(seed: int) -> np.random.Generator:
     # Independent of the tracer's stream for the same seed.
     return np.random.default_rng(np.random.SeedSequence([seed, 0x6E6F6973]))
@@ -250,6 +261,7 @@ def cmd_render(args) -> int:
             bit_depth=args.bit_depth,
         )
     scene = _read_scene(args.scene)
+    _check_tracer(args, scene)
     settings = RenderSettings(
         rays_per_particle=args.rays,
         mode="expected" if args.float else "photons",
@@ -285,6 +297,7 @@ def cmd_white(args) -> int:
     out = _check_output(args, args.scene)
     _check_numbers(args, "--rays-per-lenslet")
     scene = _read_scene(args.scene)
+    _check_tracer(args, scene)
     clean = render_white(
         scene, args.rays_per_lenslet, seed=args.seed, tracer=args.tracer, progress=not args.quiet
     )

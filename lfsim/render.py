@@ -29,6 +29,11 @@ def _trace(scene, sources: Sources, settings: RenderSettings, tracer: str) -> np
     if tracer == "mitsuba":
         return trace_mitsuba(scene, sources, settings)
     optics = getattr(scene, "optics", scene)
+    if optics.mla_kind != "ideal":
+        raise ConfigError(
+            f"tracer 'paraxial' models ideal lenslets only, but the scene has a "
+            f"{optics.mla_kind!r} microlens array: use tracer 'mitsuba'"
+        )
     return trace_paraxial(optics, sources, settings)
 
 

@@ -226,3 +226,18 @@ def test_render_warns_of_coincident_and_overlapping_particles(backend, tmp_path,
     assert "rows 1, 2, 3" in line and "(0, 0, 150)" in line and "coincide" in line, line
     assert "rows 4 and 5" in line and "5 µm apart" in line and "p.csv" in line, line
     assert out.is_file()
+
+
+@pytest.mark.parametrize("command", ["render", "white"])
+def test_paraxial_tracer_on_a_glass_scene_speaks_the_users_language(
+    backend, tmp_path, particles_csv, capsys, command
+):
+    glass = ROOT / "scenes" / "small_glass.xml"
+    out = tmp_path / "img.tif"
+    extra = ["--particles", str(particles_csv)] if command == "render" else []
+    argv = ["-q", command, str(glass), *extra, "-o", str(out), "--tracer", "paraxial"]
+    assert main(argv) == 2
+    line = error_line(capsys)
+    assert "--tracer paraxial" in line and "'glass'" in line and "small_glass.xml" in line
+    assert "--tracer mitsuba" in line and "trace_paraxial" not in line, line
+    assert not out.exists()
