@@ -48,6 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hrvbase.errors import OutputError
+
 from .errors import InputError, ReconError
 
 log = logging.getLogger(__name__)
@@ -104,6 +106,12 @@ def make_writer(volume_format: str, out: str | os.PathLike, *, zarr_chunk_z: int
     ):
         raise InputError(f"--zarr-chunk-z must be an integer >= 1, got {zarr_chunk_z!r}")
     return ZarrSeriesWriter(Path(out), zarr_chunk_z)
+
+
+def _os_text(exc: OSError) -> str:
+    """An operating-system error as ``[Errno 27] File too large`` (and its file, if known)."""
+    text = f"[Errno {exc.errno}] {exc.strerror}" if exc.errno and exc.strerror else str(exc)
+    return text + (f": {exc.filename}" if exc.filename else "")
 
 
 # -- TIFF ------------------------------------------------------------------------------------
@@ -221,7 +229,18 @@ class ZarrSeriesWriter:
         OutputExistsError
             The store holds an array of another voxel shape, type or chunking (without
             ``overwrite``, which replaces it).
+        OutputError
+            An operating-system error (no space, a file-size limit, no permission): one line
+            naming the store.
         """
+        try:
+            self._prepare(n_frames, geometry, times_s, overwrite)
+        except OSError as exc:
+            raise OutputError(
+                f"cannot create the OME-Zarr image {str(self.out)!r}: {_os_text(exc)}"
+            ) from exc
+
+    def _prepare(self, n_frames, geometry, times_s, overwrite) -> None:
         import zarr
         from ome_zarr.format import FormatV05
         from ome_zarr.writer import write_multiscales_metadata
@@ -286,17 +305,31 @@ class ZarrSeriesWriter:
         )
 
     def write(self, k: int, volume: np.ndarray, meta: Mapping) -> dict:
-        """Write frame ``k`` (its chunks only); its record ``{"t", "sha256", "dtype"}``."""
+        """Write frame ``k`` (its chunks only); its record ``{"t", "sha256", "dtype"}``.
+
+        Raises
+        ------
+        OutputError
+            An operating-system error (no space, a file-size limit): one line naming the store
+            and the frame's chunk folder.
+        """
         from hrvbase.io import array_sha256
 
         vol = np.ascontiguousarray(volume, dtype=np.float32)
-        arr = self._array("r+")
-        if vol.shape != tuple(arr.shape[1:]):
-            raise InputError(
-                f"{self.label(k)}: volume is {vol.shape}, the array holds {tuple(arr.shape[1:])}"
-            )
-        self.remove(k)  # a damaged frame's chunks, and temporary files an interrupt left
-        arr[k] = vol
+        try:
+            arr = self._array("r+")
+            if vol.shape != tuple(arr.shape[1:]):
+                raise InputError(
+                    f"{self.label(k)}: volume is {vol.shape}, the array holds "
+                    f"{tuple(arr.shape[1:])}"
+                )
+            self.remove(k)  # a damaged frame's chunks, and temporary files an interrupt left
+            arr[k] = vol
+        except OSError as exc:
+            raise OutputError(
+                f"cannot write frame t={k} to the OME-Zarr image {str(self.out)!r} (its chunks "
+                f"{str(self._frame_dir(k))!r}): {_os_text(exc)}"
+            ) from exc
         return {"t": int(k), "sha256": array_sha256(vol), "dtype": "<f4", "order": "C"}
 
     def read(self, k: int) -> np.ndarray:

@@ -240,3 +240,33 @@ def test_resume_with_another_frame_rate(series, tmp_path, capsys):
     scale, translation = ome["multiscales"][0]["datasets"][0]["coordinateTransformations"]
     assert scale["scale"][0] == pytest.approx(0.02) and translation["translation"][0] == 0.0
     assert {k: v[0] for k, v in chunk_files(store).items()} == {k: v[0] for k, v in before.items()}
+
+
+@pytest.mark.parametrize("fmt", ["zarr", "tiff"])
+def test_a_failed_volume_write_names_the_output(tmp_path, fmt):
+    """A write that hits the file-size limit (EFBIG) says which output and frame failed, not
+    only "[Errno 27] File too large"."""
+    import resource
+    import signal
+
+    from hrvbase.errors import HrvError
+    from recon.volume_store import VolumeGeometry, make_writer
+
+    out = tmp_path / f"v.{fmt}"
+    writer = make_writer(fmt, out)
+    writer.prepare(2, VolumeGeometry((4, 64, 64), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)), [0.0, 0.1])
+    volume = np.random.default_rng(0).random((4, 64, 64), dtype=np.float32)
+    handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (10_000, hard))
+    try:
+        with pytest.raises(OSError) as info:
+            writer.write(1, volume, {"frame": 1})
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, handler)
+    assert isinstance(info.value, HrvError), repr(info.value)
+    message = str(info.value)
+    assert str(out) in message and "cannot write" in message, message
+    if fmt == "zarr":
+        assert "frame t=1" in message and "File too large" in message, message
