@@ -227,14 +227,19 @@ def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
 
     ``threads`` (e.g. ``--threads``) sets the compute threads of each worker.
 
+    ``--scheduler`` is checked before any work: its form, then that a Dask scheduler answers
+    there (:func:`hrvbase.parallel.check_scheduler`, within
+    :data:`hrvbase.parallel.CONNECT_TIMEOUT_S` seconds).
+
     Raises
     ------
     InputError
-        ``--workers`` is not an integer >= 1 nor ``auto``, or ``--scheduler`` is empty; the
-        message names the option.
+        ``--workers`` is not an integer >= 1 nor ``auto``, or no Dask scheduler answers at the
+        ``--scheduler`` address (malformed, nothing listening, another service); the message
+        names the option.
     """
     from .errors import InputError
-    from .parallel import Parallel
+    from .parallel import Parallel, check_scheduler
 
     text = getattr(args, "workers", None)
     workers: int | str = 1
@@ -253,9 +258,13 @@ def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
     if scheduler is not None and not scheduler.strip():
         raise InputError("--scheduler must be an address such as tcp://host:8786, got ''")
     try:
-        return Parallel(workers=workers, scheduler=scheduler, threads=threads)
+        par = Parallel(workers=workers, scheduler=scheduler, threads=threads)
     except InputError as exc:
-        raise InputError(rename_fields(str(exc), {"threads": "--threads"})) from None
+        message = re.sub(r"^(scheduler|workers) ", r"--\1 ", str(exc))
+        raise InputError(rename_fields(message, {"threads": "--threads"})) from None
+    if par.scheduler is not None:
+        check_scheduler(par.scheduler, "--scheduler")
+    return par
 
 
 # -- options that set fields of a settings dataclass ---------------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -71,6 +72,11 @@ def _write_or_fail_on_1(k, ctx):
     return k
 
 
+def _sleepy_frame(k, ctx):
+    time.sleep(0.5)
+    return k
+
+
 def _expected(n, offset):
     return [_frame(k, {"offset": offset, "bank": np.arange(1000.0)})[0] for k in range(n)]
 
@@ -105,19 +111,166 @@ def test_cli_workers_error_names_the_option(value):
         parallel_from_args(_parse([f"--workers={value}"]))
 
 
-def test_cli_options():
+def test_cli_options(monkeypatch):
     assert parallel_from_args(_parse([])) == Parallel()
     assert parallel_from_args(_parse(["--workers", "3"]), threads=2) == Parallel(3, threads=2)
     assert parallel_from_args(_parse(["--workers", "auto"])).n_workers >= 1
+    checked = []
+    monkeypatch.setattr("hrvbase.parallel.check_scheduler", lambda *a: checked.append(a))
     got = parallel_from_args(_parse(["--scheduler", "tcp://h:1"]))
-    assert got.scheduler == "tcp://h:1"
+    assert got.scheduler == "tcp://h:1" and checked == [("tcp://h:1", "--scheduler")]
 
 
 def test_unreachable_scheduler_names_the_option(monkeypatch):
     monkeypatch.setattr("hrvbase.parallel.CONNECT_TIMEOUT_S", 2.0)
     par = Parallel(scheduler="tcp://127.0.0.1:9")  # discard port: nothing listens
-    with pytest.raises(InputError, match=r"^--scheduler tcp://127.0.0.1:9: cannot reach"):
+    with pytest.raises(InputError, match=r"^--scheduler tcp://127.0.0.1:9: nothing is listening"):
         list(frame_map(_frame, range(2), parallel=par))
+
+
+#: A command line of frames in parallel (run by the tests in a subprocess): ``demo run
+#: [--workers N | --scheduler ADDRESS] [--frames N]`` prints each frame's index as it completes.
+DEMO = """
+import sys
+from hrvbase.cli import Parser, add_parallel_options, common_options, parallel_from_args, run_main
+from hrvbase.parallel import frame_map
+from tests.hrvbase.test_parallel import _sleepy_frame
+
+def go(args):
+    with frame_map(_sleepy_frame, range(args.frames), parallel=parallel_from_args(args)) as fm:
+        for k, _ in fm:
+            print(k, flush=True)
+    return 0
+
+p = Parser(prog="demo", parents=[common_options(suppress=False)])
+sub = p.add_subparsers(parser_class=Parser)
+c = sub.add_parser("run", parents=[common_options(suppress=True)])
+add_parallel_options(c)
+c.add_argument("--frames", type=int, default=2)
+c.set_defaults(func=go)
+sys.exit(run_main("demo", p, None, loggers=("demo",)))
+"""
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _demo(*argv: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", DEMO, "run", *argv],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+class _Service:
+    """A TCP service on a free port of 127.0.0.1 that is not a Dask scheduler: it answers every
+    connection with ``reply`` (``None``: says nothing) and closes it after ``hold_s``."""
+
+    def __init__(self, reply: bytes | None, hold_s: float = 30.0) -> None:
+        self.reply, self.hold_s = reply, hold_s
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.address = f"tcp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+
+    def _serve(self) -> None:
+        conns = []
+        t0 = time.monotonic()
+        while not self.stop.is_set() and time.monotonic() - t0 < self.hold_s:
+            try:
+                conn, _ = self.sock.accept()
+            except TimeoutError:
+                continue
+            conns.append(conn)
+            if self.reply is not None:
+                try:
+                    conn.sendall(self.reply)
+                except OSError:
+                    pass
+        for conn in conns:
+            conn.close()
+        self.sock.close()
+
+    def __enter__(self) -> _Service:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop.set()
+        self.thread.join(5)
+
+
+def _closed_port() -> int:
+    """A port of 127.0.0.1 on which nothing listens."""
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        return s.getsockname()[1]
+
+
+def _one_error_line(res: subprocess.CompletedProcess, needle: str) -> None:
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("demo: error: --scheduler "), res.stderr
+    assert needle in lines[0], lines[0]
+
+
+@pytest.mark.parametrize(
+    ("address", "needle"),
+    [
+        ("banana", "expected tcp://HOST:PORT"),
+        ("tcp://127.0.0.1", "expected tcp://HOST:PORT"),
+        ("tcp://127.0.0.1:0", "port"),
+        ("tcp://127.0.0.1:70000", "port"),
+        ("tcp://127.0.0.1:http", "port"),
+        ("tcp://:8786", "host"),
+        ("http://127.0.0.1:8786", "scheme"),
+        ("tcp://127.0.0.1:8786/path", "expected tcp://HOST:PORT"),
+    ],
+)
+def test_scheduler_address_form_is_checked_before_connecting(address, needle):
+    with pytest.raises(InputError, match=r"^--scheduler ") as err:
+        parallel_from_args(_parse(["--scheduler", address]))
+    assert needle in str(err.value)
+    with pytest.raises(InputError, match=r"^scheduler "):
+        Parallel(scheduler=address)
+
+
+def test_scheduler_without_a_port_is_one_line_without_traceback():
+    t0 = time.monotonic()
+    res = _demo("--scheduler", "banana")
+    _one_error_line(res, "banana")
+    assert time.monotonic() - t0 < 15
+
+
+@pytest.mark.parametrize(
+    ("reply", "needle"),
+    [
+        (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n" * 4, "not a Dask scheduler"),
+        (b"SSH-2.0-OpenSSH_9.6\r\n", "not a Dask scheduler"),
+        (None, "no answer"),
+    ],
+    ids=["http", "ssh", "silent"],
+)
+def test_a_service_that_is_not_dask_is_refused_in_one_line(reply, needle):
+    """A scheduler address answered by another service: one error line, quickly, no
+    traceback (nor an attempt to allocate the length its first bytes would give)."""
+    with _Service(reply) as svc:
+        t0 = time.monotonic()
+        res = _demo("--scheduler", svc.address, timeout=60)
+        elapsed = time.monotonic() - t0
+    _one_error_line(res, needle)
+    assert svc.address in res.stderr and "EiB" not in res.stderr
+    assert elapsed < 20, elapsed
+
+
+def test_nothing_listening_fails_fast():
+    addr = f"tcp://127.0.0.1:{_closed_port()}"
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match=r"^--scheduler .*nothing is listening"):
+        parallel_from_args(_parse(["--scheduler", addr]))
+    assert time.monotonic() - t0 < 2
 
 
 # -- in process ----------------------------------------------------------------------------

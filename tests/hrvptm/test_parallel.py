@@ -16,6 +16,7 @@ EXPERIMENTS = Path(__file__).resolve().parents[2] / "scenes" / "experiments"
 def test_study_passes_workers_and_scheduler_on(tmp_path, monkeypatch):
     seen = []
     monkeypatch.setattr("hrvptm.study.run_study", lambda *a, **k: seen.append(k["parallel"]))
+    monkeypatch.setattr("hrvbase.parallel.check_scheduler", lambda *a: None)  # none runs there
     demo = str(EXPERIMENTS / "demo_simple_shear.toml")
     assert main(["-q", "study", demo, "-o", str(tmp_path / "a"), "--workers", "2"]) == 0
     assert main(["-q", "study", demo, "-o", str(tmp_path / "b")]) == 0

@@ -184,7 +184,10 @@ def test_a_frame_failing_on_a_worker_fails_the_command(dataset4, tmp_path, capsy
     [
         (["--workers", "0"], "--workers must be an integer >= 1 or 'auto', got '0'"),
         (["--workers=-3"], "--workers must be an integer >= 1 or 'auto', got '-3'"),
-        (["--scheduler", "tcp://127.0.0.1:9"], "--scheduler tcp://127.0.0.1:9: cannot reach"),
+        (
+            ["--scheduler", "tcp://127.0.0.1:9"],
+            "--scheduler tcp://127.0.0.1:9: nothing is listening",
+        ),
     ],
 )
 def test_bad_parallel_options(dataset4, tmp_path, capsys, monkeypatch, option, message):
