@@ -5,12 +5,14 @@ Every writer is **atomic** and refuses to replace an existing file unless ``over
 
 - ``fields/NNNNNN.npz``: arrays ``x_um, y_um, z_um, u, F, E, e, mask`` of a
   :class:`~track.fields.GridField`, and its standard uncertainties ``u_std`` (nz, ny, nx, 3),
-  ``F_std``, ``e_std`` (nz, ny, nx, 3, 3) when it has them;
+  ``F_std``, ``e_std`` (nz, ny, nx, 3, 3) when it has them; ``frame`` and ``time_s`` (s, NaN
+  when unknown) of the deformed configuration in a results folder;
 - ``fields/NNNNNN.vti``: VTK XML ImageData (our own writer, no vtk dependency), origin and
   spacing in µm, point data ``displacement`` (3 components), ``F``, ``E``, ``e`` (9
   components, row-major: ParaView shows them as tensors), scalars ``E_xx … e_yz``,
   ``gamma_xz`` (= 2 e_xz) and ``mask``; with uncertainties also ``displacement_std``
-  (3 components), ``F_std``, ``e_std`` (9) and scalars ``e_std_xx … e_std_yz``; inline
+  (3 components), ``F_std``, ``e_std`` (9) and scalars ``e_std_xx … e_std_yz``; field
+  data ``frame`` and ``TimeValue`` (s, ParaView's time of the file) when known; inline
   ``ascii`` or ``binary`` (base64 of a UInt64 byte count followed by the little-endian
   values, one base64 stream).
 """
@@ -32,9 +34,18 @@ _FIELD_ARRAYS = ("x_um", "y_um", "z_um", "u", "F", "E", "e", "mask")
 _STD_ARRAYS = ("u_std", "F_std", "e_std")
 
 
-def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool = False) -> Path:
+def write_field_npz(
+    path: str | os.PathLike,
+    fld: GridField,
+    *,
+    frame: int | None = None,
+    time_s: float | None = None,
+    overwrite: bool = False,
+) -> Path:
     """Write a :class:`GridField` as ``.npz`` (arrays ``x_um, y_um, z_um, u, F, E, e, mask``
-    and, when the field has them, ``u_std, F_std, e_std``).
+    and, when the field has them, ``u_std, F_std, e_std``), with the scalars ``frame`` (the
+    frame number of the deformed configuration) and ``time_s`` (its time, s; NaN when
+    unknown) when ``frame`` is given.
 
     Stored without compression: deflate saves about a quarter of the size of these float64
     arrays but takes 25× as long (3.2 s instead of 0.13 s for a 50 000-node field).
@@ -42,6 +53,9 @@ def write_field_npz(path: str | os.PathLike, fld: GridField, *, overwrite: bool 
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as fh:
         arrays = {k: getattr(fld, k) for k in _FIELD_ARRAYS}
         arrays.update({k: getattr(fld, k) for k in _STD_ARRAYS if getattr(fld, k) is not None})
+        if frame is not None:
+            arrays["frame"] = np.int64(frame)
+            arrays["time_s"] = np.float64(np.nan if time_s is None else time_s)
         np.savez(fh, **arrays)
     return Path(path)
 
@@ -90,11 +104,33 @@ def vti_arrays(fld: GridField) -> dict[str, np.ndarray]:
     return arrays
 
 
+def _field_data(frame: int | None, time_s: float | None) -> list[str]:
+    """The ``<FieldData>`` lines of a VTI file: its frame number and time."""
+    items = []
+    if frame is not None:
+        items.append(("Int64", "frame", str(int(frame))))
+    if time_s is not None:
+        items.append(("Float64", "TimeValue", repr(float(time_s))))
+    if not items:
+        return []
+    return [
+        "    <FieldData>",
+        *(
+            f'      <DataArray type="{t}" Name="{n}" NumberOfTuples="1" format="ascii">{v}'
+            "</DataArray>"
+            for t, n, v in items
+        ),
+        "    </FieldData>",
+    ]
+
+
 def write_field_vti(
     path: str | os.PathLike,
     fld: GridField,
     *,
     encoding: str = "binary",
+    frame: int | None = None,
+    time_s: float | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write a :class:`GridField` as VTK XML ImageData (``.vti``), readable by ParaView.
@@ -105,6 +141,10 @@ def write_field_vti(
     fld : GridField
     encoding : {"binary", "ascii"}
         Inline base64 (UInt64 byte count + little-endian data, one base64 stream) or text.
+    frame : int, optional
+        Frame number of the deformed configuration: field data ``frame``.
+    time_s : float, optional
+        Its time (s): field data ``TimeValue``, which ParaView takes as the time of the file.
     overwrite : bool
 
     Notes
@@ -124,6 +164,7 @@ def write_field_vti(
         '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" header_type="UInt64">',
         f'  <ImageData WholeExtent="{ext}" Origin="{x0!r} {y0!r} {z0!r}" '
         f'Spacing="{dx!r} {dy!r} {dz!r}">',
+        *_field_data(frame, time_s),
         f'    <Piece Extent="{ext}">',
         '      <PointData Vectors="displacement" Tensors="F" Scalars="E_xx">',
     ]

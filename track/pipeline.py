@@ -6,17 +6,21 @@ fields; :func:`track_clouds` links point clouds from any localisation source. Bo
 results folder that ``track run | detect | link`` writes (the command line is a thin layer
 over them, :mod:`track.cli`) and return a :class:`TrackResult` with the same data in memory.
 
-Results folder ``out_dir``::
+Results folder ``out_dir`` (``NNNNNN``: the frame number, the camera frame a volume was
+reconstructed from when ``recon run`` recorded it, :attr:`track.volumes.VolumeInfo.frame`)::
 
     particles/NNNNNN.csv      x_um, y_um, z_um, intensity, sigma_{x,y,z}_um of each frame's
                               particles (standard uncertainties, µm)
     matches_NNNNNN.csv        one per linked pair (NNNNNN = deformed frame), with the
-                              displacements' uncertainties sigma_d{x,y,z}_um
-    tracks.csv                frame, track_id, x_um, y_um, z_um, sigma_{x,y,z}_um
-    fields/NNNNNN.npz, .vti   total field from frame 0 to frame NNNNNN (reference grid)
+                              displacements' uncertainties sigma_d{x,y,z}_um and, when the
+                              frame times are known, the velocities v{x,y,z}_um_per_s
+    tracks.csv                frame, track_id, x_um, y_um, z_um, sigma_{x,y,z}_um (, time_s)
+    fields/NNNNNN.npz, .vti   total field from frame 0 to frame NNNNNN (reference grid),
+                              with its frame number and time
     fields/increment_NNNNNN.npz   incremental mode: the increment's field
-    summary.json              parameters, input checksums, counts, tracking ratio and
-                              status of every pair, the zero-displacement noise floor
+    summary.json              parameters, input checksums, each frame's number and time,
+                              counts, tracking ratio, frames spanned, time step and status
+                              of every pair, the zero-displacement noise floor
                               (``SeriesSettings.static_frames``), failures, timings
 
 Every file is written atomically. The volumes may be detected on Dask workers (``parallel``,
@@ -99,7 +103,9 @@ class FrameDetections:
     Attributes
     ----------
     index : int
-        Frame number: ``NNNNNN`` of the volume file, or the position of the point cloud.
+        Frame number: the camera frame a volume was reconstructed from when recorded
+        (:attr:`track.volumes.VolumeInfo.frame`), else ``NNNNNN`` of the volume file; the
+        position of a point cloud.
     source : str
         The input (volume or CSV path; ``"array <i>"`` for an array).
     positions_um : ndarray, shape (N, 3)
@@ -114,6 +120,8 @@ class FrameDetections:
     sigma_um : ndarray, shape (N, 3), or None
         Standard uncertainty of each centre (µm, x, y, z); NaN where unknown (tables written
         without uncertainties), None for point clouds given without them.
+    time_s : float or None
+        Time of the frame (s) when recorded.
     """
 
     index: int
@@ -123,6 +131,7 @@ class FrameDetections:
     reused: bool = False
     report: dict = field(default_factory=dict)
     sigma_um: np.ndarray | None = None
+    time_s: float | None = None
 
     @property
     def n(self) -> int:
@@ -359,6 +368,12 @@ def _detect(detect):
     return detect
 
 
+def frame_times(vols: Sequence[VolumeInfo]) -> list[float] | None:
+    """The recorded times (s) of the volumes' frames; None unless every one has one."""
+    times = [v.time_s for v in vols]
+    return None if any(t is None for t in times) else times
+
+
 def volume_extent_um(volume: VolumeInfo) -> np.ndarray:
     """Size ``(x, y, z)`` (µm) spanned by the voxel centres of a volume."""
     shape = np.asarray(volume.shape, dtype=float)  # (nz, ny, nx)
@@ -421,7 +436,7 @@ def _detect_frame(job, ctx) -> dict:
         lenslet_phase_vox=v.lenslet_phase_vox,
         snr=v.snr,
     )
-    part = numbered(out / "particles", v.index, ".csv")
+    part = numbered(out / "particles", v.frame, ".csv")
     write_points_csv(
         part, det.positions_um, det.intensities, sigma_xyz_um=det.sigma_um, overwrite=True
     )
@@ -461,7 +476,13 @@ class _Detections:
         self.vols, self.out, self.summary = vols, out, summary
         prev_frames = {e.get("index"): e for e in (prev or {}).get("frames", [])}
         frames = [
-            {"index": v.index, "input": v.source(), "input_sha256": sha}
+            {
+                "index": v.index,
+                "frame": v.frame,
+                "time_s": v.time_s,
+                "input": v.source(),
+                "input_sha256": sha,
+            }
             for v, sha in zip(vols, checksums, strict=True)
         ]
         summary["frames"] = frames
@@ -472,8 +493,9 @@ class _Detections:
         self.reports: list[dict] = [{} for _ in vols]
         for i, (v, f) in enumerate(zip(vols, frames, strict=True)):
             old = prev_frames.get(v.index)
-            part = numbered(out / "particles", v.index, ".csv")
-            if old and old.get("input_sha256") == f["input_sha256"]:
+            part = numbered(out / "particles", v.frame, ".csv")
+            same = old and old.get("frame", old.get("index")) == v.frame
+            if same and old.get("input_sha256") == f["input_sha256"]:
                 if verify_record(part, old.get("particles_file")):
                     self.clouds[i] = read_points_csv(part)
                     self._sigmas[i] = _known_sigmas(read_point_sigmas(part))
@@ -558,16 +580,18 @@ class _Detections:
         summary = self.summary
         summary["psf"] = self.psf_note
         summary["timings"]["detect_s"] = time.perf_counter() - self.t0
-        summary["frame_ids"] = [v.index for v in self.vols]
+        summary["frame_ids"] = [v.frame for v in self.vols]
+        summary["frame_times_s"] = frame_times(self.vols)
         return [
             FrameDetections(
-                v.index,
+                v.frame,
                 v.source(),
                 c,
-                self.out / "particles" / f"{v.index:06d}.csv",
+                numbered(self.out / "particles", v.frame, ".csv"),
                 bool(f.get("reused", False)),
                 r,
                 sg,
+                v.time_s,
             )
             for v, c, f, r, sg in zip(
                 self.vols, self.clouds, self.frames, self.reports, self._sigmas, strict=True
@@ -602,13 +626,17 @@ def _link_and_write(
     common_sigma_xyz_um=None,
     parallel=None,
     after_linking: Callable[[], None] | None = None,
+    times_s: Sequence[float] | None = None,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
     """Link ``clouds`` (a list, or :class:`_Detections` arriving), grid and write the fields.
 
-    ``sigmas``: the frames' position uncertainties ``(N_i, 3)`` (µm; None items: unknown),
-    a list or ``_Detections.sigmas``; None: the clouds came without. ``parallel``: the
-    increments' fields on its Dask workers (:func:`track.series.track_series`);
-    ``after_linking`` is called between linking and fields.
+    ``frame_ids``: the frame numbers (increasing); ``times_s``: the frames' times (s), None
+    when unknown. ``sigmas``: the frames' position uncertainties ``(N_i, 3)`` (µm; None
+    items: unknown), a list or ``_Detections.sigmas``; None: the clouds came without.
+    ``parallel``: the increments' fields on its Dask workers
+    (:func:`track.series.track_series`); ``after_linking`` is called between linking and
+    fields. The incremental predictor scales each step by the frames' times, else by their
+    numbers (frames 1 → 5 span 4 camera frames).
     """
     summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
@@ -641,6 +669,7 @@ def _link_and_write(
             on_pair=lambda _p: bar.update(),
             sigmas=sigmas,
             common_sigma_xyz_um=common_sigma_xyz_um,
+            frame_times=frame_ids if times_s is None else times_s,
         )
     t1 = time.perf_counter()
     if after_linking is not None:
@@ -670,8 +699,9 @@ def _link_and_write(
 
             def field_done(k: int, total, inc) -> None:
                 bar.update()
-                def_id = frame_ids[pairs[k].def_frame]
-                _write_fields(stage, def_id, total, inc, vti_encoding, writes)
+                j = pairs[k].def_frame
+                t = None if times_s is None else times_s[j]
+                _write_fields(stage, frame_ids[j], t, total, inc, vti_encoding, writes)
 
             res = track_series(
                 clouds,
@@ -682,10 +712,13 @@ def _link_and_write(
                 parallel=parallel,
             )
         t2 = time.perf_counter()
-        _write_increments(stage, res, clouds, frame_ids, settings, writes, increments, outcomes)
+        _write_increments(
+            stage, res, clouds, frame_ids, times_s, settings, writes, increments, outcomes
+        )
     ids = np.asarray(frame_ids, dtype=np.int64)
     tracks = dataclasses.replace(res.tracks, frame=ids[res.tracks.frame])
-    write_tracks_csv(stage / "tracks.csv", tracks, overwrite=True)
+    times = None if times_s is None else dict(zip(frame_ids, times_s, strict=True))
+    write_tracks_csv(stage / "tracks.csv", tracks, times_s=times, overwrite=True)
     _publish_derived(stage, out)
     summary["increments"] = increments
     summary["counts"] = {
@@ -708,19 +741,27 @@ def _link_and_write(
 
 
 def _write_fields(
-    out: Path, def_id: int, total, inc, vti_encoding: str, writes: ConcurrentWrites
+    out: Path,
+    def_id: int,
+    time_s: float | None,
+    total,
+    inc,
+    vti_encoding: str,
+    writes: ConcurrentWrites,
 ) -> None:
-    """Queue the field files of the increment ending in frame ``def_id`` on ``writes``: the
-    total field (``fields/NNNNNN.npz`` and ``.vti``) and the increment (``.npz``)."""
+    """Queue the field files of the increment ending in frame ``def_id`` (at ``time_s``, s;
+    None: unknown) on ``writes``: the total field (``fields/NNNNNN.npz`` and ``.vti``) and
+    the increment (``.npz``)."""
+    when = {"frame": def_id, "time_s": time_s, "overwrite": True}
     if total is not None:
         base = out / "fields" / f"{def_id:06d}"
-        writes.submit(write_field_npz, base.with_suffix(".npz"), total, overwrite=True)
+        writes.submit(write_field_npz, base.with_suffix(".npz"), total, **when)
         writes.submit(
-            write_field_vti, base.with_suffix(".vti"), total, encoding=vti_encoding, overwrite=True
+            write_field_vti, base.with_suffix(".vti"), total, encoding=vti_encoding, **when
         )
     if inc is not None:
         p = out / "fields" / f"increment_{def_id:06d}.npz"
-        writes.submit(write_field_npz, p, inc, overwrite=True)
+        writes.submit(write_field_npz, p, inc, **when)
 
 
 def _write_increments(
@@ -728,6 +769,7 @@ def _write_increments(
     res,
     clouds: Sequence[np.ndarray],
     frame_ids: Sequence[int],
+    times_s: Sequence[float] | None,
     settings: SeriesSettings,
     writes: ConcurrentWrites,
     increments: list,
@@ -738,6 +780,10 @@ def _write_increments(
     ``outcomes``."""
     for k, pair in enumerate(res.pairs):
         ref_id, def_id = frame_ids[pair.ref_frame], frame_ids[pair.def_frame]
+        t_ref = t_def = dt = None
+        if times_s is not None:
+            t_ref, t_def = times_s[pair.ref_frame], times_s[pair.def_frame]
+            dt = t_def - t_ref
         mfile = out / f"matches_{def_id:06d}.csv"
         writes.submit(
             write_matches_csv,
@@ -745,12 +791,17 @@ def _write_increments(
             pair.matches,
             pair.displacement_um,
             sigma_um=pair.sigma_displacement_um,
+            dt_s=dt,
             overwrite=True,
         )
         lam = None if res.smoothing[k] is None else tuple(res.smoothing[k])
         entry = {
             "ref_frame": ref_id,
             "def_frame": def_id,
+            "frames_spanned": def_id - ref_id,
+            "ref_time_s": t_ref,
+            "def_time_s": t_def,
+            "dt_s": dt,
             "status": pair.status,
             "n_ref": int(clouds[pair.ref_frame].shape[0]),
             "n_def": int(clouds[pair.def_frame].shape[0]),
@@ -962,6 +1013,8 @@ def track_volumes(
     if series is not None and series.compute_fields:
         check_grid(volume_extent_um(vols[0]), series.grid, where="the volume")
     params = {"detect": _settings_dict(settings)}
+    if any(v.frame != v.index for v in vols):  # the particle tables' names
+        params["frame_numbers"] = [v.frame for v in vols]
     periods = sorted({v.lenslet_period_vox for v in vols if v.lenslet_period_vox is not None})
     if periods:  # an input of the detector (recon.json): a folder detected without it is redone
         params["lenslet_period_vox"] = periods
@@ -991,7 +1044,7 @@ def track_volumes(
             return _finish(out, summary, t0, allow_partial, command, detections.finish())
         common = settings.sigma_systematic_um[::-1]  # shared by a particle's images: cancels
         try:  # linking starts on the first frames while the others are being detected
-            ids = [v.index for v in vols]
+            ids = [v.frame for v in vols]
             pairs, tracks, grid = _link_and_write(
                 series,
                 out,
@@ -1000,6 +1053,7 @@ def track_volumes(
                 ids,
                 vti_encoding,
                 progress,
+                times_s=frame_times(vols),
                 sigmas=detections.sigmas,
                 common_sigma_xyz_um=common,
                 parallel=parallel,
@@ -1098,6 +1152,7 @@ def track_clouds(
         entries.append(
             {
                 "index": i,
+                "frame": i,
                 "input": name,
                 "particles": str(part.relative_to(out)),
                 "n_particles": int(c.shape[0]),
@@ -1105,6 +1160,8 @@ def track_clouds(
         )
         frames.append(FrameDetections(i, name, c, part, sigma_um=sg))
     summary["frames"] = entries
+    summary["frame_ids"] = list(range(len(points)))
+    summary["frame_times_s"] = None
     write_json(out / SUMMARY, summary, overwrite=True)
     pairs, tracks, grid = _link_and_write(
         series,

@@ -942,6 +942,7 @@ def link_pairs(
     on_pair: Callable[[PairResult], None] | None = None,
     sigmas: Sequence[np.ndarray | None] | None = None,
     common_sigma_xyz_um=None,
+    frame_times: Sequence[float] | None = None,
 ) -> list[PairResult]:
     """Link the frames of a series pairwise (``i−1 → i`` or ``0 → i``).
 
@@ -967,6 +968,10 @@ def link_pairs(
         :attr:`PairResult.sigma_displacement_um` (:func:`match_sigma`).
     common_sigma_xyz_um : sequence of 3 float, optional
         The part of every σ shared by a particle's images, see :func:`match_sigma`.
+    frame_times : sequence of float, optional
+        When each frame was taken, increasing (seconds, or camera frame numbers: any unit);
+        the incremental predictor scales the previous increment by the ratio of the two
+        intervals (constant velocity). Default: evenly spaced frames (ratio 1).
 
     Returns
     -------
@@ -981,6 +986,7 @@ def link_pairs(
     if len(pts) < 2:
         raise InputError(f"a series needs at least 2 frames, got {len(pts)}")
     sig = _sigmas(sigmas, pts)
+    times = _frame_times(frame_times, len(pts))
     linker = linker or _default_linker()
     out: list[PairResult] = []
     prev_field = None
@@ -1002,7 +1008,8 @@ def link_pairs(
                     if settings.mode == "cumulative":
                         guess = prev_field
                     elif settings.predictor:
-                        guess = _increment_guess(prev_field)
+                        scale = 1.0 if times is None else _interval_ratio(times, i)
+                        guess = _increment_guess(prev_field, scale)
                 lr = linker(pts[r], pts[i], settings.link, initial_guess=guess)
                 if not getattr(lr, "ok", True):
                     raise TrackingError(getattr(lr, "reason", "") or "no consistent matches")
@@ -1046,10 +1053,32 @@ def link_pairs(
     return out
 
 
-def _increment_guess(prev_field):
+def _frame_times(frame_times, n: int) -> np.ndarray | None:
+    """``frame_times`` as ``n`` finite increasing numbers (None stays None)."""
+    if frame_times is None:
+        return None
+    try:
+        t = np.asarray(frame_times, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        t = np.zeros(0)
+    if t.size != n or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise InputError(
+            f"frame_times must be {n} increasing finite numbers (one per frame), got "
+            f"{list(frame_times) if np.iterable(frame_times) else frame_times!r}"
+        )
+    return t
+
+
+def _interval_ratio(times: np.ndarray, i: int) -> float:
+    """``(t_i − t_{i−1}) / (t_{i−1} − t_{i−2})``: the increment ``i−1 → i`` over the one
+    before it, in time (the constant-velocity scale of the incremental predictor)."""
+    return float((times[i] - times[i - 1]) / (times[i - 1] - times[i - 2]))
+
+
+def _increment_guess(prev_field, scale: float = 1.0):
     from .matching import increment_predictor
 
-    return increment_predictor(prev_field)
+    return increment_predictor(prev_field, scale=scale)
 
 
 @dataclass(frozen=True)
@@ -1137,6 +1166,7 @@ def track_series(
     on_field: Callable[[int, GridField | None, GridField | None], None] | None = None,
     sigmas: Sequence[np.ndarray | None] | None = None,
     parallel=None,
+    frame_times: Sequence[float] | None = None,
 ) -> SeriesResult:
     """Link a series of point clouds and compute trajectories and displacement/strain fields.
 
@@ -1163,6 +1193,8 @@ def track_series(
         Fit and grid the increments on Dask workers (:func:`hrvbase.parallel.frame_map`);
         the Eulerian cumulation runs here, in order, as they arrive. Default (or one worker):
         in this process. The results are the same.
+    frame_times : sequence of float, optional
+        When each frame was taken, see :func:`link_pairs`.
 
     Returns
     -------
@@ -1175,7 +1207,9 @@ def track_series(
     checked = _sigmas(sigmas, pts)
     sig = None if checked is None else [checked[i] for i in range(len(pts))]
     if pairs is None:
-        pairs = link_pairs(pts, settings, linker=linker, on_pair=on_pair, sigmas=sig)
+        pairs = link_pairs(
+            pts, settings, linker=linker, on_pair=on_pair, sigmas=sig, frame_times=frame_times
+        )
     pairs = tuple(pairs)
     if len(pairs) != len(pts) - 1:
         raise InputError(f"expected {len(pts) - 1} pairs for {len(pts)} frames, got {len(pairs)}")

@@ -8,7 +8,13 @@ Formats (lengths in µm, docs/conventions.md §6.4):
 - ``particles/NNNNNN.csv``: ``x_um,y_um,z_um[,intensity][,sigma_x_um,sigma_y_um,sigma_z_um]``;
 - ``matches_NNNNNN.csv``: ``row_ref,row_def,ux_um,uy_um,uz_um[,sigma_dx_um,sigma_dy_um,
   sigma_dz_um]`` (0-based rows into the two frames' particle tables);
-- ``tracks.csv``: ``frame,track_id,x_um,y_um,z_um[,sigma_x_um,sigma_y_um,sigma_z_um]``.
+- ``tracks.csv``: ``frame,track_id,x_um,y_um,z_um[,sigma_x_um,sigma_y_um,sigma_z_um]
+  [,time_s]``.
+
+``frame`` is the frame number (the camera frame a volume was reconstructed from, when
+recorded) and ``time_s`` its time in seconds, when the frame times are known; a match table
+then also holds each displacement over the time between its two frames,
+``vx_um_per_s,vy_um_per_s,vz_um_per_s`` (µm/s).
 
 The ``sigma_*`` columns are standard uncertainties (µm, one standard deviation per axis);
 tables written before they existed read as NaN uncertainties (:func:`read_point_sigmas`,
@@ -18,7 +24,7 @@ tables written before they existed read as NaN uncertainties (:func:`read_point_
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +38,8 @@ MATCH_COLUMNS = ("row_ref", "row_def", "ux_um", "uy_um", "uz_um")
 TRACK_COLUMNS = ("frame", "track_id", "x_um", "y_um", "z_um")
 SIGMA_COLUMNS = ("sigma_x_um", "sigma_y_um", "sigma_z_um")
 MATCH_SIGMA_COLUMNS = ("sigma_dx_um", "sigma_dy_um", "sigma_dz_um")
+VELOCITY_COLUMNS = ("vx_um_per_s", "vy_um_per_s", "vz_um_per_s")
+TIME_COLUMN = "time_s"
 
 
 def _sigma_columns(path, sigma, n: int, what: str) -> list[np.ndarray]:
@@ -139,10 +147,13 @@ def write_matches_csv(
     displacement_um: np.ndarray,
     *,
     sigma_um: np.ndarray | None = None,
+    dt_s: float | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write matches ``row_ref,row_def,ux_um,uy_um,uz_um`` (0-based rows), with
-    ``sigma_dx_um,sigma_dy_um,sigma_dz_um`` when ``sigma_um`` (K, 3) µm is given."""
+    ``sigma_dx_um,sigma_dy_um,sigma_dz_um`` when ``sigma_um`` (K, 3) µm is given and the
+    velocities ``vx_um_per_s,vy_um_per_s,vz_um_per_s`` (displacement / ``dt_s``, µm/s) when
+    the time ``dt_s`` (s, > 0) between the two frames is."""
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
     d = np.asarray(displacement_um, dtype=float).reshape(-1, 3)
     if m.shape[0] != d.shape[0]:
@@ -152,6 +163,11 @@ def write_matches_csv(
     if sigma_um is not None:
         cols += _sigma_columns(path, sigma_um, m.shape[0], "matches")
         header += MATCH_SIGMA_COLUMNS
+    if dt_s is not None:
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise InputError(f"{path}: the time between the frames must be > 0 s, got {dt_s!r}")
+        cols += [d[:, 0] / dt_s, d[:, 1] / dt_s, d[:, 2] / dt_s]
+        header += VELOCITY_COLUMNS
     return _write_table(path, header, cols, overwrite)
 
 
@@ -170,9 +186,16 @@ def read_match_sigmas(path: str | os.PathLike) -> np.ndarray:
     return _read_sigmas(path, MATCH_SIGMA_COLUMNS, n)
 
 
-def write_tracks_csv(path: str | os.PathLike, tracks, *, overwrite: bool = False) -> Path:
+def write_tracks_csv(
+    path: str | os.PathLike,
+    tracks,
+    *,
+    times_s: Mapping[int, float] | None = None,
+    overwrite: bool = False,
+) -> Path:
     """Write :class:`track.series.Tracks` as ``frame,track_id,x_um,y_um,z_um``, with
-    ``sigma_x_um,sigma_y_um,sigma_z_um`` when the tracks carry uncertainties."""
+    ``sigma_x_um,sigma_y_um,sigma_z_um`` when the tracks carry uncertainties and ``time_s``
+    when ``times_s`` (``{frame: time in s}``, every frame of the tracks) is given."""
     xyz = np.asarray(tracks.xyz_um, dtype=float).reshape(-1, 3)
     order = np.lexsort((tracks.track_id, tracks.frame))
     cols = [tracks.frame[order], tracks.track_id[order], *(xyz[order, i] for i in range(3))]
@@ -181,16 +204,27 @@ def write_tracks_csv(path: str | os.PathLike, tracks, *, overwrite: bool = False
     if sig is not None:
         cols += _sigma_columns(path, np.asarray(sig)[order], xyz.shape[0], "track points")
         header += SIGMA_COLUMNS
+    if times_s is not None:
+        frames = np.asarray(tracks.frame)[order]
+        missing = sorted(set(frames.tolist()) - set(times_s))
+        if missing:
+            raise InputError(f"{path}: no time for frame {missing[0]}")
+        cols.append(np.array([times_s[int(f)] for f in frames], dtype=float))
+        header.append(TIME_COLUMN)
     return _write_table(path, header, cols, overwrite)
 
 
 def read_tracks_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read ``tracks.csv``: dict of columns ``frame, track_id`` (int) and ``x_um, y_um, z_um``,
-    and ``sigma_x_um, sigma_y_um, sigma_z_um`` (NaN when the table has none)."""
+    ``sigma_x_um, sigma_y_um, sigma_z_um`` (NaN when the table has none) and ``time_s``
+    (s; only when the table has it)."""
     t = _read_table(path, TRACK_COLUMNS, ("frame", "track_id"))
     sig = _read_sigmas(path, SIGMA_COLUMNS, t["frame"].shape[0])
     for j, c in enumerate(SIGMA_COLUMNS):
         t[c] = sig[:, j]
+    times = read_table(path, required=(), optional=(TIME_COLUMN,))
+    if TIME_COLUMN in times:
+        t[TIME_COLUMN] = times[TIME_COLUMN]
     return t
 
 
@@ -199,7 +233,9 @@ __all__ = [
     "MATCH_SIGMA_COLUMNS",
     "POINT_COLUMNS",
     "SIGMA_COLUMNS",
+    "TIME_COLUMN",
     "TRACK_COLUMNS",
+    "VELOCITY_COLUMNS",
     "read_match_sigmas",
     "read_matches_csv",
     "read_point_sigmas",

@@ -20,12 +20,22 @@ phase of their first voxel (:func:`lenslet_phases`, :attr:`VolumeInfo.lenslet_pe
 which :func:`track.detect.detect_particles` uses to treat the noise of a light-field
 reconstruction. ``recon run`` also writes that ``grid`` into each TIFF's metadata, so that a
 TIFF copied without its ``recon.json`` keeps its period; volumes from elsewhere have none.
+
+Frame numbers and times. ``recon run`` records, per volume, the number of the camera frame it
+was reconstructed from and that frame's time (``recon.json`` frames' ``number`` and
+``time_s``, also in each TIFF's metadata); an OME-Zarr t axis in a unit of time gives the
+times of other images. Volumes ``000000.tif … 000002.tif`` of camera frames 0, 1 and 5 are
+frames 0, 1 and 5 (:attr:`VolumeInfo.frame`) in every output of ``track``; volumes without
+recorded numbers are numbered by their files. Both must increase with the volumes; a
+``recon.json`` that records them must record every volume.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
+import itertools
 import json
 import logging
 import math
@@ -83,6 +93,13 @@ class VolumeInfo:
         SNR of the camera frame the volume was reconstructed from (``recon.json`` frames'
         ``preprocess.snr``, or the TIFF's metadata; :func:`recon.preprocess.frame_snr`);
         None when unknown or the frame held no noise.
+    number : int or None
+        Original (camera) frame number of the volume: ``recon.json`` frames' ``number``, or
+        the TIFF's metadata ``number``; None when not recorded (:attr:`frame` is then
+        ``index``).
+    time_s : float or None
+        Time of that camera frame (s): ``recon.json`` frames' ``time_s``, the TIFF's metadata
+        ``time_s``, or an OME-Zarr t axis in a unit of time; None when unknown.
     """
 
     path: Path
@@ -95,6 +112,14 @@ class VolumeInfo:
     lenslet_period_vox: int | None = None
     lenslet_phase_vox: tuple = (0, 0)
     snr: float | None = None
+    number: int | None = None
+    time_s: float | None = None
+
+    @property
+    def frame(self) -> int:
+        """The frame number of the volume in every output: its recorded camera frame
+        :attr:`number`, else its :attr:`index`."""
+        return self.index if self.number is None else self.number
 
     @property
     def name(self) -> str:
@@ -373,6 +398,83 @@ def _frame_snrs(recon: Mapping, where: str) -> dict[int, float | None]:
     return out
 
 
+def _frame_number(value, where: str) -> int | None:
+    """A recorded camera frame number (None: not recorded)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InputError(
+            f"{where}: number (the camera frame number) must be an integer >= 0 or null, "
+            f"got {value!r}"
+        )
+    return value
+
+
+def _frame_time(value, where: str) -> float | None:
+    """A recorded frame time in seconds (None: not recorded)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(
+            f"{where}: time_s must be a finite number of seconds or null, got {value!r}"
+        )
+    return float(value)
+
+
+def _frame_records(recon: Mapping, where: str) -> dict[int, tuple[int | None, float | None]]:
+    """``{index: (number, time_s)}`` of the frames a ``recon.json`` records."""
+    frames = recon.get("frames")
+    if frames is None:
+        return {}
+    if not isinstance(frames, list):
+        raise InputError(f"{where}: 'frames' must be a list of frame records, got {frames!r:.60}")
+    out = {}
+    for f in frames:
+        if not (isinstance(f, Mapping) and isinstance(f.get("index"), int)):
+            continue
+        k = f["index"]
+        if k in out:
+            raise InputError(f"{where}: frame index {k} is recorded twice")
+        w = f"{where} frame {k}"
+        out[k] = (_frame_number(f.get("number"), w), _frame_time(f.get("time_s"), w))
+    return out
+
+
+def _check_frames(vols: list[VolumeInfo], where: str) -> list[VolumeInfo]:
+    """The series' recorded frame numbers and times, checked: both increase with the
+    volumes. Recorded for some volumes only, they are dropped with a warning (numbers: the
+    frames are numbered by their volumes; times: unknown)."""
+    for key, what in (("number", "frame number"), ("time_s", "time")):
+        values = [getattr(v, key) for v in vols]
+        if all(x is None for x in values):
+            continue
+        if any(x is None for x in values):
+            lack = next(v for v in vols if getattr(v, key) is None)
+            log.warning(
+                "%s: %s has no recorded %s but other volumes have: %s",
+                where,
+                lack.source(),
+                what,
+                "the frames are numbered by their volumes"
+                if key == "number"
+                else "the frame times are unknown",
+            )
+            vols = [dataclasses.replace(v, **{key: None}) for v in vols]
+            continue
+        for a, b in itertools.pairwise(vols):
+            x, y = getattr(a, key), getattr(b, key)
+            if y == x:
+                raise InputError(
+                    f"{where}: {what} {x:g} is recorded for both {a.source()} and {b.source()}"
+                )
+            if y < x:
+                raise InputError(
+                    f"{where}: {what}s must increase with the volumes, but {b.source()} has "
+                    f"{y:g} after {x:g} of {a.source()}"
+                )
+    return vols
+
+
 def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     """The numbered volumes ``NNNNNN.tif`` of a folder, or the frames of an OME-Zarr image,
     with voxel size and origin.
@@ -415,6 +517,7 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
         recon = read_json(folder / RECON_JSON)
         if not isinstance(recon, Mapping):
             raise InputError(f"{folder / RECON_JSON} is not a JSON object")
+        records = _frame_records(recon, str(folder / RECON_JSON))
         n_frames = len(recon.get("frames") or [])
         if n_frames:
             missing = sorted(set(missing) | (set(range(n_frames)) - set(idx)))
@@ -425,6 +528,14 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
     if recon.get("voxel_size_um") is not None:
         recon_vs = _voxel_size(recon["voxel_size_um"], str(folder / RECON_JSON))
     snrs = _frame_snrs(recon, str(folder / RECON_JSON))
+    records = _frame_records(recon, str(folder / RECON_JSON))  # ({} without recon.json)
+    if any(n is not None or t is not None for n, t in records.values()):
+        lack = [k for k in idx if k not in records]
+        if lack:
+            raise InputError(
+                f"{folder / RECON_JSON} records the frame numbers and times of {len(records)} "
+                f"frames but not of volume {files[lack[0]]} ({len(idx)} volumes in {folder})"
+            )
     out, dtypes = [], []
     for k in idx:
         p = files[k]
@@ -455,7 +566,14 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
         period, phase = lenslet_phases(src, vs, origin, str(where))
         # recon.json's record of the frame, else the SNR recon wrote into the TIFF
         snr = snrs[k] if k in snrs else _snr(meta.get("snr"), str(p))
-        out.append(VolumeInfo(p, k, shape, vs, origin, None, (), period, phase, snr))
+        if k in records:
+            number, time_s = records[k]
+        else:  # recon writes them into the TIFF too (a volume copied without recon.json)
+            number = _frame_number(meta.get("number"), str(p))
+            time_s = _frame_time(meta.get("time_s"), str(p))
+        out.append(
+            VolumeInfo(p, k, shape, vs, origin, None, (), period, phase, snr, number, time_s)
+        )
     first = out[0]
     for v, dtype in zip(out[1:], dtypes[1:], strict=True):
         if v.shape != first.shape or dtype != dtypes[0]:
@@ -469,7 +587,8 @@ def scan_volumes(folder: str | os.PathLike) -> list[VolumeInfo]:
                 f"mismatched voxel sizes: {v.path} has {list(v.voxel_size_um)} µm, "
                 f"{first.path} has {list(first.voxel_size_um)} µm"
             )
-    return out
+    where = str(folder / RECON_JSON) if records else str(folder)
+    return _check_frames(out, where)
 
 
 # -- OME-Zarr --------------------------------------------------------------------------------
@@ -484,6 +603,17 @@ _LENGTH_UM = {
     "millimeter": 1e3,
     "centimeter": 1e4,
     "meter": 1e6,
+}
+
+
+#: Time units of an OME-NGFF t axis, in seconds.
+_TIME_S = {
+    "nanosecond": 1e-9,
+    "microsecond": 1e-6,
+    "millisecond": 1e-3,
+    "second": 1.0,
+    "minute": 60.0,
+    "hour": 3600.0,
 }
 
 
@@ -607,19 +737,36 @@ def scan_zarr(store: str | os.PathLike) -> list[VolumeInfo]:
             f"{store}: frame(s) t = {', '.join(map(str, missing[:5]))} not written yet "
             f"({RECON_JSON} has no volume for them; an interrupted recon run?)"
         )
-    lenslet, snrs = (None, (0, 0)), {}
+    lenslet, snrs, records = (None, (0, 0)), {}, {}
     if isinstance(recon, Mapping):
         lenslet = lenslet_phases(recon, vs, (x0, y0, z0), str(recon_json))
         snrs = _frame_snrs(recon, str(recon_json))
+        records = _frame_records(recon, str(recon_json))
+    t_unit = (
+        axes[0].get("unit") if lead_names[:1] == ["t"] and isinstance(axes[0], Mapping) else None
+    )
     out = []
     for k in range(n):
         lead = tuple([k] if lead_names[:1] == ["t"] else []) + (0,) * ("c" in lead_names)
+        number, time_s = records.get(k, (None, None))
+        if time_s is None and k not in records and t_unit in _TIME_S:
+            time_s = float((shift[0] + k * scale[0]) * _TIME_S[t_unit])
         out.append(
             VolumeInfo(
-                store, k, shape[-3:], vs, (x0, y0, z0), str(ds["path"]), lead, *lenslet, snrs.get(k)
+                store,
+                k,
+                shape[-3:],
+                vs,
+                (x0, y0, z0),
+                str(ds["path"]),
+                lead,
+                *lenslet,
+                snrs.get(k),
+                number,
+                time_s,
             )
         )
-    return out
+    return _check_frames(out, str(recon_json) if records else str(store))
 
 
 def volume_checksum(info: VolumeInfo) -> str:

@@ -491,3 +491,52 @@ def test_a_rerun_on_a_damaged_volume_keeps_the_previous_results(tmp_path, capsys
     rc, err = _run([*argv, "--no-progress"], capsys)
     assert rc == 0, err
     assert _snapshot(out).keys() == before.keys()
+
+
+def test_recorded_camera_frame_numbers_and_times_flow_into_every_output(tmp_path, capsys):
+    """Volumes of camera frames 0, 1 and 5 (recon.json's numbers and times): the tables are
+    named and labelled by those frames, 1 → 5 is one increment spanning 4 camera frames, and
+    velocities use the recorded times."""
+    vols = _hyperstacks(tmp_path / "vols")
+    numbers, times = [0, 1, 5], [0.0, 0.01, 0.05]
+    frames = [
+        {"index": k, "number": n, "time_s": t, "output": {}}
+        for k, (n, t) in enumerate(zip(numbers, times, strict=True))
+    ]
+    (vols / "recon.json").write_text(json.dumps({"frames": frames}))
+    out = tmp_path / "res"
+    argv = ["run", vols, "-o", out, "--no-deconvolution", "--grid-spacing-um", "4"]
+    rc, err = _run([*argv, "--no-progress"], capsys)
+    assert rc == 0, err
+    assert sorted(p.name for p in (out / "particles").iterdir()) == [
+        "000000.csv",
+        "000001.csv",
+        "000005.csv",
+    ]
+    assert sorted(p.name for p in out.glob("matches_*.csv")) == [
+        "matches_000001.csv",
+        "matches_000005.csv",
+    ]
+    s = json.loads((out / "summary.json").read_text())
+    assert [(f["index"], f["frame"], f["time_s"]) for f in s["frames"]] == [
+        (0, 0, 0.0),
+        (1, 1, 0.01),
+        (2, 5, 0.05),
+    ]
+    assert s["frame_ids"] == numbers and s["frame_times_s"] == times
+    inc = s["increments"][1]
+    assert (inc["ref_frame"], inc["def_frame"], inc["frames_spanned"]) == (1, 5, 4)
+    assert (inc["ref_time_s"], inc["def_time_s"]) == (0.01, 0.05)
+    assert inc["dt_s"] == pytest.approx(0.04)
+    t = tables.read_tracks_csv(out / "tracks.csv")
+    assert sorted(set(t["frame"].tolist())) == numbers
+    np.testing.assert_allclose(t["time_s"], np.array(times)[[numbers.index(f) for f in t["frame"]]])
+    head = (out / "matches_000005.csv").read_text().splitlines()[0].split(",")
+    assert head[-3:] == ["vx_um_per_s", "vy_um_per_s", "vz_um_per_s"]
+    m = tables.read_matches_csv(out / "matches_000005.csv")[1]
+    v = np.loadtxt(out / "matches_000005.csv", delimiter=",", skiprows=1)[:, -3:]
+    np.testing.assert_allclose(v, m / 0.04, rtol=1e-6)
+    with np.load(out / "fields" / "000005.npz") as z:
+        assert int(z["frame"]) == 5 and float(z["time_s"]) == 0.05
+    vti = (out / "fields" / "000005.vti").read_text()
+    assert 'Name="TimeValue"' in vti

@@ -351,3 +351,41 @@ def test_vti_uncertainties_read_in_vtk(tmp_path, encoding):
     u_sd = arrays["displacement_std"]
     assert np.all(u_sd[:, 2] > 2.0 / np.sqrt(80)) and np.all(u_sd[:, 2] < 2.0)
     assert np.median(u_sd[:, 2] / u_sd[:, 1]) > 3.0
+
+
+def test_each_volume_knows_its_camera_frame_number_and_time(tmp_path, caplog):
+    """recon.json's record of each frame gives its camera number and time, else the TIFF's
+    metadata; none: numbered by the files; recorded for some volumes only: dropped with a
+    warning; they must increase with the volumes."""
+    for k in range(3):
+        _volume(tmp_path / f"{k:06d}.tif", meta={"number": 2 * k, "time_s": 0.5 * k})
+    vols = volumes.scan_volumes(tmp_path)
+    assert [(v.index, v.frame, v.time_s) for v in vols] == [(0, 0, 0.0), (1, 2, 0.5), (2, 4, 1.0)]
+    frames = [{"index": k, "number": n, "time_s": n / 100} for k, n in enumerate((0, 1, 5))]
+    (tmp_path / "recon.json").write_text(json.dumps({"frames": frames}))
+    vols = volumes.scan_volumes(tmp_path)
+    assert [(v.frame, v.time_s) for v in vols] == [(0, 0.0), (1, 0.01), (5, 0.05)]
+    frames[2] = {"index": 2, "number": None, "time_s": None}
+    (tmp_path / "recon.json").write_text(json.dumps({"frames": frames}))
+    with caplog.at_level("WARNING", logger="track"):
+        vols = volumes.scan_volumes(tmp_path)
+    assert [(v.frame, v.time_s) for v in vols] == [(0, None), (1, None), (2, None)]
+    assert "000002.tif has no recorded frame number but other volumes have" in caplog.text
+    frames[2] = {"index": 2, "number": 1, "time_s": 0.02}
+    (tmp_path / "recon.json").write_text(json.dumps({"frames": frames}))
+    with pytest.raises(InputError, match=r"frame number 1 is recorded for both .*000001\.tif and"):
+        volumes.scan_volumes(tmp_path)
+
+
+def test_vti_carries_the_frame_and_its_time(tmp_path):
+    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
+
+    p = field_files.write_field_vti(tmp_path / "f.vti", _field(), frame=5, time_s=0.05)
+    reader = vtkXMLImageDataReader()
+    reader.SetFileName(str(p))
+    reader.Update()
+    fd = reader.GetOutput().GetFieldData()
+    assert fd.GetArray("TimeValue").GetValue(0) == 0.05 and fd.GetArray("frame").GetValue(0) == 5
+    q = field_files.write_field_npz(tmp_path / "f.npz", _field(), frame=5)
+    with np.load(q) as z:
+        assert int(z["frame"]) == 5 and np.isnan(z["time_s"])

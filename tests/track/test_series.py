@@ -506,3 +506,29 @@ def test_a_total_field_is_not_changed_by_the_next_increment():
     assert second.mask.sum() < first.mask.sum()  # support was lost ...
     for k, v in kept.items():  # ... in the second field only
         np.testing.assert_array_equal(getattr(first, k), v, err_msg=k)
+
+
+def test_the_incremental_predictor_scales_the_last_step_by_the_frame_intervals():
+    """Frames at times 0, 1 and 3 (e.g. camera frames 0, 1, 3): the second increment spans
+    twice the time of the first, so the constant-velocity guess is twice its displacement."""
+    from track.series import link_pairs
+
+    clouds = _series([np.eye(3)] * 3)
+    guesses = []
+
+    def linker(ref, dfm, settings, initial_guess=None):
+        guesses.append(initial_guess)
+        r = _identity_linker(ref, dfm, settings)
+        r.displacement_field = lambda p: np.ones_like(p)  # 1 µm per increment
+        return r
+
+    p = np.zeros((1, 3))
+    link_pairs(clouds, SeriesSettings(), linker=linker, frame_times=[0.0, 1.0, 3.0, 4.0])
+    assert guesses[0] is None
+    np.testing.assert_allclose(guesses[1](p), 2.0)
+    np.testing.assert_allclose(guesses[2](p), 0.5)
+    guesses.clear()
+    link_pairs(clouds, SeriesSettings(), linker=linker)  # evenly spaced: the step repeated
+    np.testing.assert_allclose(guesses[1](p), 1.0)
+    with pytest.raises(InputError, match="frame_times must be 4 increasing"):
+        link_pairs(clouds, SeriesSettings(), linker=linker, frame_times=[0.0, 1.0, 1.0, 2.0])

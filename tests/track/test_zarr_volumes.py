@@ -145,3 +145,16 @@ def test_ngff_04_image_reads_quietly(tmp_path, capfd):
     assert len(vols) == 2 and vols[1].voxel_size_um == pytest.approx((2.0, 0.5, 0.5))
     np.testing.assert_array_equal(read_volume(vols[1]), data[1])
     assert capfd.readouterr().err == ""
+
+
+def test_a_t_axis_in_milliseconds_gives_the_frame_times(tmp_path):
+    data = np.ones((3, 2, 3, 3), np.float32)
+    store = write_ngff(tmp_path / "t.zarr", data, "tzyx", (20, 1, 1, 1), (100, 0, 0, 0))
+    meta = json.loads((store / "zarr.json").read_text())
+    meta["attributes"]["ome"]["multiscales"][0]["axes"][0]["unit"] = "millisecond"
+    (store / "zarr.json").write_text(json.dumps(meta))
+    vols = scan_volumes(store)
+    assert [(v.frame, v.time_s) for v in vols] == [(0, 0.1), (1, 0.12), (2, 0.14)]
+    frames = [{"index": k, "number": 3 * k, "time_s": k, "output": {"t": k}} for k in range(3)]
+    (store / "recon.json").write_text(json.dumps({"frames": frames}))  # recon's record first
+    assert [(v.frame, v.time_s) for v in scan_volumes(store)] == [(0, 0.0), (3, 1.0), (6, 2.0)]
