@@ -301,6 +301,13 @@ def _check_plan(plan, assets: Path, owned: set[Path], has_manifest: bool, overwr
     dests = [dst for src, dst in plan if _same(src, dst) is False]
     dests.append(assets / MANIFEST)
     for dst in dests:
+        for folder in [Path(), *reversed(dst.relative_to(assets).parents[:-1])]:
+            if os.path.lexists(assets / folder) and not (assets / folder).is_dir():
+                raise StudyError(
+                    f"{assets / folder} is a file where hrvptm collect puts the page's plot "
+                    "folder; refusing to replace it (move it away or choose another page)"
+                )
+    for dst in dests:
         if not os.path.lexists(dst):
             continue
         if dst not in owned and not (dst.name == MANIFEST and has_manifest):

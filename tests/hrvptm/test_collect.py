@@ -110,3 +110,18 @@ def test_overwrite_replaces_only_the_files_collect_wrote(tmp_path, capsys):
     assert main(["collect", str(first), "-o", str(page), "-q"]) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert (folder / "displacement.png").read_bytes() == b"png second"
+
+
+@pytest.mark.parametrize("blocked", ["page", "page/study_a"])
+def test_a_file_in_place_of_the_plot_folder_is_refused_before_writing(tmp_path, capsys, blocked):
+    from hrvptm.cli import main
+
+    report = _plot_report(tmp_path / "rep")
+    (tmp_path / blocked).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / blocked).write_text("mine\n", encoding="utf-8")
+    page = tmp_path / "page.md"
+    assert main(["collect", str(report), "-o", str(page), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{tmp_path / blocked} is a file where hrvptm collect" in err[0]
+    assert (tmp_path / blocked).read_text(encoding="utf-8") == "mine\n"
+    assert not page.exists()
