@@ -105,7 +105,8 @@ def run_main(
     argv : sequence of str or None
         ``None``: ``sys.argv[1:]``.
     loggers : sequence of str
-        Package loggers whose messages are shown (``"lfsim"``, ``"recon"``, …).
+        Package loggers whose messages are shown (``"lfsim"``, ``"recon"``, …), besides
+        ``"hrvbase"``'s (the shared code's, e.g. the frames in parallel), always shown.
     prepare : callable, optional
         Called with the parsed arguments inside the error handling (e.g. to start a backend).
     interrupted : str
@@ -132,7 +133,7 @@ def run_main(
     handler.setFormatter(_Formatter(prog))
     level = log_level(args)
     saved = []
-    for name in loggers:
+    for name in dict.fromkeys([*loggers, "hrvbase"]):
         lg = logging.getLogger(name)
         saved.append((lg, lg.level))
         lg.setLevel(level)
@@ -227,6 +228,8 @@ def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
 
     ``threads`` (e.g. ``--threads``) sets the compute threads of each worker.
 
+    Local workers are capped to the machine's cores and to what its available memory holds
+    (:meth:`hrvbase.parallel.Parallel.capped`, with a warning naming both numbers).
     ``--scheduler`` is checked before any work: its form, then that a Dask scheduler answers
     there (:func:`hrvbase.parallel.check_scheduler`, within
     :data:`hrvbase.parallel.CONNECT_TIMEOUT_S` seconds).
@@ -264,7 +267,7 @@ def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
         raise InputError(rename_fields(message, {"threads": "--threads"})) from None
     if par.scheduler is not None:
         check_scheduler(par.scheduler, "--scheduler")
-    return par
+    return par.capped(what=f"--workers {text}")
 
 
 # -- options that set fields of a settings dataclass ---------------------------------------

@@ -9,7 +9,9 @@ the caller records each frame (and, e.g., links it) as soon as it exists:
 - ``Parallel(workers=N)``: on a :class:`distributed.LocalCluster` of ``N`` worker processes
   started for the call and stopped after it, each running one frame at a time with
   ``threads`` compute threads (default: the cores divided among the workers), its memory
-  bounded by ``memory_limit`` (default: the machine's memory divided among them);
+  bounded by ``memory_limit`` (default: the machine's memory divided among them); no more
+  workers than the available memory holds (:meth:`Parallel.capped`, with the map's
+  :func:`memory_per_worker`), and, from a command line, than the machine has cores;
 - ``Parallel(scheduler="tcp://host:port")``: on an existing cluster (``dask scheduler`` /
   ``dask worker``, or ``dask-jobqueue`` on a batch system); ``workers`` is then the cluster's.
 
@@ -64,6 +66,11 @@ log = logging.getLogger(__name__)
 #: Seconds to wait for an existing scheduler to answer (to accept the connection, to greet,
 #: and for the client to connect).
 CONNECT_TIMEOUT_S = 5.0
+
+#: Memory one local worker process needs besides its frames' shared context (bytes): Python
+#: with Dask and the toolkit imported, and a small frame's arrays (a worker of ``recon run`` on
+#: a 300 × 300 px, 3-frame series peaked at 188 MiB).
+WORKER_BASE_BYTES = 256 * 2**20
 
 #: Schemes of a scheduler address (Dask's TCP and TLS transports).
 SCHEDULER_SCHEMES = ("tcp", "tls")
@@ -143,6 +150,56 @@ class Parallel:
             return None
         return max(1, available_cores() // self.n_workers)
 
+    def capped(
+        self,
+        *,
+        per_worker_bytes: int | None = None,
+        by_cores: bool = True,
+        what: str | None = None,
+    ) -> Parallel:
+        """This setting with its local workers capped to what the machine holds.
+
+        At most one worker per core (``by_cores``) and as many as the available memory holds
+        at ``per_worker_bytes`` each (at least :data:`WORKER_BASE_BYTES`); one worker: the
+        frames run in this process. A warning names the workers asked for and used when it
+        caps them. An existing scheduler, or one worker, is returned as it is.
+
+        Parameters
+        ----------
+        per_worker_bytes : int, optional
+            Memory one worker needs (bytes), e.g. from :func:`memory_per_worker`; default
+            :data:`WORKER_BASE_BYTES`.
+        by_cores : bool
+            Also cap by :func:`~hrvbase.threads.available_cores`.
+        what : str, optional
+            How the warning names the request (``"--workers 100"``); default ``"N local
+            workers"``.
+
+        Returns
+        -------
+        Parallel
+            ``self``, or a copy with fewer ``workers``.
+        """
+        if self.in_process or self.scheduler is not None:
+            return self
+        n = self.n_workers
+        per = max(WORKER_BASE_BYTES, int(per_worker_bytes or 0))
+        memory = available_memory_bytes()
+        cores = available_cores()
+        used = max(1, min(n, memory // per, cores if by_cores else n))
+        if used >= n:
+            return self
+        log.warning(
+            "%s: using %d local worker%s (%s%s of memory available, about %s per worker)",
+            what or f"{n} local workers",
+            used,
+            "" if used == 1 else "s",
+            f"{cores} cores; " if by_cores else "",
+            _gib(memory),
+            _gib(per),
+        )
+        return dataclasses.replace(self, workers=used)
+
     def describe(self) -> str:
         """``"in process"``, ``"2 local workers × 1 thread"`` or ``"scheduler tcp://…"``."""
         if self.scheduler is not None:
@@ -151,6 +208,43 @@ class Parallel:
             return "in process"
         t = self.worker_threads()
         return f"{self.n_workers} local Dask workers × {t} thread{'s' if t != 1 else ''}"
+
+
+def available_memory_bytes() -> int:
+    """Memory available to new processes (bytes): the system's available memory, within the
+    memory limit of this process's control group or resource limits where one is set."""
+    import psutil
+    from distributed.system import MEMORY_LIMIT
+
+    return int(min(psutil.virtual_memory().available, MEMORY_LIMIT))
+
+
+def _nbytes(obj: Any) -> int:
+    """Size of ``obj`` when sent to a worker (bytes; its arrays' buffers are not copied to
+    count them); 0 for an object that cannot be sent."""
+    import pickle
+
+    buffers: list = []
+    try:
+        n = len(pickle.dumps(obj, protocol=5, buffer_callback=buffers.append))
+    except Exception:  # not picklable: nothing to count (a worker would fail on it anyway)
+        return 0
+    return n + sum(memoryview(b).nbytes for b in buffers)
+
+
+def memory_per_worker(context: WorkerContext | None) -> int:
+    """Estimate of the memory one worker needs for a frame map (bytes).
+
+    :data:`WORKER_BASE_BYTES` plus twice the size of the context's arguments (the copy sent
+    to the worker, and what ``build`` makes of it: a projector from a PSF bank is of the
+    bank's size). A frame's own arrays beyond the base are not counted.
+    """
+    extra = 0 if context is None else 2 * _nbytes(context.args)
+    return WORKER_BASE_BYTES + extra
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.2f} GiB"
 
 
 def scheduler_address(text: str, name: str = "scheduler") -> tuple[str, str, int]:
@@ -491,6 +585,10 @@ class FrameMap:
     def _run(self) -> Iterator[tuple[Any, Any]]:
         if not self.items:
             return
+        # A local cluster: no more workers than the memory holds with this map's context.
+        self.parallel = self.parallel.capped(
+            per_worker_bytes=memory_per_worker(self.context), by_cores=False
+        )
         if self.parallel.in_process:
             yield from self._run_here()
         else:
@@ -687,6 +785,8 @@ def shared_cluster(parallel: Parallel | None) -> Iterator[Parallel | None]:
     scheduler) is yielded as it is. The results are the same either way; a worker keeps the
     peak memory of every map run on it.
     """
+    if parallel is not None:
+        parallel = parallel.capped(by_cores=False)
     if parallel is None or parallel.in_process or parallel.scheduler is not None:
         yield parallel
         return
@@ -775,13 +875,16 @@ def in_order(pairs: Iterable[tuple[Any, Any]], items: Sequence) -> Iterator[tupl
 __all__ = [
     "CONNECT_TIMEOUT_S",
     "SCHEDULER_SCHEMES",
+    "WORKER_BASE_BYTES",
     "FrameMap",
     "Parallel",
     "WorkerContext",
     "available_cores",
+    "available_memory_bytes",
     "check_scheduler",
     "frame_map",
     "in_order",
+    "memory_per_worker",
     "scheduler_address",
     "shared_cluster",
 ]

@@ -112,6 +112,9 @@ def test_cli_workers_error_names_the_option(value):
 
 
 def test_cli_options(monkeypatch):
+    from hrvbase.parallel import WORKER_BASE_BYTES
+
+    _machine(monkeypatch, 8, 100 * WORKER_BASE_BYTES)
     assert parallel_from_args(_parse([])) == Parallel()
     assert parallel_from_args(_parse(["--workers", "3"]), threads=2) == Parallel(3, threads=2)
     assert parallel_from_args(_parse(["--workers", "auto"])).n_workers >= 1
@@ -271,6 +274,85 @@ def test_nothing_listening_fails_fast():
     with pytest.raises(InputError, match=r"^--scheduler .*nothing is listening"):
         parallel_from_args(_parse(["--scheduler", addr]))
     assert time.monotonic() - t0 < 2
+
+
+def _machine(monkeypatch, cores: int, memory_bytes: int) -> None:
+    """Pretend this machine has ``cores`` cores and ``memory_bytes`` of available memory."""
+    monkeypatch.setattr("hrvbase.parallel.available_cores", lambda: cores)
+    monkeypatch.setattr("hrvbase.parallel.available_memory_bytes", lambda: memory_bytes)
+
+
+def test_cli_workers_are_capped_by_the_cores(monkeypatch, caplog):
+    import logging
+
+    from hrvbase.parallel import WORKER_BASE_BYTES
+
+    _machine(monkeypatch, 2, 1000 * WORKER_BASE_BYTES)
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    par = parallel_from_args(_parse(["--workers", "100"]))
+    assert par.n_workers == 2 and par.worker_threads() == 1
+    [msg] = [r.getMessage() for r in caplog.records]
+    assert msg.startswith("--workers 100: using 2 local workers (2 cores"), msg
+    caplog.clear()
+    assert parallel_from_args(_parse(["--workers", "2"])).n_workers == 2  # no warning
+    assert parallel_from_args(_parse(["--workers", "auto"])).n_workers == 2
+    assert not caplog.records
+
+
+def test_cli_workers_are_capped_by_the_available_memory(monkeypatch, caplog):
+    import logging
+
+    from hrvbase.parallel import WORKER_BASE_BYTES
+
+    _machine(monkeypatch, 16, 3 * WORKER_BASE_BYTES + 1)
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    assert parallel_from_args(_parse(["--workers", "8"])).n_workers == 3
+    assert parallel_from_args(_parse(["--workers", "auto"])).n_workers == 3
+    msgs = [r.getMessage() for r in caplog.records]
+    assert msgs[0].startswith("--workers 8: using 3 local workers"), msgs
+    assert msgs[1].startswith("--workers auto: using 3 local workers"), msgs
+    _machine(monkeypatch, 16, WORKER_BASE_BYTES // 2)  # not even one: in this process
+    assert parallel_from_args(_parse(["--workers", "4"])).in_process
+
+
+def test_the_cap_warning_is_one_line_of_the_command(monkeypatch, capsys):
+    from hrvbase.cli import Parser, common_options, run_main
+    from hrvbase.parallel import WORKER_BASE_BYTES
+
+    _machine(monkeypatch, 2, 1000 * WORKER_BASE_BYTES)
+    seen = []
+    p = Parser(prog="demo", parents=[common_options(suppress=False)])
+    sub = p.add_subparsers(parser_class=Parser)
+    c = sub.add_parser("run", parents=[common_options(suppress=True)])
+    add_parallel_options(c)
+    c.set_defaults(func=lambda args: seen.append(parallel_from_args(args)))
+    assert run_main("demo", p, ["run", "--workers", "1000000000"], loggers=("demo",)) == 0
+    assert seen == [Parallel(workers=2)]
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("demo: warning: --workers 1000000000: using 2 "), err
+
+
+def _big_context(_array):
+    return {"offset": 0.0, "bank": np.arange(1000.0)}
+
+
+def test_frame_map_caps_the_workers_by_the_memory_its_job_needs(monkeypatch, caplog):
+    """A context of 200 MB sent to every worker: with memory for the base and one copy only,
+    the frames run in this process, with a warning."""
+    import logging
+
+    from hrvbase.parallel import WORKER_BASE_BYTES
+
+    big = np.zeros(200 * 2**20, np.uint8)
+    _machine(monkeypatch, 16, WORKER_BASE_BYTES + 2 * big.nbytes + 2**20)
+    caplog.set_level(logging.WARNING, logger="hrvbase")
+    ctx = WorkerContext(_big_context, (big,))
+    with frame_map(_frame, range(3), parallel=Parallel(workers=4), context=ctx) as fm:
+        got = dict(fm)
+    assert {pid for _, pid in got.values()} == {os.getpid()}
+    assert fm.parallel.in_process
+    [msg] = [r.getMessage() for r in caplog.records]
+    assert msg.startswith("4 local workers: using 1 local worker"), msg
 
 
 # -- in process ----------------------------------------------------------------------------

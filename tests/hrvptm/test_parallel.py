@@ -17,6 +17,7 @@ def test_study_passes_workers_and_scheduler_on(tmp_path, monkeypatch):
     seen = []
     monkeypatch.setattr("hrvptm.study.run_study", lambda *a, **k: seen.append(k["parallel"]))
     monkeypatch.setattr("hrvbase.parallel.check_scheduler", lambda *a: None)  # none runs there
+    monkeypatch.setattr("hrvbase.parallel.available_cores", lambda: 4)  # 2 workers: not capped
     demo = str(EXPERIMENTS / "demo_simple_shear.toml")
     assert main(["-q", "study", demo, "-o", str(tmp_path / "a"), "--workers", "2"]) == 0
     assert main(["-q", "study", demo, "-o", str(tmp_path / "b")]) == 0
