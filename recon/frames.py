@@ -425,6 +425,8 @@ def probe_tiff(path: str | os.PathLike) -> TiffHeader:
     from lfsim.io import METADATA_TAG
 
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"frame {str(path)!r} is a folder, not a TIFF file")
     if not path.is_file():
         raise InputError(f"frame {str(path)!r} does not exist")
     try:
@@ -722,6 +724,8 @@ class FrameReader:
         import tifffile
 
         path = ref.path
+        if path.is_dir():
+            raise InputError(f"{what} {str(path)!r} is a folder, not a TIFF file")
         if not path.is_file():
             raise InputError(f"{what} {str(path)!r} does not exist")
         errors = (OSError, ValueError, IndexError, KeyError, tifffile.TiffFileError)

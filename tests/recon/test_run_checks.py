@@ -237,3 +237,12 @@ def test_stop_rel_change_accepts_none_as_its_help_says(calib, frame, tmp_path, c
         rc, stdout, err = run(capsys, *args, "--stop-rel-change", bad, "-o", tmp_path / "x")
         refused(rc, stdout, err, "--stop-rel-change", "'none' or a number >= 0", repr(bad))
     assert not (tmp_path / "x").exists()
+
+
+def test_dark_frame_that_is_a_folder_is_named_as_such(calib, frame, tmp_path, capsys):
+    (tmp_path / "dark").mkdir()
+    out = tmp_path / "v"
+    args = ["run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out]
+    rc, stdout, err = run(capsys, *args, "--dark", tmp_path / "dark")
+    refused(rc, stdout, err, f"dark frame {str(tmp_path / 'dark')!r} is a folder, not a TIFF file")
+    assert not out.exists()
