@@ -82,8 +82,9 @@ class ReconModel:
         Raises
         ------
         InputError
-            No ``recon.json`` (volumes that ``recon`` did not make), or one that lacks the
-            optics, the calibration or the settings; the message names the file.
+            No such folder, no ``recon.json`` (volumes that ``recon`` did not make), or one
+            that lacks the optics, the calibration or the settings; the message names the
+            file.
         """
         from dataclasses import fields
 
@@ -93,6 +94,12 @@ class ReconModel:
         from recon.lenslet_grid import LensletGrid
         from recon.settings import ReconSettings
 
+        if not Path(volumes).is_dir():
+            what = "is a file" if Path(volumes).exists() else "does not exist"
+            raise InputError(
+                f"volumes {volumes} {what}; expected the folder (or OME-Zarr image) that "
+                "`recon run` wrote"
+            )
         path = Path(volumes) / "recon.json"
         if not path.is_file():
             raise InputError(

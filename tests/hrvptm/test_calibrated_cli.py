@@ -144,3 +144,16 @@ def test_sphere_diameter_is_checked_against_the_particles_measured(volumes, tmp_
     rc, _, err = run(capsys, "axial", vol, "--track-config", cfg, "-o", tmp_path / "r")
     assert rc == 2 and "[track.axial] sphere_diameter_um of " in err and " 200 µm" in err, err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("kind", ["missing", "a-file"])
+def test_voldir_missing_or_a_file_is_named_as_such(tmp_path, capsys, kind):
+    vol = tmp_path / "vol"
+    if kind == "a-file":
+        vol.write_bytes(b"II*\x00")
+    rc, _, err = run(capsys, "axial", vol, "-o", tmp_path / "res")
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    what = "does not exist" if kind == "missing" else "is a file"
+    assert f"volumes {vol} {what}" in lines[0] and "recon.json" not in lines[0], lines[0]
+    assert not (tmp_path / "res").exists()
