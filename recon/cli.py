@@ -590,7 +590,15 @@ def _resolve_inputs(args: argparse.Namespace):
     frames = select_frames(build_series(files, fps=args.fps), args.select)
     scene = args.scene
     if scene is None and dataset is not None:
-        scene = Path(read_json(dataset / "dataset.json")["scene"]["path"])
+        record = read_json(dataset / "dataset.json")
+        named = record.get("scene") if isinstance(record, dict) else None
+        named = named.get("path") if isinstance(named, dict) else None
+        if not isinstance(named, str) or not named:
+            raise InputError(
+                f'{dataset / "dataset.json"} names no scene (expected "scene": {{"path": '
+                "...}, as lfsim dataset writes); give --scene SCENE.xml"
+            )
+        scene = Path(named)
         if not scene.is_absolute():
             scene = (dataset / scene).resolve()
     if scene is None:

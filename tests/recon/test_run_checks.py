@@ -246,3 +246,17 @@ def test_dark_frame_that_is_a_folder_is_named_as_such(calib, frame, tmp_path, ca
     rc, stdout, err = run(capsys, *args, "--dark", tmp_path / "dark")
     refused(rc, stdout, err, f"dark frame {str(tmp_path / 'dark')!r} is a folder, not a TIFF file")
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "record", ["{}", "[1, 2]", '{"scene": "small.xml"}', '{"scene": {"path": 3}}']
+)
+def test_dataset_record_naming_no_scene_is_refused(calib, frame, tmp_path, capsys, record):
+    ds = tmp_path / "ds"
+    (ds / "frames").mkdir(parents=True)
+    (ds / "dataset.json").write_text(record)
+    tifffile.imwrite(ds / "frames" / "000000.tif", tifffile.imread(frame))
+    out = tmp_path / "v"
+    rc, stdout, err = run(capsys, "run", ds, "--calib", calib, *FAST, "-o", out)
+    refused(rc, stdout, err, str(ds / "dataset.json"), "names no scene", "--scene")
+    assert not out.exists()
