@@ -218,13 +218,8 @@ def _warn_overlaps(particles, path, shown: int = 3) -> None:
     ]
     more = max(len(coincident) - shown, 0) + max(len(overlapping) - shown, 0)
     tail = f"; and {more} more" if more else ""
-    log.warning(
-        "particle table %s: %s%s; rendered as given (a row given twice renders one bead twice "
-        "as bright)",
-        path,
-        "; ".join(parts),
-        tail,
-    )
+    why = " (a row given twice renders one bead twice as bright)" if coincident else ""
+    log.warning("particle table %s: %s%s; rendered as given%s", path, "; ".join(parts), tail, why)
 
 
 def cmd_render(args) -> int:
