@@ -46,6 +46,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import re
+import signal
 import socket
 import struct
 import sys
@@ -758,20 +759,54 @@ class FrameMap:
             self._shutdown()
 
 
+@contextmanager
+def _sigint_blocked() -> Iterator[None]:
+    """Run the block with SIGINT blocked in this thread (POSIX; elsewhere nothing is done).
+
+    Threads started meanwhile, and the processes they start, inherit the blocked signal: the
+    worker processes of a local cluster (started by its event loop's threads) never take the
+    SIGINT a terminal sends to the whole process group on Ctrl-C. This process alone is
+    interrupted and stops its workers. A Ctrl-C pressed inside the block is delivered when it
+    ends.
+
+    Python's resource tracker is started first: starting it unblocks SIGINT in the thread
+    that starts it (``multiprocessing.resource_tracker``), which would be a worker's."""
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - Windows
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def _local_cluster(par: Parallel):
     """Start the local cluster of ``par`` (``n_workers`` processes, ``worker_threads()``
-    cores each, one frame at a time per process)."""
+    cores each, one frame at a time per process), its workers deaf to Ctrl-C
+    (:func:`_sigint_blocked`): on an interrupt, the caller stops them."""
     from distributed import LocalCluster
 
-    return LocalCluster(
-        n_workers=par.n_workers,
-        threads_per_worker=1,  # one frame at a time per process; it uses `threads` cores
-        processes=True,
-        memory_limit=par.memory_limit if par.memory_limit is not None else 0,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-        env={"HRVPTM_THREADS": str(par.worker_threads())},
-    )
+    cluster = None
+    try:
+        with _sigint_blocked():
+            cluster = LocalCluster(
+                n_workers=par.n_workers,
+                threads_per_worker=1,  # one frame at a time per process; it uses `threads` cores
+                processes=True,
+                memory_limit=par.memory_limit if par.memory_limit is not None else 0,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+                env={"HRVPTM_THREADS": str(par.worker_threads())},
+            )
+    except BaseException:  # e.g. Ctrl-C pressed while the workers started
+        if cluster is not None:
+            cluster.close()
+        raise
+    return cluster
 
 
 @contextmanager

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import select
+import signal
 import socket
 import subprocess
 import sys
@@ -454,6 +456,43 @@ def test_after_a_failure_every_frame_written_is_handed_back(tmp_path):
     assert written == set(got) and len(got) < 11, (written, got)
     time.sleep(1.0)
     assert {int(p.name[5:]) for p in tmp_path.glob("done_*")} == written
+
+
+def _interrupt_after_first_frame(*argv: str) -> tuple[int, str, float]:
+    """Run the demo command in its own process group, press Ctrl-C (SIGINT to the whole
+    group, as a terminal does) once a frame has completed; its exit status, stderr and the
+    seconds it took to exit."""
+    p = subprocess.Popen(
+        [sys.executable, "-c", DEMO, "run", *argv],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        ready, _, _ = select.select([p.stdout], [], [], 180)
+        assert ready and p.stdout.readline().strip(), "no frame completed"
+        time.sleep(0.3)  # the workers are busy with the next frames
+        t0 = time.monotonic()
+        os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=90)
+        return p.returncode, err, time.monotonic() - t0
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.communicate()
+
+
+def test_ctrl_c_with_local_workers_is_one_line(tmp_path):
+    """Ctrl-C while local workers run frames: the workers do not take the terminal's SIGINT
+    (no traceback of theirs); the command stops them and prints its one line, status 130."""
+    rc, err, seconds = _interrupt_after_first_frame("--workers", "2", "--frames", "60")
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert lines[-1] == "demo: interrupted", err
+    assert seconds < 60
 
 
 # -- a real loopback cluster -----------------------------------------------------------------
