@@ -202,9 +202,10 @@ def check_sphere_diameter(
         )
     if diameter < fwhm / SPHERE_MIN_FWHM:
         log.warning(
-            "%s; spheres under a %gth of that may not show the particles' bias: check that it "
-            "is the particles' diameter",
+            "%s; spheres narrower than %.3g µm (1/%g of it) may not show the particles' bias: "
+            "check that it is the particles' diameter",
             said,
+            fwhm / SPHERE_MIN_FWHM,
             SPHERE_MIN_FWHM,
         )
 

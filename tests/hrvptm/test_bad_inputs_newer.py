@@ -52,6 +52,15 @@ for cid, extra, needle in [
 ]:
     case(f"hrvptm-axial-{cid}", "hrvptm", lambda e, x=extra: axial_argv(e, *x), needle)
 
+case(
+    "hrvptm-axial-sphere-diameter-2-for-33um-wide-particles",
+    "hrvptm",
+    lambda e: axial_argv(e, "--sphere-diameter-um", "2", "--reference-rays", "1000"),
+    "--sphere-diameter-um 2 µm, particles measured in",
+    kind="warning",
+    writes=True,
+)
+
 for cid, text, needle in [
     (
         "sphere-diameter-500",
