@@ -237,14 +237,21 @@ def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
     Raises
     ------
     InputError
-        ``--workers`` is not an integer >= 1 nor ``auto``, or no Dask scheduler answers at the
-        ``--scheduler`` address (malformed, nothing listening, another service); the message
-        names the option.
+        ``--workers`` is not an integer >= 1 nor ``auto``, both options are given, or no Dask
+        scheduler answers at the ``--scheduler`` address (malformed, nothing listening,
+        another service); the message names the option.
     """
     from .errors import InputError
     from .parallel import Parallel, check_scheduler
 
     text = getattr(args, "workers", None)
+    scheduler = getattr(args, "scheduler", None)
+    if text is not None and scheduler is not None:
+        raise InputError(
+            f"--workers and --scheduler exclude each other (got --workers {text} and "
+            f"--scheduler {scheduler}): with --scheduler the frames run on that cluster's "
+            "workers; give one of them"
+        )
     workers: int | str = 1
     if text is not None:
         text = str(text).strip()
@@ -257,7 +264,6 @@ def parallel_from_args(args: argparse.Namespace, *, threads: int | None = None):
                 workers = -1
             if workers < 1:
                 raise InputError(f"--workers must be an integer >= 1 or 'auto', got {text!r}")
-    scheduler = getattr(args, "scheduler", None)
     if scheduler is not None and not scheduler.strip():
         raise InputError("--scheduler must be an address such as tcp://host:8786, got ''")
     try:

@@ -270,6 +270,15 @@ def test_a_service_that_is_not_dask_is_refused_in_one_line(reply, needle):
     assert elapsed < 20, elapsed
 
 
+@pytest.mark.parametrize("workers", ["2", "1", "auto"])
+def test_workers_and_scheduler_together_are_refused(workers):
+    """With --scheduler the frames run on that cluster's workers: --workers contradicts it
+    (refused before any connection)."""
+    argv = ["--workers", workers, "--scheduler", f"tcp://127.0.0.1:{_closed_port()}"]
+    with pytest.raises(InputError, match=r"^--workers and --scheduler exclude each other"):
+        parallel_from_args(_parse(argv))
+
+
 def test_nothing_listening_fails_fast():
     addr = f"tcp://127.0.0.1:{_closed_port()}"
     t0 = time.monotonic()
