@@ -164,7 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="D",
         help="diameter of the reference spheres, the particles' (µm; default: "
-        f"[track.axial] sphere_diameter_um, else {ref.sphere_diameter_um:g})",
+        f"[track.axial] sphere_diameter_um, else {ref.sphere_diameter_um:g}); refused when "
+        "wider than 1.5 times the particles' lateral FWHM measured in the first volume",
     )
     ax.add_argument(
         "--reference-rays",

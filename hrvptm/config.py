@@ -38,8 +38,12 @@ are relative to the TOML file's folder. Lengths in µm::
     [track.axial]                  # track.axial_bias.AxialCalibration
     method = "none"                # "simulated": subtract the reconstruction's bias measured
                                    # on simulated spheres at the detected positions
+    sphere_diameter_um = 15        # the spheres: the particles' diameter (at most 1.5x from
+                                   #   [particles] diameter_um)
 
-Every key of ``[recon]`` and ``[track…]`` is a field of the named settings dataclass, which
+Each section is a table (``[study]``, not ``study = "series"``); a section or key of
+another type is an error naming it and what is expected. Every key of ``[recon]`` and
+``[track…]`` is a field of the named settings dataclass, which
 defines its default and its check once for the library, the command line and this file.
 
 Kinds of study (what the truth is compared with):
