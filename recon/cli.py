@@ -37,7 +37,8 @@ All frames must share size, pixel type and bit depth (checked from the TIFF head
 ``--frames START:STOP[:STEP]`` keeps part of the ordered series. ``recon.json`` records, for
 each volume ``NNNNNN.tif``, its source (file, page of a stack), the frame's original number
 (from the file name, or the page) and its time (``number / --fps``, else from the TIFF
-metadata, else null). ``--format zarr`` writes one OME-Zarr image instead (axes t, z, y, x;
+metadata, else null). ``--format zarr`` (the default for an output named ``*.zarr``; ``--format
+tiff`` with such a name is refused) writes one OME-Zarr image instead (axes t, z, y, x;
 one chunk per frame, or per ``--zarr-chunk-z`` planes; voxel size and origin in its metadata;
 ``recon.json`` inside it), for napari (``napari --plugin napari-ome-zarr out.zarr``).
 
@@ -476,12 +477,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder for NNNNNN.tif volumes and recon.json, or with --format zarr the "
         "OME-Zarr image (e.g. out.zarr, recon.json inside) (required)",
     )
-    choice_option(
-        run,
+    run.add_argument(
         "--format",
-        FORMATS,
-        "volumes as numbered float32 TIFF files, or one OME-Zarr image (OME-NGFF "
-        f"{NGFF_VERSION}) of axes (t, z, y, x) chunked per frame",
+        choices=FORMATS,
+        default=None,
+        help="volumes as numbered float32 TIFF files, or one OME-Zarr image (OME-NGFF "
+        f"{NGFF_VERSION}) of axes (t, z, y, x) chunked per frame (default: zarr when -o ends "
+        "in .zarr, else tiff)",
     )
     run.add_argument(
         "--zarr-chunk-z",
@@ -550,6 +552,27 @@ def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
     except ValueError:
         raise InputError(f"--roi must look like X0:X1,Y0:Y1 in pixels, got {text!r}") from None
     return (x0, x1, y0, y1)
+
+
+def _volume_format(given: str | None, output: Path) -> str:
+    """``--format``, or without it ``zarr`` for an output named ``*.zarr`` and else ``tiff``.
+
+    Raises
+    ------
+    InputError
+        ``--format tiff`` with an output named ``*.zarr`` (TIFF files in a folder that Zarr
+        readers would take for a store).
+    """
+    named_zarr = output.suffix.lower() == ".zarr"
+    if given is None:
+        return "zarr" if named_zarr else "tiff"
+    if given == "tiff" and named_zarr:
+        raise InputError(
+            f"-o {output} is named like an OME-Zarr image but --format tiff writes numbered "
+            "TIFF files into a folder; leave out --format tiff (a .zarr output is written as "
+            "OME-Zarr) or choose a name without .zarr"
+        )
+    return given
 
 
 def _resolve_inputs(args: argparse.Namespace):
@@ -681,7 +704,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         gain_dn_per_e=args.gain_dn_per_e,
         dark_name=f"--dark {str(args.dark)!r}",
     )
-    make_writer(args.format, args.output, zarr_chunk_z=args.zarr_chunk_z)  # checks the options
+    volume_format = _volume_format(args.format, args.output)
+    make_writer(volume_format, args.output, zarr_chunk_z=args.zarr_chunk_z)  # checks the options
     guard_output(args.output, [*args.frames, args.scene, args.calib, args.dark])
     check_output_folder(args.output)
     frames, optics, grid, scene, folders = _resolve_inputs(args)
@@ -703,7 +727,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         preprocess=pre,
         overwrite=args.overwrite,
         progress=not getattr(args, "quiet", False),
-        volume_format=args.format,
+        volume_format=volume_format,
         zarr_chunk_z=args.zarr_chunk_z,
         provenance={
             "scene": str(Path(scene).resolve()),

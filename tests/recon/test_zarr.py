@@ -182,7 +182,9 @@ def test_refusals_and_bad_options(series, tmp_path, capsys):
     # One format over the other: refused.
     rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, *zarr_args, "-o", tiff)
     assert rc == 2 and "tiff volumes" in err and err.count("\n") == 1
-    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, "-o", original)
+    unnamed = tmp_path / "store"  # not named .zarr: TIFF volumes by default
+    shutil.copytree(original, unnamed)
+    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, "-o", unnamed)
     assert rc == 2 and "zarr volumes" in err and err.count("\n") == 1
     # Bad options: one line naming the option.
     for bad, text in (
@@ -190,10 +192,10 @@ def test_refusals_and_bad_options(series, tmp_path, capsys):
         (["--zarr-chunk-z", "2"], "--zarr-chunk-z applies only to --format zarr"),
         (["--format", "zarr", "--zarr-chunk-z", "0"], "--zarr-chunk-z"),
     ):
-        rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, *bad, "-o", tmp_path / "x.zarr")
+        rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, *bad, "-o", tmp_path / "x")
         assert rc == 2 and text in err and "Traceback" not in err, err
         assert err.strip().count("\n") <= 1  # argparse: usage line + error line
-    assert not (tmp_path / "x.zarr").exists()
+    assert not (tmp_path / "x").exists()
 
 
 def test_frames_written_concurrently_by_other_processes(tmp_path):
@@ -270,3 +272,19 @@ def test_a_failed_volume_write_names_the_output(tmp_path, fmt):
     assert str(out) in message and "cannot write" in message, message
     if fmt == "zarr":
         assert "frame t=1" in message and "File too large" in message, message
+
+
+def test_output_named_zarr_is_written_as_ome_zarr(series, tmp_path, capsys):
+    """-o NAME.zarr without --format writes the OME-Zarr image (not TIFF files into a folder
+    named .zarr); --format tiff with such a name is refused."""
+    dataset, _, _ = series
+    store = tmp_path / "out.zarr"
+    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, "--zarr-chunk-z", "4", "-o", store)
+    assert rc == 0, err
+    assert json.loads((store / "recon.json").read_text())["format"] == "zarr"
+    assert (store / "zarr.json").is_file() and not list(store.glob("*.tif"))
+    other = tmp_path / "other.zarr"
+    rc, _, err = run(capsys, "-q", "run", dataset, *ARGS, "--format", "tiff", "-o", other)
+    assert rc == 2 and err.count("\n") == 1, err
+    assert str(other) in err and "--format tiff" in err
+    assert not other.exists()
