@@ -53,6 +53,7 @@ import sys
 import threading
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import CancelledError
 from contextlib import contextmanager
@@ -792,7 +793,10 @@ def _local_cluster(par: Parallel):
 
     cluster = None
     try:
-        with _sigint_blocked():
+        with _sigint_blocked(), warnings.catch_warnings():
+            # Its scheduler's HTTP server (no dashboard) takes another port when 8787 is
+            # taken (another Dask cluster on this machine): nothing to tell the user.
+            warnings.filterwarnings("ignore", "Port .* is already in use", UserWarning)
             cluster = LocalCluster(
                 n_workers=par.n_workers,
                 threads_per_worker=1,  # one frame at a time per process; it uses `threads` cores

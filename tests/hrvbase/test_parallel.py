@@ -504,6 +504,22 @@ def test_ctrl_c_with_local_workers_is_one_line(tmp_path):
     assert seconds < 60
 
 
+def test_local_workers_print_nothing_when_the_dashboard_port_is_taken():
+    """Another Dask cluster on this machine (its port 8787 taken): the command's stderr holds
+    its own lines only."""
+    try:
+        taken = socket.create_server(("127.0.0.1", 8787))
+    except OSError:  # taken already
+        taken = None
+    try:
+        res = _demo("--workers", "2", "--frames", "2")
+    finally:
+        if taken is not None:
+            taken.close()
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == "", res.stderr
+
+
 # -- a real loopback cluster -----------------------------------------------------------------
 def test_loopback_cluster_same_results(tmp_path):
     n = 6
