@@ -289,10 +289,15 @@ def write_targets(studies: list[str]) -> list[Path]:
     """The test-size study files a fit of ``studies`` is written into: the named files when
     they are not the default group; for the default group every test-size file except those
     that run ``[track.axial]`` (the calibration removes the bias the group's numbers hold:
-    such a study is fitted on its own copies, as its file says)."""
+    such a study is fitted on its own copies, as its file says) and the specimen variants
+    (``*_gel*``), which carry the numbers of the air study they repeat."""
     if list(studies) != list(STUDIES):
         return [EXPERIMENTS / f"{s}.toml" for s in studies if s.endswith("_test")]
-    return [p for p in sorted(EXPERIMENTS.glob("*_test.toml")) if not _runs_axial_calibration(p)]
+    return [
+        p
+        for p in sorted(EXPERIMENTS.glob("*_test.toml"))
+        if not _runs_axial_calibration(p) and "_gel" not in p.stem
+    ]
 
 
 def write_params(params: dict, model: tuple, paths: list[Path]) -> list[Path]:
