@@ -266,24 +266,23 @@ def reconstruct_series(
 
     key = bank_key(ropt, depths, st.s, st.rays_per_pattern, 0, 1e-3)
     dark_sum = None if pp.dark is None else hashlib.sha256(pp.dark.tobytes()).hexdigest()
-    fp = _fingerprint(
-        {
-            "settings": st.result_dict(),  # not the threads: same volumes for any count
-            # the camera gain enters only each frame's SNR, not the volumes (measured again
-            # for the frames a resumed run keeps)
-            "preprocess": {
-                **{k: v for k, v in pp.to_dict().items() if k != "gain_dn_per_e"},
-                "dark_sha256": dark_sum,
-            },
-            "optics": optics.to_dict(),
-            "grid": grid.to_dict(),
-            "bank": key,
-        }
-    )
+    identity = {
+        "settings": st.result_dict(),  # not the threads: same volumes for any count
+        # the camera gain enters only each frame's SNR, not the volumes (measured again
+        # for the frames a resumed run keeps)
+        "preprocess": {
+            **{k: v for k, v in pp.to_dict().items() if k != "gain_dn_per_e"},
+            "dark_sha256": dark_sum,
+        },
+        "optics": optics.to_dict(),
+        "grid": grid.to_dict(),
+        "bank": key,
+    }
+    fp = _fingerprint(identity)
     checksums = frame_checksums(refs)
     meta_path = out / RECON_JSON
     fps = (provenance or {}).get("fps")
-    previous = _check_output(writer, fp, refs, checksums, overwrite, fps=fps)
+    previous = _check_output(writer, fp, refs, checksums, overwrite, fps=fps, identity=identity)
     created = not out.exists()
     done, skipped, secs = [], [], {}
     try:
@@ -301,7 +300,7 @@ def reconstruct_series(
             "optics": optics.to_dict(),
             "calibration": grid.to_dict(),
             "settings": st.to_dict(),
-            "preprocess": pp.to_dict(),
+            "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
             "grid": rgrid.to_dict(),
             "voxel_size_um": list(rgrid.voxel_size_um),
             "volume_shape": list(rgrid.shape),
@@ -623,11 +622,68 @@ def _source_change(entry: dict, ref, fps_then, fps_now) -> str | None:
     return "; ".join(changes) or None
 
 
-def _check_output(writer, fp: str, refs, checksums, overwrite: bool, fps=None) -> dict | None:
+def _plain(value):
+    """``value`` as JSON would give it back (tuples as lists)."""
+    from hrvbase.io import to_json
+
+    return json.loads(to_json(value))
+
+
+def _value_text(value) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    return "none" if value is None else str(value)
+
+
+#: Most differences named in the message of a folder made with other settings.
+_CHANGES_SHOWN = 4
+
+
+def _setting_changes(previous: dict, identity: dict) -> str:
+    """What differs between the settings recorded in a folder's ``recon.json`` and this run's
+    (``identity``: what the fingerprint is made of), as text for a message; empty when the
+    record does not say."""
+    changes = []
+    was_pre, now_pre = previous.get("preprocess") or {}, identity["preprocess"]
+    was_dark, now_dark = bool(was_pre.get("dark")), now_pre["dark_sha256"] is not None
+    if was_dark != now_dark:
+        changes.append(
+            f"dark frame {'given' if was_dark else 'none'} then, "
+            f"{'given' if now_dark else 'none'} now"
+        )
+    elif now_dark and was_pre.get("dark_sha256") not in (None, now_pre["dark_sha256"]):
+        changes.append(
+            f"another dark frame (SHA-256 {was_pre['dark_sha256'][:12]}… then, "
+            f"{now_pre['dark_sha256'][:12]}… now)"
+        )
+    sections = (
+        ("settings", "settings", ""),
+        ("preprocess", "preprocess", ""),
+        ("optics", "optics", "optics "),
+        ("calibration", "grid", "calibration "),
+    )
+    for recorded, section, label in sections:
+        was = previous.get(recorded)
+        if not isinstance(was, dict):
+            continue
+        for key, now in _plain(identity[section]).items():
+            if key in ("dark", "dark_sha256") or key not in was or was[key] == now:
+                continue
+            changes.append(f"{label}{key} {_value_text(was[key])} then, {_value_text(now)} now")
+    if not changes and previous.get("psf_bank") not in (None, identity["bank"]):
+        changes.append("another PSF bank (another recon version or PSF model)")
+    text = "; ".join(changes[:_CHANGES_SHOWN])
+    return text + ("; …" if len(changes) > _CHANGES_SHOWN else "")
+
+
+def _check_output(
+    writer, fp: str, refs, checksums, overwrite: bool, fps=None, identity=None
+) -> dict | None:
     """Check the output folder before anything is written; the previous record to resume.
 
     A folder that is not empty must hold a ``recon.json``. Its volumes must come from the
-    same settings (fingerprint) and from the same inputs as this run's frames of the same
+    same settings (fingerprint; ``identity``, what it is made of, names what differs) and from
+    the same inputs as this run's frames of the same
     index (checksums; a run may extend a shorter one), with the same frame numbers and times
     (``fps``: this run's frame rate, for the message), which the volumes record; otherwise it
     is refused, or with ``overwrite`` the volumes that do not belong to this run are deleted
@@ -661,9 +717,11 @@ def _check_output(writer, fp: str, refs, checksums, overwrite: bool, fps=None) -
         if not volumes:
             log.info("%s: replacing the record of a run that wrote no volume", out)
         elif not overwrite:
+            changes = _setting_changes(previous, identity) if identity else ""
             raise OutputExistsError(
                 f"output folder {str(out)!r} holds volumes made from other inputs or "
-                "settings; use a new folder or --overwrite (nothing was written)"
+                f"settings{f' ({changes})' if changes else ''}; use a new folder or --overwrite "
+                "(nothing was written)"
             )
         writer.clear()
         meta_path.unlink()

@@ -260,3 +260,23 @@ def test_dataset_record_naming_no_scene_is_refused(calib, frame, tmp_path, capsy
     rc, stdout, err = run(capsys, "run", ds, "--calib", calib, *FAST, "-o", out)
     refused(rc, stdout, err, str(ds / "dataset.json"), "names no scene", "--scene")
     assert not out.exists()
+
+
+def test_a_resume_with_other_settings_says_which(calib, frame, base_frame, tmp_path, capsys):
+    import numpy as np
+
+    out = tmp_path / "v"
+    args = ["run", frame, "--scene", SCENE, "--calib", calib, *FAST, "-o", out]
+    rc, _, err = run(capsys, *args)
+    assert rc == 0, err
+    rc, stdout, err = run(capsys, *args, "--iterations", "2", "--lanczos", "3")
+    refused(rc, stdout, err, "iterations 1 then, 2 now", "lanczos_a 2 then, 3 now", "--overwrite")
+    dark = tmp_path / "dark.tif"
+    tifffile.imwrite(dark, np.zeros(base_frame.shape, np.uint16))
+    refused(*run(capsys, *args, "--dark", dark), "dark frame none then, given now")
+    refused(*run(capsys, *args, "--hot-pixels"), "hot_pixels False then, True now")
+    # Another dark frame than the one a run used.
+    rc, _, err = run(capsys, *args, "--dark", dark, "--overwrite")
+    assert rc == 0, err
+    tifffile.imwrite(dark, np.ones(base_frame.shape, np.uint16))
+    refused(*run(capsys, *args, "--dark", dark), "another dark frame (SHA-256")
