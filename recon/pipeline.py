@@ -291,7 +291,9 @@ def reconstruct_series(
         rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
         origin_xyz = (rgrid.x_um()[0], rgrid.y_um()[0], rgrid.depths_um[0])
         geometry = VolumeGeometry(tuple(rgrid.shape), tuple(rgrid.voxel_size_um), origin_xyz)
-        writer.prepare(len(refs), geometry, [r.time_s for r in refs], overwrite)
+        writer.prepare(
+            len(refs), geometry, [r.time_s for r in refs], overwrite, [r.number for r in refs]
+        )
         meta = {
             "tool": "recon",
             "version": _version(),

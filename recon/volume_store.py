@@ -4,9 +4,10 @@
 it to a writer; the writer alone knows the format. Both writers have the same small
 interface:
 
-``prepare(n_frames, geometry, times_s, overwrite)``
+``prepare(n_frames, geometry, times_s, overwrite, numbers)``
     Once, in the main process, before any frame: creates the output (for Zarr the whole
-    array, its shape known from the frame count, and its OME-NGFF metadata).
+    array, its shape known from the frame count, its OME-NGFF metadata and the frames'
+    numbers and times).
 ``write(k, volume, meta) -> record``
     Writes frame ``k`` and returns the record that ``recon.json`` keeps for it. Frames are
     independent: each write touches only its own file or chunks, so frames may be written
@@ -29,7 +30,10 @@ frame, or one slab of ``chunk_z`` planes of it, per chunk — whose missing chun
 The dataset's coordinate transformations give the voxel size (``scale``, in micrometer) and
 the object-space position of the centre of voxel ``(0, 0, 0)`` (``translation``); the t axis
 is in seconds when the frames have evenly spaced times (``recon run --fps``), otherwise
-unitless (frame index). ``recon.json`` lies inside the store. Zarr writes each chunk to a
+unitless (frame index). The group's attribute ``recon`` holds ``frames``: for every ``t``, the
+frame's original ``number`` and ``time_s`` (both may be null), as ``recon.json`` records them
+(the t axis cannot hold unevenly spaced times, e.g. camera frames 0, 1, 5). ``recon.json``
+lies inside the store. Zarr writes each chunk to a
 temporary file and renames it (atomic per chunk); the record of a frame is the SHA-256 of
 its float32 values in C order (:func:`hrvbase.io.array_sha256`), which :meth:`verify`
 recomputes from the chunks.
@@ -129,7 +133,10 @@ class TiffSeriesWriter:
     def label(self, k: int) -> str:
         return self.path(k).name
 
-    def prepare(self, n_frames: int, geometry: VolumeGeometry, times_s=None, overwrite=False):
+    def prepare(
+        self, n_frames: int, geometry: VolumeGeometry, times_s=None, overwrite=False, numbers=None
+    ):
+        """Make the folder (each volume records its frame's number and time itself)."""
         self.geometry = geometry
         self.out.mkdir(parents=True, exist_ok=True)
 
@@ -220,9 +227,12 @@ class ZarrSeriesWriter:
         cz = nz if self.chunk_z is None else min(self.chunk_z, nz)
         return (1, cz, ny, nx)
 
-    def prepare(self, n_frames: int, geometry: VolumeGeometry, times_s=None, overwrite=False):
+    def prepare(
+        self, n_frames: int, geometry: VolumeGeometry, times_s=None, overwrite=False, numbers=None
+    ):
         """Create (or, resuming, resize) the ``(n_frames, nz, ny, nx)`` array and write the
-        OME-NGFF metadata.
+        OME-NGFF metadata and the frames' numbers and times (``numbers``, ``times_s``: one per
+        frame, or None) in the group's ``recon`` attribute.
 
         Raises
         ------
@@ -234,13 +244,13 @@ class ZarrSeriesWriter:
             naming the store.
         """
         try:
-            self._prepare(n_frames, geometry, times_s, overwrite)
+            self._prepare(n_frames, geometry, times_s, overwrite, numbers)
         except OSError as exc:
             raise OutputError(
                 f"cannot create the OME-Zarr image {str(self.out)!r}: {_os_text(exc)}"
             ) from exc
 
-    def _prepare(self, n_frames, geometry, times_s, overwrite) -> None:
+    def _prepare(self, n_frames, geometry, times_s, overwrite, numbers) -> None:
         import zarr
         from ome_zarr.format import FormatV05
         from ome_zarr.writer import write_multiscales_metadata
@@ -303,6 +313,18 @@ class ZarrSeriesWriter:
             axes=axes,
             name=self.out.stem,
         )
+        times = [None] * n_frames if times_s is None else list(times_s)
+        nums = [None] * n_frames if numbers is None else list(numbers)
+        group.attrs["recon"] = {
+            "frames": [
+                {
+                    "t": k,
+                    "number": None if n is None else int(n),
+                    "time_s": None if t is None or not math.isfinite(t) else float(t),
+                }
+                for k, (n, t) in enumerate(zip(nums, times, strict=True))
+            ]
+        }
 
     def write(self, k: int, volume: np.ndarray, meta: Mapping) -> dict:
         """Write frame ``k`` (its chunks only); its record ``{"t", "sha256", "dtype"}``.

@@ -571,3 +571,39 @@ def test_a_changed_input_frame_is_refused_saying_what_changed(calib, base_frame,
         *_recon(capsys, tmp_path / "fx", *_opts(calib, vol)),
         f"{entry['input_bytes']} bytes then, {size} now",
     )
+
+
+@pytest.mark.parametrize(
+    ("names", "unit", "dt"),
+    [
+        (["img_0.tif", "img_1.tif", "img_5.tif"], None, 1.0),
+        (["c_2.tif", "c_4.tif"], "second", 0.02),
+    ],
+)
+def test_zarr_records_camera_numbers_and_times(
+    calib, base_frame, tmp_path, capsys, names, unit, dt
+):
+    """An OME-Zarr image carries each frame's number and time (its t axis alone cannot hold
+    unevenly spaced times): recon.json inside it and the group's "recon" attributes agree."""
+    import json
+
+    from lfsim.io import read_json
+
+    write_series(tmp_path / "fx", names, base_frame)
+    store = tmp_path / "v.zarr"
+    rc, _, err = _recon(capsys, tmp_path / "fx", "--fps", "100", *_opts(calib, store))
+    assert rc == 0, err
+    numbers = [parse_frame_name(n)[1] for n in names]
+    frames = read_json(store / "recon.json")["frames"]
+    assert [(f["number"], f["time_s"], f["output"]["t"]) for f in frames] == [
+        (n, n / 100, k) for k, n in enumerate(numbers)
+    ]
+    attrs = json.loads((store / "zarr.json").read_text())["attributes"]
+    assert attrs["recon"]["frames"] == [
+        {"t": k, "number": n, "time_s": n / 100} for k, n in enumerate(numbers)
+    ]
+    multiscale = attrs["ome"]["multiscales"][0]
+    assert multiscale["axes"][0].get("unit") == unit
+    scale, translation = multiscale["datasets"][0]["coordinateTransformations"]
+    assert scale["scale"][0] == pytest.approx(dt)
+    assert translation["translation"][0] == pytest.approx(0.0 if unit is None else numbers[0] / 100)
