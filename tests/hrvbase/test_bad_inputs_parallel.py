@@ -147,6 +147,17 @@ for prefix, cid, value in [
 ]:
     add(prefix, f"workers-{cid}", [f"--workers={value}"], f"{WORKERS}, got {value!r}")
 
+# ---- --workers beyond the machine: capped with a warning (two clouds: one pair, linked and
+# gridded in this process, so no cluster is started and the case takes seconds) ----
+case(
+    "track-link-workers-beyond-the-machine",
+    "track",
+    lambda e: ["link", *e.b.clouds[:2], "-o", e.o("res"), "--workers", "1000000000"],
+    "--workers 1000000000: using ",
+    kind="warning",
+    writes=True,
+)
+
 # ---- --scheduler: not an address of a Dask scheduler (its form) ----
 for prefix, cid, address, needle in [
     ("recon-run", "no-port", "banana", NO_PORT),
