@@ -116,7 +116,7 @@ def _cmd_pixel_size(args: argparse.Namespace) -> int:
     from hrvbase.io import check_output_file, write_json
     from lfsim.scene import read_optics
 
-    from .calibration import LensletGrid
+    from .pipeline import optics_differences
     from .pixel_size import (
         apply_pixel_size,
         build_record,
@@ -127,8 +127,10 @@ def _cmd_pixel_size(args: argparse.Namespace) -> int:
     from .preprocess import read_frame
 
     t0 = time.perf_counter()
-    if not args.division_um > 0:  # also catches NaN
-        raise InputError(f"--division-um must be > 0 µm, got {args.division_um!r}")
+    if not (math.isfinite(args.division_um) and args.division_um > 0):
+        raise InputError(f"--division-um must be > 0 µm and finite, got {args.division_um!r}")
+    if not 0 < args.tolerance < 0.5:  # also catches NaN
+        raise InputError(f"--tolerance must lie in (0, 0.5), got {args.tolerance!r}")
     image = read_frame(args.micrometer, what="micrometer image")
     scene = args.scene
     if scene is None:
@@ -149,7 +151,15 @@ def _cmd_pixel_size(args: argparse.Namespace) -> int:
             option="--write-scene",
         )
     optics = read_optics(scene)
-    grid = LensletGrid.load(args.calib) if args.calib is not None else None
+    grid = None
+    if args.calib is not None:
+        grid, recorded, _ = read_calibration(args.calib)
+        diffs = [] if recorded is None else optics_differences(optics, recorded)
+        if diffs:
+            raise InputError(
+                f"scene {str(scene)!r} does not match calibration {str(args.calib)!r}: "
+                f"{'; '.join(diffs)}; measure with the scene the calibration was made with"
+            )
     try:
         result = measure_pixel_size(
             image,
@@ -161,7 +171,8 @@ def _cmd_pixel_size(args: argparse.Namespace) -> int:
             tolerance=args.tolerance,
         )
     except ReconError as exc:
-        raise type(exc)(f"{args.micrometer}: {exc}") from None
+        text = str(exc).replace("division_um ", "--division-um ")
+        raise type(exc)(f"{args.micrometer}: {text}") from None
     written = None
     if args.write_scene is not None:
         measured = apply_pixel_size(optics, result)

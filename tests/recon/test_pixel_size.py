@@ -457,3 +457,63 @@ def test_defocus_of_an_in_focus_micrometer_is_small(backend, nominal):
             _rendered(nominal, rotation, snr=snr), nominal_grid(nominal, (300, 300)), nominal
         )
         assert abs(z) < 8.0 and 0 < z_std < 5.0, (rotation, z, z_std)
+
+
+# -- each cause of a refusal named --------------------------------------------------------------
+@pytest.fixture(scope="module")
+def in_focus(backend, nominal):
+    """A 10 µm micrometer through a microscope 3 % above the scene's magnification."""
+    return _rendered(true_optics(nominal, 0.03), 0.0, snr=20.0, seed=3)
+
+
+def test_a_wrong_division_is_named(backend, nominal, in_focus):
+    with pytest.raises(PixelSizeError, match=r"fits a ruling of 10 µm divisions .* not of the 100"):
+        measure_pixel_size(in_focus, nominal, 100.0)
+    with pytest.raises(InputError, match="finer than the objective resolves"):
+        measure_pixel_size(in_focus, nominal, 1.0)
+
+
+def test_a_wrong_polarity_is_named(backend, nominal, in_focus):
+    with pytest.raises(PixelSizeError, match=r"lines are bright, not dark .* polarity 'bright'"):
+        measure_pixel_size(in_focus, nominal, 10.0, polarity="dark")
+    with pytest.raises(PixelSizeError, match=r"lines are dark, not bright .* polarity 'dark'"):
+        measure_pixel_size(in_focus.max() - in_focus, nominal, 10.0)
+
+
+def test_a_wrong_axis_is_named(backend, nominal, in_focus):
+    with pytest.raises(PixelSizeError, match="divisions run along x, not along axis 'y'"):
+        measure_pixel_size(in_focus, nominal, 10.0, axis="y")
+
+
+def test_a_particle_image_is_named(backend, nominal):
+    from lfsim.particles import Particles
+    from lfsim.render import render_particles
+    from lfsim.tracer import RenderSettings
+
+    rng = np.random.default_rng(5)
+    pos = np.c_[rng.uniform(-220, 220, (20, 2)), rng.uniform(0, 150, 20)]
+    img = render_particles(
+        nominal, Particles(pos), RenderSettings(rays_per_particle=20_000, seed=1), tracer="paraxial"
+    )
+    with pytest.raises(PixelSizeError, match=r"no ruled band .* not a particle"):
+        measure_pixel_size(img.astype(float), nominal, 10.0)
+
+
+def test_cli_names_a_scene_calibration_mismatch(true_micrometer, tmp_path, capsys):
+    from recon.calibration_file import read_calibration
+
+    white = tmp_path / "white.tif"
+    _lfsim("white", SCENE, "-o", white, "--tracer", "paraxial", "--rays-per-lenslet", "2000")
+    calib = tmp_path / "calib.json"
+    assert main(["-q", "calibrate", str(white), "--scene", str(SCENE), "-o", str(calib)]) == 0
+    rec = json.loads(calib.read_text())
+    rec["optics"]["na"] = 0.25
+    calib.write_text(json.dumps(rec))
+    assert read_calibration(calib)[1].na == 0.25
+    out = tmp_path / "p.json"
+    rc, _, err = _run(
+        capsys, "pixel-size", true_micrometer, "--division-um", "10", "--scene", SCENE,
+        "--calib", calib, "-o", out,
+    )  # fmt: skip
+    assert rc == 2 and err.count("\n") == 1 and not out.exists()
+    assert "does not match calibration" in err and "na 0.2 (scene) vs 0.25 (calibration)" in err
