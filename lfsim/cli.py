@@ -12,7 +12,7 @@
     lfsim white SCENE.xml -o WHITE.tif [--rays-per-lenslet 20000] [--snr 50] [--bit-depth 16]
                 [--seed 0] [--overwrite]
     lfsim micrometer SCENE.xml -o M.tif [--division-um 10] [--axis {x,y}] [--snr 50]
-                [--bit-depth 16] [--seed 0] [--overwrite]
+                [--rotation-deg 0] [--z-um 0] [--bit-depth 16] [--seed 0] [--overwrite]
     lfsim dataset EXPERIMENT.toml -o DIR [--overwrite] [--workers N | --scheduler ADDRESS]
 
 Lengths in µm. SNR is ``S / sigma_noise`` with ``S`` the 99.9th percentile of the noise-free
