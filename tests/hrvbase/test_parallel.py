@@ -620,7 +620,7 @@ def test_a_shared_context_lost_with_its_workers_is_sent_again(monkeypatch, caplo
     """The frames depend on the context's arguments scattered to the workers; when every copy
     went with the workers that held it, the scheduler cancels the frames waiting on them
     ("lost dependencies"). The map sends the arguments again and reruns those frames, instead
-    of resubmitting them onto the lost copy until the retries run out (CI, session 8)."""
+    of resubmitting them onto the lost copy until the retries run out."""
     import logging
 
     from distributed import Future
