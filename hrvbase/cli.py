@@ -210,16 +210,16 @@ def add_parallel_options(parser: argparse.ArgumentParser | Any) -> None:
         default=None,
         metavar="N",
         help="process the frames on N local Dask worker processes ('auto': one per core), "
-        "each with its share of the cores; results are identical to 1 (default: 1, in this "
-        "process, no Dask)",
+        "each with its share of the cores, at most one per core and as many as the available "
+        "memory holds; results are identical to 1 (default: 1, in this process, no Dask)",
     )
     parser.add_argument(
         "--scheduler",
         default=None,
         metavar="ADDRESS",
-        help="process the frames on the workers of an existing Dask cluster "
-        "(e.g. tcp://10.0.0.5:8786; `dask scheduler` / `dask worker`, or dask-jobqueue on "
-        "SLURM; default: none)",
+        help="process the frames on the workers of an existing Dask cluster, not with "
+        "--workers (tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.5:8786; `dask "
+        "scheduler` / `dask worker`, or dask-jobqueue on SLURM; default: none)",
     )
 
 
