@@ -587,10 +587,12 @@ class FrameMap:
     def _run(self) -> Iterator[tuple[Any, Any]]:
         if not self.items:
             return
-        # A local cluster: no more workers than the memory holds with this map's context.
-        self.parallel = self.parallel.capped(
-            per_worker_bytes=memory_per_worker(self.context), by_cores=False
-        )
+        par = self.parallel
+        if not par.in_process and par.scheduler is None:
+            # A local cluster: no more workers than the memory holds with this map's context.
+            self.parallel = par.capped(
+                per_worker_bytes=memory_per_worker(self.context), by_cores=False
+            )
         if self.parallel.in_process:
             yield from self._run_here()
         else:

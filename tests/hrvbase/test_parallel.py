@@ -384,6 +384,28 @@ def test_in_process_runs_in_order_without_dask(tmp_path):
     assert len((tmp_path / "builds.txt").read_text().split()) == 1
 
 
+class _Counted:
+    """Counts how often it is pickled."""
+
+    pickled = 0
+
+    def __reduce__(self):
+        type(self).pickled += 1
+        return (_Counted, ())
+
+
+def _counted_context(_obj):
+    return {"offset": 0.0, "bank": np.arange(1000.0)}
+
+
+def test_in_process_map_never_pickles_its_context():
+    """Its context is neither sent nor measured (a large PSF bank, an unpicklable scene)."""
+    _Counted.pickled = 0
+    ctx = WorkerContext(_counted_context, (_Counted(),))
+    assert len(list(frame_map(_frame, range(2), context=ctx))) == 2
+    assert _Counted.pickled == 0
+
+
 def test_in_process_failure_stops_at_the_frame(tmp_path):
     ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
     got = []
