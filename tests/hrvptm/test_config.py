@@ -39,10 +39,7 @@ def test_every_example_is_a_valid_study_and_experiment(path):
     assert exp == study.experiment
     if "glass" in study.experiment.scene.name:
         assert study.is_crime_free  # rendered with glass lenslets, reconstructed with ideal ones
-        ideal = study.experiment.scene.name.replace("_glass", "")
-        if path.stem.endswith("_as_air_test") or path.stem.endswith("_as_air"):
-            ideal = ideal.replace("_gel", "")  # the specimen left out of the model, on purpose
-        assert study.recon_scene.name == ideal
+        assert study.recon_scene.name == study.experiment.scene.name.replace("_glass", "")
         names = list(study.variants())
         assert names[0] == "mismatched"
         assert ("matched" in names) == study.study.matched
