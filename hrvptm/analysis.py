@@ -169,6 +169,13 @@ class VariantData:
 COVERAGE_TARGETS = (0.6827, 0.9545)
 
 
+def _nan_reduce(reduce, values) -> float:
+    """``reduce`` of the values that are not NaN, or NaN when none is (a study whose every
+    frame failed), without numpy's all-NaN warning."""
+    kept = [float(v) for v in values if not math.isnan(v)]
+    return float(reduce(kept)) if kept else math.nan
+
+
 def coverage(error: np.ndarray, sigma: np.ndarray, prefix: str = "") -> dict[str, float]:
     """How well standard uncertainties describe the actual errors, per axis.
 
@@ -340,10 +347,10 @@ def analyse_localization(data: VariantData) -> Analysis:
             failures.append({"frame": k, "reason": rows[-1]["failure"]})
     summary = _pooled(errs, "pooled_")
     for ax in AXES:
-        summary[f"worst_rmsd_{ax}"] = float(np.nanmax([r[f"rmsd_{ax}"] for r in rows]))
-        summary[f"worst_maxabs_{ax}"] = float(np.nanmax([r[f"maxabs_{ax}"] for r in rows]))
-        summary[f"worst_abs_mean_{ax}"] = float(np.nanmax([abs(r[f"mean_{ax}"]) for r in rows]))
-    summary["mean_recall"] = float(np.nanmean([r["recall"] for r in rows]))
+        summary[f"worst_rmsd_{ax}"] = _nan_reduce(max, [r[f"rmsd_{ax}"] for r in rows])
+        summary[f"worst_maxabs_{ax}"] = _nan_reduce(max, [r[f"maxabs_{ax}"] for r in rows])
+        summary[f"worst_abs_mean_{ax}"] = _nan_reduce(max, [abs(r[f"mean_{ax}"]) for r in rows])
+    summary["mean_recall"] = _nan_reduce(np.mean, [r["recall"] for r in rows])
     unc = _uncertainty(errs, sigs, inv_snr2=[data.inv_snr2(k) for k in range(len(errs))])
     summary.update(coverage(unc["error"], unc["sigma"]))
     return _with_failures(Analysis(rows, summary, {"uncertainty": unc}), failures)
@@ -423,8 +430,8 @@ def analyse_pairs(data: VariantData) -> Analysis:
         disp.append(du)
     summary = _pooled(errs, "pooled_u_")
     for ax in AXES:
-        summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
-    summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
+        summary[f"worst_u_rmsd_{ax}"] = _nan_reduce(max, [r[f"u_rmsd_{ax}"] for r in rows])
+    summary["min_tracking_ratio"] = _nan_reduce(min, [r["tracking_ratio"] for r in rows])
     summary["wrong_links"] = int(sum(r["n_wrong"] for r in rows))
     pairs = _pairs(len(data.detections), group)
     unc = _uncertainty(errs, sigs, disp, [data.inv_snr2(a, b) for a, b in pairs])
@@ -700,7 +707,7 @@ def analyse_series(data: VariantData) -> Analysis:
         arrays["field"] = peak_field
     summary = _pooled(errs, "pooled_u_")
     for ax in AXES:
-        summary[f"worst_u_rmsd_{ax}"] = float(np.nanmax([r[f"u_rmsd_{ax}"] for r in rows]))
+        summary[f"worst_u_rmsd_{ax}"] = _nan_reduce(max, [r[f"u_rmsd_{ax}"] for r in rows])
     for c, chunks in strain_err.items():
         e = np.concatenate(chunks) if chunks else np.zeros(0)
         summary[f"pooled_E_rmsd_{c}"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
@@ -710,7 +717,7 @@ def analyse_series(data: VariantData) -> Analysis:
         vals = [abs(r[f"E_err_{c}"]) for r in rows if not math.isnan(r[f"E_err_{c}"])]
         summary[f"worst_E_abs_mean_err_{c}"] = float(max(vals)) if vals else math.nan
     _pool_heterogeneous(rows, summary)
-    summary["min_tracking_ratio"] = float(np.nanmin([r["tracking_ratio"] for r in rows]))
+    summary["min_tracking_ratio"] = _nan_reduce(min, [r["tracking_ratio"] for r in rows])
     summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
     unc = _uncertainty(errs, sigs, disp, [data.inv_snr2(0, k) for k in range(1, n)])
     summary.update(coverage(unc["error"], unc["sigma"], "u_"))

@@ -87,7 +87,8 @@ def _link(tmp: Path, paths, frames: int) -> None:
     series = SeriesSettings(grid=GridSettings(target_nodes=4000))
     track_clouds(clouds, link_dir, series=series, allow_partial=True)
     for name in ("tracks.csv", "fields", "summary.json"):
-        (link_dir / name).rename(paths.track / name)
+        if (link_dir / name).exists():  # no fields when no increment could be linked
+            (link_dir / name).rename(paths.track / name)
 
 
 def test_localization_reports_the_injected_bias_and_noise(tmp_path):
@@ -388,3 +389,20 @@ def test_pairs_coverage_uses_the_displacement_sigma(tmp_path):
     assert u.shape == (120, 3) and np.all(np.abs(u) < 6 * np.array(noise))
     assert a.summary["u_sigma_rms_z"] == pytest.approx(np.sqrt(2.0))
     assert a.summary["u_coverage_2sigma_z"] == pytest.approx(0.9545, abs=0.05)
+
+
+def test_series_with_no_frame_compared_has_no_tracking_ratio_and_no_numpy_warning(tmp_path):
+    """A series whose frames after the first kept no detection compares no particle in any
+    step: the minimum tracking ratio is undefined (NaN), said without a numpy warning."""
+    import math
+    import warnings
+
+    motion = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.02, "center_um": [0, 0, 250]}
+    study = _study(4, motion, "series", figure="6c")
+    paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n={1: 0, 2: 0, 3: 0})
+    _link(tmp_path, paths, 4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        a = analyse_series(VariantData.load(study, paths))
+    assert all(math.isnan(r["tracking_ratio"]) for r in a.rows)
+    assert math.isnan(a.summary["min_tracking_ratio"]) and a.failed
