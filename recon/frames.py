@@ -515,9 +515,10 @@ def check_distinct(refs: Sequence[FrameRef]) -> None:
     for r in refs:
         key = (r.path.resolve(), r.page)
         if key in seen:
+            also = "" if seen[key].label == r.label else f" (also as {seen[key].label!r})"
             raise InputError(
-                f"frame {r.label!r} is given twice (also as {seen[key].label!r}); each frame "
-                "is reconstructed once: give every file once"
+                f"frame {r.label!r} is given twice{also}; each frame is reconstructed once: "
+                "give every file once"
             )
         seen[key] = r
         if r.number is None:

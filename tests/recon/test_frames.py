@@ -447,7 +447,13 @@ def test_frames_given_twice_or_numbered_alike_are_refused(calib, base_frame, tmp
         [tmp_path / "fx", tmp_path / "fx" / "img_1.tif"],
         [stack, stack],
     ):
-        _refused(*_recon(capsys, *args, *_opts(calib, vol)), str(args[-1]), "given twice")
+        rc, out, err = _recon(capsys, *args, *_opts(calib, vol))
+        _refused(rc, out, err, str(args[-1]), "given twice")
+        assert "also as" not in err  # the same path twice: named once
+    rc, out, err = _recon(
+        capsys, tmp_path / "fx", tmp_path / "fx" / ".." / "fx" / "img_1.tif", *_opts(calib, vol)
+    )
+    _refused(rc, out, err, "given twice (also as", str(tmp_path / "fx" / "img_1.tif"))
     assert not vol.exists()
     # Numbers that do not collide are kept: pages 0, 1, then the file numbered 7.
     tifffile.imwrite(tmp_path / "img_7.tif", base_frame)
