@@ -165,6 +165,9 @@ MIN_ROWS = 2
 #: Scale directions (degrees from the nearer lenslet axis) up to which the ruled region is
 #: taken in lenslet rows; beyond, in strips along the scale's direction.
 STRIP_MIN_DEG = 5.0
+#: Scale directions (degrees from the nearer lenslet axis) beyond which a failed fit is
+#: reported with the angle as its likely cause (the lenslets average rotated lines out).
+ROTATED_DEG = 15.0
 #: Half-width (degrees) of the window of scale directions searched about the direction of the
 #: ruled band (:func:`ruling_direction`).
 DIRECTION_WINDOW_DEG = 2.0
@@ -1313,15 +1316,23 @@ def _measure(
             f"{max_rotation_deg:g}° accepted"
         )
     window = math.radians(DIRECTION_WINDOW_DEG)
-    state = _fit_axis(
-        sums if found == "x" else sums.T,
-        q0,
-        tolerance,
-        math.radians(theta_c),
-        window,
-        sigma,
-        found,
-    )
+    try:
+        state = _fit_axis(
+            sums if found == "x" else sums.T,
+            q0,
+            tolerance,
+            math.radians(theta_c),
+            window,
+            sigma,
+            found,
+        )
+    except PixelSizeError as exc:
+        if abs(theta_c) <= ROTATED_DEG or "lenslet axis" in str(exc):
+            raise
+        raise PixelSizeError(
+            f"{exc} (the ruled band lies at {direction:.0f}° from the lenslet x axis, where the "
+            "lenslets average the lines out: turn the micrometer towards a lenslet axis)"
+        ) from None
     if state.consistent < MIN_CONSISTENT:
         raise PixelSizeError(
             f"no ruling of {division_um:g} µm divisions is resolved by the lenslets along the "

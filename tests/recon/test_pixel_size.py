@@ -517,3 +517,9 @@ def test_cli_names_a_scene_calibration_mismatch(true_micrometer, tmp_path, capsy
     )  # fmt: skip
     assert rc == 2 and err.count("\n") == 1 and not out.exists()
     assert "does not match calibration" in err and "na 0.2 (scene) vs 0.25 (calibration)" in err
+
+
+def test_a_rotated_ruling_that_is_not_found_names_its_angle(backend, nominal):
+    """40° at SNR 5: no ruling fits; the message names the angle as the cause."""
+    with pytest.raises(PixelSizeError, match="40° from the lenslet x axis"):
+        measure_pixel_size(_rendered(nominal, 40.0, snr=5.0, seed=2), nominal, 10.0)
