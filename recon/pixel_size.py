@@ -99,7 +99,11 @@ Measured (tests/recon/test_pixel_size.py; lfsim micrometers through microscopes 
 20-lenslet field within 0.09 %; 100 µm divisions on an 80-lenslet field within 0.03 %;
 reconstructed particles 170–184 µm from the axis within 0.24 % of their distance from it
 (about 5 % off with the nominal scene). A Mitsuba-traced micrometer on the paper's 1280 × 800 px
-scene, magnification +3 %: 1.61813 ± 0.00002 µm/px against 1.61812.
+scene, magnification +3 %: 1.61813 ± 0.00002 µm/px against 1.61812. Over rotations 0–90°,
+defocus 0–300 µm, SNR 5–50 and magnification ±10 % (``benchmarks/pixel_size_sweep.py
+--full``, 288 lfsim micrometers of 10 µm divisions on ``scenes/small.xml``): 40 measured, every
+one within 2σ of the truth; 248 refused (every defocused one; in focus, most at 25–60°);
+none silently wrong.
 """
 
 from __future__ import annotations
