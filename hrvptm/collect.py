@@ -135,7 +135,7 @@ def _coverage_of(summary: dict) -> tuple[int, dict] | None:
 def _coverage_overview(loaded) -> list[str]:
     """The uncertainty coverage of every report's variants side by side, and pooled over the
     studies (each variant weighted by its number of errors): the fraction of errors within
-    1σ and 2σ per axis, 68.3 % and 95.4 % for a right σ (issue 12 §4)."""
+    1σ and 2σ per axis, 68.3 % and 95.4 % for a right σ."""
     rows, pooled = [], {}
     for _report, _md, data in loaded:
         name = data["study"]["experiment"]["experiment"]["name"]

@@ -1,4 +1,4 @@
-"""The paper's numbers (§4–5) and the issue's acceptance bounds, per figure.
+"""The paper's numbers (§4–5) and the studies' acceptance bounds, per figure.
 
 Each :class:`Reference` names a key of a variant's pooled summary (:mod:`hrvptm.analysis`),
 the paper's value and, where the paper states a bound, the test ``ours <= bound``. Values in
@@ -94,7 +94,7 @@ REFERENCES: dict[str, list[Reference]] = {
             f"worst_u_rmsd_{c}",
             v,
             v / 2 if c == "z" else v,
-            note="bound: half the paper's (issue 12 §3)" if c == "z" else "",
+            note="bound: half the paper's" if c == "z" else "",
         )
         for c, v in _DISP.items()
     ],

@@ -1,4 +1,4 @@
-"""``hrvptm axial`` on another microscope than the paper's (issue 12 §3: the self-calibration
+"""``hrvptm axial`` on another microscope than the paper's (the self-calibration
 transfers): the 10×/0.3 of the detection sweep (150 µm f/16.7 lenslets, 11 px per lenslet),
 glass lenslets rendered, the ideal-lenslet model reconstructed and calibrated."""
 

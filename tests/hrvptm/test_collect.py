@@ -1,4 +1,4 @@
-"""The validation page's pooled uncertainty coverage (issue 12 §4: across the studies)."""
+"""The validation page's pooled uncertainty coverage (across the studies)."""
 
 import pytest
 

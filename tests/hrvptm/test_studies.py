@@ -53,9 +53,8 @@ def _series_ok(v: dict, min_ratio: float = 0.95) -> None:
 
 #: Strain errors measured at test size (%, fields smoothed by GCV; both variants of 6c, the
 #: larger): the pooled RMSD, then the worst frame's |mean error|, of xx, yy, xy, zz, xz, yz.
-#: 6b: the larger of two runs, before and after the detector of issue 12 §2 (which detects
-#: other particles: its worst-frame mean E_yy went from 0.018 to 0.103 %, E_zz from 0.60 to
-#: 2.05 %, both from one frame of 16–24 tracked particles).
+#: 6b: the larger of two runs whose detectors find different particles (worst-frame mean E_yy
+#: 0.018 and 0.103 %, E_zz 0.60 and 2.05 %, each from one frame of 16–24 tracked particles).
 _MEASURED_E_TABLE = """
 fig6a_uniaxial_test      0.143 0.140 0.070 1.988 1.376 0.983  0.076 0.034 0.038 2.147 0.571 0.501
 fig6b_rotation_test      0.125 0.115 0.110 2.217 1.145 1.289  0.101 0.103 0.064 2.053 0.421 0.804
@@ -129,7 +128,7 @@ def test_fig4c_noise_floor_against_frame_rate(reports):
     for r in rows:
         assert r["snr_measured"] == pytest.approx(r["snr"], rel=0.1), r
     # ... and the σ follows it: the light-starved pair's σ is several times the bright one's,
-    # as its error is (issue 12 §4, sigma_snr_um)
+    # as its error is (sigma_snr_um)
     for ax in "xyz":
         assert fast[f"u_sigma_rms_{ax}"] > 2.5 * slow[f"u_sigma_rms_{ax}"], ax
     # measured x 69 / 93, y 60 / 83, z 54 / 94 % within 1σ / 2σ (without the SNR term
@@ -156,7 +155,7 @@ def test_fig5a_inplane_translation(reports, axis):
 
 
 def test_uncertainty_coverage_pooled_over_the_studies(reports):
-    """Issue 12 §4: the σ of positions (4a) and of displacements (4b, 5a x and y) hold
+    """The σ of positions (4a) and of displacements (4b, 5a x and y) hold
     68 ± 5 % and 95 ± 3 % of the errors per axis, pooled. Calibrated on seed-2, -3 and -4
     runs of these and 4c (benchmarks/calibrate_sigma.py --snr-term, 1226 errors), measured on
     these seed-1 frames: x 71 / 93 %, y 67 / 94 %, z 69 / 97 % (358 errors per axis; per
@@ -198,7 +197,7 @@ def test_fig5b_axial_translation_of_a_layer(reports):
     run = reports("fig5b_axial_layer_test")
     assert sorted(p.name for p in (run["out"] / "plots").iterdir()) == [
         "displacement.png",
-        "uncertainty.png",  # |error| against σ (issue 12 §4)
+        "uncertainty.png",  # |error| against σ
         "vectors.png",
     ]
 
@@ -226,9 +225,9 @@ def test_fig6c_simple_shear_with_and_without_inverse_crime(reports):
     for v in (mis, mat):
         _series_ok(v)
         _strain_ok(v, "fig6c_simple_shear_test")
-        # γ = 25 %: 2 E_xz measured 24.66 % and 24.56 % (24.85 / 24.83 % before the detector
-        # of issue 12 §2, which also finds the two particles 5 µm under the top of the seeded
-        # box; the exact-gradient fields change nothing). Their z displacement errors (−3.6,
+        # γ = 25 %: 2 E_xz measured 24.66 % and 24.56 %, the detector finding the two
+        # particles 5 µm under the top of the seeded box (without them 24.85 / 24.83 %; the
+        # exact-gradient fields change nothing). Their z displacement errors (−3.6,
         # −2.2 µm) pull ∂u_z/∂x at the hull's edge. The scatter of this number from the
         # localisation errors alone (these particles, the measured error RMS 0.18 / 0.17 /
         # 1.8 µm, 200 draws, gridded as here) is 0.17 % (mean 25.00 %), and seed 2 measures

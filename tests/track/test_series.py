@@ -393,10 +393,10 @@ _LAYER_FRAMES = (
 
 def test_a_thin_layer_moving_along_z_stays_tracked_when_the_predictor_misleads():
     """The previous increment's field, fitted on a layer 8 µm thick and evaluated 20 µm
-    above it, started a consistent but partial set (8 of 20) that growth could not complete:
-    frames 11 → 12 linked 6 of the 20 particles and the study failed from there (session 8).
-    The bootstrap is now run as well when the guess links fewer than
-    ``guess_confirm_fraction`` of the particles, and the better result kept."""
+    above it, starts a consistent but partial set (8 of 20) that growth cannot complete
+    (frames 11 → 12 of the paper-size 5b layer: 6 of the 20 particles linked from the guess
+    alone). So the bootstrap runs as well when the guess links fewer than
+    ``guess_confirm_fraction`` of the particles, and the better result is kept."""
     from track.series import SeriesSettings, link_pairs
 
     data = np.array(_LAYER_FRAMES)
@@ -433,11 +433,12 @@ def _ratios(truth, frame_ids):
 
 
 def test_particles_missed_in_intermediate_frames_keep_their_tracks():
-    """Paper-size inclusion_stretch (issue 12): each increment linked all but one of the
-    particles detected in both of its frames, but a particle the detector missed in one or
-    two intermediate frames ended its track there and came back as a new one, so the
-    tracking ratio against frame 0 fell frame by frame (107 → 100 of 108, 0.926). Tracks are
-    now bridged over such gaps from the tracks around them."""
+    """A particle the detector misses in one or two intermediate frames keeps its track:
+    tracks are bridged over such gaps from the tracks around them. Without bridging, the
+    paper-size inclusion_stretch links all but one of the particles detected in both frames
+    of each increment, yet its tracking ratio against frame 0 falls frame by frame (107 →
+    100 of 108, 0.926), each missed particle ending its track and coming back as a new
+    one (``SeriesSettings(bridge_tracks=False)``, ``track run --no-bridge``)."""
     from track.synthetic import make_series
 
     s = make_series("stiff_inclusion", 400, 0.5, 6, seed=1, drop_fraction=0.08)
