@@ -1490,3 +1490,24 @@ def test_corpus_size_and_coverage() -> None:
             f"\nbad-input corpus: {n} cases run, tracebacks {tb}, silent {silent}, "
             f"changed inputs {changed}, outputs left by refused runs {left}"
         )
+
+
+#: The corpus modules of the frame-series, pixel-size, parallel, axial-calibration, report
+#: and study-file features, beside each package's tests.
+FEATURE_CORPORA = (
+    "tests.recon.test_bad_inputs_series",
+    "tests.recon.test_bad_inputs_pixel_size",
+    "tests.track.test_bad_inputs_series",
+    "tests.hrvptm.test_bad_inputs_newer",
+    "tests.hrvbase.test_bad_inputs_parallel",
+)
+
+
+def test_feature_corpora_size_and_distinct_ids() -> None:
+    """At least 150 cases on those features, every id distinct across the whole corpus."""
+    import importlib
+
+    feature = [c for m in FEATURE_CORPORA for c in importlib.import_module(m).CASES]
+    assert len(feature) >= 150
+    ids = [c.id for c in [*CASES, *feature]]
+    assert len(set(ids)) == len(ids), [i for i, n in Counter(ids).items() if n > 1]
