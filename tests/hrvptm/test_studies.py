@@ -337,23 +337,28 @@ def test_demo_prints_the_summary_table(tmp_path, capsys):
 
 
 def test_collect_gathers_reports_with_their_plots(reports, tmp_path):
-    runs = [reports("fig6b_rotation_test"), reports("fig4a_localization_snr_test")]
+    six_b, four_a = reports("fig6b_rotation_test"), reports("fig4a_localization_snr_test")
     page = tmp_path / "docs" / "validation.md"
-    argv = ["collect", *[str(r["out"]) for r in runs], "-o", str(page), "-q"]
-    assert main(argv) == 0  # a first collection writes the page and its plots
-    stale = [
-        page.parent / "validation" / d / "old.png" for d in ("gone_study", "fig6b_rotation_test")
-    ]
-    for p in stale:  # plots of an earlier collection that this one no longer shows
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_bytes(b"png")
-    notes = page.parent / "validation" / "notes.txt"
+    plots = page.parent / "validation"
+
+    def collect(*runs, overwrite=False):
+        argv = ["collect", *[str(r["out"]) for r in runs], "-o", str(page), "-q"]
+        return main([*argv, "--overwrite"] if overwrite else argv)
+
+    assert collect(four_a) == 0  # a first collection writes the page and its plots
+    assert collect(six_b, four_a) == 2  # the page exists: replaced only with --overwrite
+    notes = plots / "notes.txt"  # the user's own files beside the plots are never touched
     notes.write_text("kept", encoding="utf-8")
-    assert main(argv) == 2  # the page exists: replaced only with --overwrite
-    assert main([*argv, "--overwrite"]) == 0
-    assert not any(p.exists() for p in stale) and not stale[0].parent.exists()
-    assert notes.read_text(encoding="utf-8") == "kept"
+    mine = plots / "fig4a_localization_snr_test" / "mine.png"
+    mine.write_bytes(b"png")
+    assert collect(six_b, four_a, overwrite=True) == 0
     text = page.read_text(encoding="utf-8")
     assert "## Study `fig6b_rotation_test`" in text
     assert "(validation/fig6b_rotation_test/strain.png)" in text
-    assert (page.parent / "validation" / "fig6b_rotation_test" / "strain.png").is_file()
+    assert (plots / "fig6b_rotation_test" / "strain.png").is_file()
+    # A collection that no longer shows 4a removes the plots collect wrote for it, not the
+    # user's.
+    written = sorted((plots / "fig4a_localization_snr_test").glob("*.png"))
+    assert collect(six_b, overwrite=True) == 0
+    assert not any(p.exists() for p in written if p != mine)
+    assert mine.read_bytes() == b"png" and notes.read_text(encoding="utf-8") == "kept"
