@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field, fields
+from functools import cached_property
 
 from .errors import ConfigError
 
@@ -270,6 +271,11 @@ class Optics:
         dt = self.coverslip_thickness_um - self.coverslip_corrected_um
         return dt * (1.0 - self.immersion_ior / self.coverslip_ior)
 
+    @cached_property
+    def _focus(self) -> tuple[float, float]:
+        """:meth:`_focus_terms`, computed once per optics (the tracers and the bank ask often)."""
+        return self._focus_terms()
+
     def _focus_terms(self, n_quad: int = 2048) -> tuple[float, float]:
         """``(a, b)`` of the least-squares axial crossing ``Z(d) = a·d + b`` (nominal frame, µm)
         of the rays a point at true depth ``d`` below the specimen's surface sends into the
@@ -314,7 +320,7 @@ class Optics:
         """
         if not self.has_interfaces:
             return self.focus_depth_um
-        a, b = self._focus_terms()
+        a, b = self._focus
         return -b / a
 
     @property
@@ -344,7 +350,7 @@ class Optics:
         the rays of 0.2 NA). 1 without interfaces."""
         if not self.has_interfaces:
             return 1.0
-        return self._focus_terms()[0]
+        return self._focus[0]
 
     @property
     def stop_radius_um(self) -> float:
