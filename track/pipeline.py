@@ -627,6 +627,7 @@ def _link_and_write(
     parallel=None,
     after_linking: Callable[[], None] | None = None,
     times_s: Sequence[float] | None = None,
+    linker: Callable[..., Any] | None = None,
 ) -> tuple[list[PairOutcome], Tracks, GridAxes | None]:
     """Link ``clouds`` (a list, or :class:`_Detections` arriving), grid and write the fields.
 
@@ -636,7 +637,8 @@ def _link_and_write(
     ``parallel``: the increments' fields on its Dask workers
     (:func:`track.series.track_series`); ``after_linking`` is called between linking and
     fields. The incremental predictor scales each step by the frames' times, else by their
-    numbers (frames 1 → 5 span 4 camera frames).
+    numbers (frames 1 → 5 span 4 camera frames). ``linker``: links one pair
+    (:func:`track.series.link_pairs`; None: :func:`track.matching.link_pair`).
     """
     summary["fields_requested"] = settings.compute_fields
     summary["parameters"]["series"] = {
@@ -666,6 +668,7 @@ def _link_and_write(
         pairs = link_pairs(
             clouds,
             settings,
+            linker=linker,
             on_pair=lambda _p: bar.update(),
             sigmas=sigmas,
             common_sigma_xyz_um=common_sigma_xyz_um,
@@ -954,6 +957,7 @@ def track_volumes(
     vti_encoding: str = "binary",
     provenance: Mapping[str, Any] | None = None,
     parallel=None,
+    linker: Callable[..., Any] | None = None,
 ) -> TrackResult:
     """Detect the particles of a series of volumes and, with ``series``, link and grid them.
 
@@ -982,6 +986,15 @@ def track_volumes(
         Where the volumes are detected (default: in this process, one after the other);
         linking runs here, on the first frames while the others are still being detected.
         The results are the same however they run.
+    linker : callable, optional
+        Extension point: the function that links one pair of frames,
+        ``linker(ref_xyz, def_xyz, link_settings, initial_guess=None) -> result`` (positions
+        (N, 3) in µm, x, y, z; ``link_settings`` is ``series.link``); the result has
+        ``.matches`` (M, 2) int, ``.displacement_um`` (M, 3), ``.tracking_ratio``,
+        ``.iterations`` and optionally ``.ok``, ``.reason``, ``.displacement_field``
+        (:func:`track.series.link_pairs`). Default :func:`track.matching.link_pair`. A new
+        linker is this one function; the tracks, fields and output files follow from its
+        matches.
 
     Returns
     -------
@@ -1058,6 +1071,7 @@ def track_volumes(
                 common_sigma_xyz_um=common,
                 parallel=parallel,
                 after_linking=detections.release,
+                linker=linker,
             )
         finally:
             detections.close()
