@@ -182,6 +182,7 @@ def reconstruct_series(
     volume_format: str = "tiff",
     zarr_chunk_z: int | None = None,
     parallel=None,
+    solver=None,
 ) -> SeriesResult:
     """Reconstruct light-field frames into ``out_dir`` (see the module docstring).
 
@@ -210,6 +211,15 @@ def reconstruct_series(
     parallel : hrvbase.parallel.Parallel, optional
         Where the frames run (default: in this process, one after the other); the volumes
         and their records are the same however they run (:func:`reconstruct_frame`).
+    solver : callable, optional
+        Extension point: the deconvolution of one rectified frame, called as
+        ``solver(image, projector, iterations, *, depth_filter, stop_rel_change, track_kl,
+        background)`` with the arguments of :func:`recon.deconvolve.richardson_lucy` (the
+        default), returning an object with ``.volume`` (ndarray, shape (nz, ny·s, nx·s)),
+        ``.iterations`` and ``.rel_change`` (a :class:`recon.deconvolve.RLResult`). A new RL
+        variant is this one function; it must be picklable to run on Dask workers. Its
+        qualified name enters the fingerprint, so a folder reconstructed by another solver
+        is not resumed.
 
     A run that fails before its first volume leaves no ``recon.json`` (nor the folder, if it
     made it), so that the corrected command needs no ``overwrite``; a record without volumes
@@ -278,6 +288,8 @@ def reconstruct_series(
         "grid": grid.to_dict(),
         "bank": key,
     }
+    if solver is not None:
+        identity["solver"] = f"{solver.__module__}.{solver.__qualname__}"
     fp = _fingerprint(identity)
     checksums = frame_checksums(refs)
     meta_path = out / RECON_JSON
@@ -367,6 +379,7 @@ def reconstruct_series(
                     tuple(first.shape),
                     replace(writer, out=writer.out.resolve()),  # workers may run elsewhere
                     _backend_device(),
+                    solver,
                 ),
             )
             jobs = [
@@ -417,6 +430,7 @@ class _FrameModel:
     image_shape: tuple[int, int]
     writer: object
     reader: object
+    solver: object = richardson_lucy
 
     def close(self) -> None:
         self.reader.close()
@@ -431,7 +445,18 @@ def _backend_device() -> str:
 
 
 def _frame_model(
-    bank, n_lenslets, st, pp, grid, ropt, rgrid, origin_xy_um, image_shape, writer, device
+    bank,
+    n_lenslets,
+    st,
+    pp,
+    grid,
+    ropt,
+    rgrid,
+    origin_xy_um,
+    image_shape,
+    writer,
+    device,
+    solver=None,
 ) -> _FrameModel:
     """The shared model of the frames: projector and depth filter from the PSF bank (sent to
     each worker once), the backend started in a worker process (``HRVPTM_THREADS`` threads,
@@ -461,6 +486,7 @@ def _frame_model(
         image_shape,
         writer,
         FrameReader(),
+        richardson_lucy if solver is None else solver,
     )
 
 
@@ -506,7 +532,7 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
     modelled = st.background_model == "model"
     img, pinfo = prepare_image(raw, model.preprocess, subtract_background=not modelled)
     rect, _ = _rectify_roi(rectify, img, model.grid, model.n, st.roi_px)
-    res = richardson_lucy(
+    res = model.solver(
         rect,
         model.projector,
         st.iterations,
