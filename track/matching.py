@@ -46,17 +46,20 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import finite_float, int_in_range, nonnegative_float, positive_float
 from track.errors import InputError
 from track.features import (
     cloud_scale_um,
     moment_normalization,
     topology_descriptors,
 )
-from track.outliers import normalized_median_test, ransac_affine
+from track.outliers import MEDIAN_TEST_THRESHOLD, normalized_median_test, ransac_affine
 from track.regularize import (
     METHODS,
     AffineDisplacement,
@@ -69,6 +72,21 @@ from track.regularize import (
 logger = logging.getLogger(__name__)
 
 MIN_PARTICLES = 4
+#: Default lengths of :class:`LinkSettings`, in mean particle spacings
+#: (:meth:`LinkSettings.radii_um`).
+NN_MAX_DISTANCE_SPACINGS = 0.45
+LOCAL_RADIUS_SPACINGS = 3.0
+GRID_SPACING_SPACINGS = 2.0
+
+
+class LinkRadii(NamedTuple):
+    """The lengths (µm) of :class:`LinkSettings` for a cloud of a given mean spacing."""
+
+    nn_max_distance_um: float
+    local_radius_um: float
+    local_scale_um: float
+    ransac_threshold_um: float
+    grid_spacing_um: float
 
 
 @dataclass(frozen=True)
@@ -149,7 +167,7 @@ class LinkSettings:
     n_neighbors_min: int = 5
     descriptor_size: int = 5
     descriptor_ratio: float = 0.8
-    outlier_threshold: float = 3.0
+    outlier_threshold: float = MEDIAN_TEST_THRESHOLD
     outlier_eps_um: float | None = None
     outlier_eps_xyz_um: tuple[float, float, float] | None = None
     max_iterations: int = 20
@@ -173,48 +191,51 @@ class LinkSettings:
     guess_confirm_fraction: float = 0.9
     polish_iterations: int = 2
 
+    def radii_um(self, spacing_um: float) -> LinkRadii:
+        """The search radii and lengths for a reference cloud of mean particle spacing
+        ``spacing_um`` (µm): each setting, or its default in spacings when None
+        (``nn_max_distance_um`` :data:`NN_MAX_DISTANCE_SPACINGS`, ``local_radius_um``
+        :data:`LOCAL_RADIUS_SPACINGS`, ``local_scale_um`` and ``ransac_threshold_um`` 1,
+        ``grid_spacing_um`` :data:`GRID_SPACING_SPACINGS`)."""
+        return LinkRadii(
+            self.nn_max_distance_um or NN_MAX_DISTANCE_SPACINGS * spacing_um,
+            self.local_radius_um or LOCAL_RADIUS_SPACINGS * spacing_um,
+            self.local_scale_um or spacing_um,
+            self.ransac_threshold_um or spacing_um,
+            self.grid_spacing_um or GRID_SPACING_SPACINGS * spacing_um,
+        )
+
     def __post_init__(self) -> None:
-        if self.n_neighbors_min < 3:
-            raise InputError(f"n_neighbors_min must be ≥ 3, got {self.n_neighbors_min}")
-        if self.n_neighbors_max < self.n_neighbors_min:
+        with raised_as(InputError):
+            self._validate()
+
+    def _validate(self) -> None:
+        n_min = int_in_range(self.n_neighbors_min, "n_neighbors_min", 3)
+        if int_in_range(self.n_neighbors_max, "n_neighbors_max", 1) < n_min:
             raise InputError(
                 f"n_neighbors_max ({self.n_neighbors_max}) must be ≥ n_neighbors_min "
                 f"({self.n_neighbors_min})"
             )
-        if self.descriptor_size < 2:
-            raise InputError(f"descriptor_size must be ≥ 2, got {self.descriptor_size}")
-        for name in ("descriptor_ratio", "nn_ratio", "growth_q"):
-            v = getattr(self, name)
-            if not 0 < v <= 1:
-                raise InputError(f"{name} must be in (0, 1], got {v}")
-        for name in ("guess_min_fraction", "guess_confirm_fraction"):
-            v = getattr(self, name)
-            if not 0 <= v <= 1:
-                raise InputError(f"{name} must be in [0, 1], got {v}")
-        for name in ("outlier_threshold", "tolerance_sigmas"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise InputError(f"{name} must be finite and > 0, got {v}")
-        if not (np.isfinite(self.smoothness) and self.smoothness >= 0):
-            raise InputError(f"smoothness must be finite and ≥ 0, got {self.smoothness}")
-        if self.bootstrap_max_particles < MIN_PARTICLES:
-            raise InputError(
-                f"bootstrap_max_particles must be ≥ {MIN_PARTICLES}, "
-                f"got {self.bootstrap_max_particles}"
-            )
-        if self.max_iterations < 1:
-            raise InputError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
+        int_in_range(self.descriptor_size, "descriptor_size", 2)
+        int_in_range(self.bootstrap_max_particles, "bootstrap_max_particles", MIN_PARTICLES)
+        int_in_range(self.max_iterations, "max_iterations", 1)
+        if not isinstance(self.seed, int | np.integer):
             raise InputError(f"seed must be an integer ≥ 0, got {self.seed!r}")
-        if self.seed < 0:
-            raise InputError(f"seed must be an integer ≥ 0, got {self.seed}")
-        if self.local_neighbors < 3:
-            raise InputError(f"local_neighbors must be ≥ 3, got {self.local_neighbors}")
+        int_in_range(self.seed, "seed", 0)
+        int_in_range(self.local_neighbors, "local_neighbors", 3)
         if self.local_degree not in (1, 2):
             raise InputError(f"local_degree must be 1 or 2, got {self.local_degree}")
         for name in ("growth_passes", "polish_iterations"):
-            if getattr(self, name) < 0:
-                raise InputError(f"{name} must be ≥ 0, got {getattr(self, name)}")
+            int_in_range(getattr(self, name), name, 0)
+        for name in ("descriptor_ratio", "nn_ratio", "growth_q"):
+            if not 0 < finite_float(getattr(self, name), name) <= 1:
+                raise InputError(f"{name} must be in (0, 1], got {getattr(self, name)}")
+        for name in ("guess_min_fraction", "guess_confirm_fraction"):
+            if not 0 <= finite_float(getattr(self, name), name) <= 1:
+                raise InputError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        for name in ("outlier_threshold", "tolerance_sigmas"):
+            positive_float(getattr(self, name), name)
+        nonnegative_float(self.smoothness, "smoothness")
         if self.regularization not in METHODS:
             raise InputError(
                 f"regularization must be one of {METHODS}, got {self.regularization!r}"
@@ -228,8 +249,8 @@ class LinkSettings:
             "local_scale_um",
         ):
             v = getattr(self, name)
-            if v is not None and not (np.isfinite(v) and v > 0):
-                raise InputError(f"{name} must be None or finite and > 0, got {v}")
+            if v is not None:
+                positive_float(v, name)
         if self.outlier_eps_xyz_um is not None:
             try:
                 eps = np.asarray(self.outlier_eps_xyz_um, dtype=float)
@@ -490,7 +511,7 @@ def _clean(ref, dfm, pairs, k, settings, eps_um, predicted):
 def _verify(ref, dfm, aff, settings, spacing, eps_um):
     """Matches of the whole clouds that agree with a global hypothesis ``aff``."""
     u = np.asarray(aff(ref), dtype=float)
-    tol = np.full(ref.shape, settings.nn_max_distance_um or 0.45 * spacing)
+    tol = np.full(ref.shape, settings.radii_um(spacing).nn_max_distance_um)
     cand, _ = match_predicted(ref + u, dfm, tol, settings.nn_ratio)
     return _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_um, ref + u)
 
@@ -556,7 +577,7 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
         views.append(("topology-moment", na.apply(ref), nb.apply(dfm)))
     except InputError:
         logger.debug("moment normalisation skipped: degenerate cloud")
-    thr = settings.ransac_threshold_um or spacing
+    thr = settings.radii_um(spacing).ransac_threshold_um
     min_inl = max(4, min(8, int(0.5 * n_min)))
     best = None
 
@@ -652,7 +673,7 @@ def fit_link_field(ref_xyz, def_xyz, matches, settings: LinkSettings | None = No
     ):
         raise InputError("matches hold rows outside the clouds")
     spacing = _mean_spacing(ref)
-    grid_um = settings.grid_spacing_um or 2.0 * spacing
+    grid_um = settings.radii_um(spacing).grid_spacing_um
     pad = 1e-6 * max(np.ptp(ref), 1.0)
     bounds = np.column_stack([ref.min(axis=0) - pad, ref.max(axis=0) + pad])
     x = ref[pairs[:, 0]]
@@ -717,8 +738,8 @@ def _predict(ref, dfm, pairs, u_base, settings, spacing, rows=None):
         r,
         ref[rows],
         n_neighbors=settings.local_neighbors,
-        radius_um=(settings.local_radius_um or 3.0 * spacing),
-        scale_um=(settings.local_scale_um or spacing),
+        radius_um=settings.radii_um(spacing).local_radius_um,
+        scale_um=settings.radii_um(spacing).local_scale_um,
         exclude=slot[rows],
         degree=settings.local_degree,
     )
@@ -726,7 +747,7 @@ def _predict(ref, dfm, pairs, u_base, settings, spacing, rows=None):
 
 
 def _tolerance_limits(settings, spacing):
-    hi = settings.nn_max_distance_um or 0.45 * spacing
+    hi = settings.radii_um(spacing).nn_max_distance_um
     return min(0.1 * spacing, hi), hi
 
 
@@ -797,7 +818,7 @@ def _grow(
     lo, hi = _tolerance_limits(settings, spacing)
     calib = None  # (positions, leave-one-out residuals) of the last validated matches
     k_cal = settings.local_neighbors
-    r_cal = settings.local_radius_um or 3.0 * spacing
+    r_cal = settings.radii_um(spacing).local_radius_um
     seen: list[np.ndarray] = [_pair_keys(pairs, m)]
     stop = settings.max_iterations if stop is None else stop
     settle = not grow  # an iteration without growth passes
@@ -978,7 +999,7 @@ def bridge_tracks(
     if rows.size == 0:
         return none
     k = settings.local_neighbors
-    radius = settings.local_radius_um or 3.0 * spacing
+    radius = settings.radii_um(spacing).local_radius_um
     local = _neighbour_rms(x, resid, ref[rows], k, radius, np.full(rows.size, -1))
     tol = _tolerance(np.maximum(misfit, local), noise, settings, spacing)
     cand, q = match_predicted(ref[rows] + p_rows, dfm, tol, settings.nn_ratio)
@@ -1169,7 +1190,7 @@ def link_pair(
             raise InputError(
                 "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
             )
-        tol = np.full(ref.shape, settings.nn_max_distance_um or 0.45 * spacing)
+        tol = np.full(ref.shape, settings.radii_um(spacing).nn_max_distance_um)
         cand, _ = match_predicted(ref + u0, dfm, tol, settings.nn_ratio)
         guess_pairs = _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_boot, ref + u0)
         history.append(

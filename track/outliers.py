@@ -20,12 +20,16 @@ from track.regularize import AffineDisplacement, fit_affine
 
 logger = logging.getLogger(__name__)
 
+#: Threshold of the normalised median test (the paper's 3; 2 in Westerweel & Scarano), the
+#: default of :func:`normalized_median_test` and of ``LinkSettings.outlier_threshold``.
+MEDIAN_TEST_THRESHOLD = 3.0
+
 
 def normalized_median_test(
     points_um,
     displacements_um,
     n_neighbors: int = 8,
-    threshold: float = 3.0,
+    threshold: float = MEDIAN_TEST_THRESHOLD,
     eps_um: float = 0.1,
 ) -> np.ndarray:
     """Flag displacements that deviate from their neighbours' median.
