@@ -34,14 +34,20 @@ Files (:mod:`track.tables`, :mod:`track.field_files`, :mod:`track.volumes`)
     point/match/track CSV tables; ``.npz`` and ParaView ``.vti`` fields; volume series
     (TIFF volumes placed in object space from their metadata or ``recon.json``).
     :mod:`track.io` re-exports all three for backward compatibility.
+DataFrames (:mod:`track.dataframes`)
+    :func:`read_particles`, :func:`read_matches`, :func:`read_tracks`, :func:`read_fields`,
+    :func:`read_results` (a results folder as :class:`ResultsTables`); :func:`to_trackpy` /
+    :func:`from_trackpy` (trackpy's column names); :func:`write_particles`,
+    :func:`write_tracks`.
 Errors (:mod:`track.errors`)
     :class:`TrackError` and its :class:`InputError`, :class:`TrackingError`,
     :class:`FailedFramesError`.
 Command line (:mod:`track.cli`)
     ``track run | detect | link``, a thin layer over the pipeline.
 
-Detection, linking and the pipeline are imported on first use (``track.detect_particles``,
-``track.track_volumes`` etc.), so ``import track`` stays light.
+Detection, linking, the pipeline and the DataFrames are imported on first use
+(``track.detect_particles``, ``track.track_volumes``, ``track.read_tracks`` etc.), so
+``import track`` stays light (and imports pandas only for the DataFrames).
 """
 
 from __future__ import annotations
@@ -84,6 +90,16 @@ _LAZY = {
     "TrackResult": "pipeline",
     "track_clouds": "pipeline",
     "track_volumes": "pipeline",
+    "ResultsTables": "dataframes",
+    "from_trackpy": "dataframes",
+    "read_fields": "dataframes",
+    "read_matches": "dataframes",
+    "read_particles": "dataframes",
+    "read_results": "dataframes",
+    "read_tracks": "dataframes",
+    "to_trackpy": "dataframes",
+    "write_particles": "dataframes",
+    "write_tracks": "dataframes",
 }
 
 
@@ -109,6 +125,7 @@ __all__ = [
     "LocalFitSettings",
     "PairOutcome",
     "ParticleStrain",
+    "ResultsTables",
     "SeriesResult",
     "SeriesSettings",
     "TrackError",
@@ -120,6 +137,7 @@ __all__ = [
     "engineering_shear",
     "estimate_psf",
     "fit_displacement",
+    "from_trackpy",
     "gcv_smoothing",
     "green_lagrange",
     "grid_axes",
@@ -128,7 +146,15 @@ __all__ = [
     "link_pair",
     "link_tracks",
     "particle_deformation_gradient",
+    "read_fields",
+    "read_matches",
+    "read_particles",
+    "read_results",
+    "read_tracks",
+    "to_trackpy",
     "track_clouds",
     "track_series",
     "track_volumes",
+    "write_particles",
+    "write_tracks",
 ]

@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from .field_files import read_field_npz, vti_arrays, write_field_npz, write_field_vti
+from .field_files import (
+    read_field_npz,
+    read_field_time,
+    read_field_vti,
+    vti_arrays,
+    vti_units,
+    write_field_npz,
+    write_field_vti,
+)
 from .tables import (
     MATCH_COLUMNS,
     MATCH_SIGMA_COLUMNS,
@@ -33,6 +41,8 @@ __all__ = [
     "VolumeInfo",
     "numbered",
     "read_field_npz",
+    "read_field_time",
+    "read_field_vti",
     "read_match_sigmas",
     "read_matches_csv",
     "read_point_sigmas",
@@ -41,6 +51,7 @@ __all__ = [
     "read_volume",
     "scan_volumes",
     "vti_arrays",
+    "vti_units",
     "write_field_npz",
     "write_field_vti",
     "write_matches_csv",
