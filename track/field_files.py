@@ -222,7 +222,8 @@ def write_field_vti(
                 fh.write(base64.b64encode(np.uint64(len(raw)).astype("<u8").tobytes() + raw))
             else:
                 fmt = "%d" if vtype == "UInt8" else "%.7g"
-                fh.write(" ".join(fmt % v for v in data.ravel()).encode())
+                # VTK's ascii parser needs a space after a final "nan" (not "nan</DataArray>")
+                fh.write(" ".join(fmt % v for v in data.ravel()).encode() + b"\n        ")
             if name in _VTI_UNITS:
                 fh.write(
                     f'\n          <InformationKey name="UNITS_LABEL" location="vtkDataArray">'

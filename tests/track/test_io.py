@@ -122,16 +122,24 @@ def _read_vti_xml(path):
 
 
 def _check_vti_against_truth(points, arrays, g):
-    """Every point's values are those of the affine field u = A x at the point's position."""
+    """At every node supported by particles the values are those of the affine field u = A x
+    at the node's position; at the others every array but ``mask`` is NaN."""
     nz, ny, nx = g.shape
     assert points.shape == (nx * ny * nz, 3)
     assert np.allclose(points.min(axis=0), g.origin_xyz_um)
     assert np.allclose(points.max(axis=0), [g.x_um[-1], g.y_um[-1], g.z_um[-1]])
-    assert {"displacement", "F", "E", "e", "E_xx", "E_xz", "e_yz", "gamma_xz", "mask"} <= set(
-        arrays
-    )
-    u = points @ _A.T
-    assert np.allclose(arrays["displacement"], u, rtol=1e-5, atol=1e-4)  # Float32 of ~10 µm
+    names = {"displacement_um", "F", "E", "e", "E_xx", "E_xz", "e_yz", "gamma_xz", "mask"}
+    assert names <= set(arrays)
+    # the mask: in the VTK point order (x fastest), the same nodes as the field's
+    inside = arrays["mask"][:, 0].astype(bool)
+    assert np.array_equal(inside, g.mask.ravel())
+    assert 0.2 < g.mask.mean() < 0.95  # not trivial: both kinds of node occur
+    for name, a in arrays.items():
+        if name != "mask":
+            assert np.isnan(a[~inside]).all() and np.isfinite(a[inside]).all(), name
+    arrays = {k: v[inside] for k, v in arrays.items()}
+    u = points[inside] @ _A.T
+    assert np.allclose(arrays["displacement_um"], u, rtol=1e-5, atol=1e-4)  # Float32, ~10 µm
     F = np.eye(3) + _A
     E = 0.5 * (F.T @ F - np.eye(3))
     e = 0.5 * (_A + _A.T)
@@ -141,9 +149,6 @@ def _check_vti_against_truth(points, arrays, g):
     assert np.allclose(arrays["E_xz"][:, 0], E[0, 2], atol=1e-6)
     assert np.allclose(arrays["e_yz"][:, 0], e[1, 2], atol=1e-6)
     assert np.allclose(arrays["gamma_xz"][:, 0], 0.1 - 0.0, atol=1e-6)  # 2 e_xz = A_xz + A_zx
-    # the mask: in the VTK point order (x fastest), the same nodes as the field's
-    assert np.array_equal(arrays["mask"][:, 0].astype(bool), g.mask.ravel())
-    assert 0.2 < g.mask.mean() < 0.95  # not trivial: both kinds of node occur
 
 
 @pytest.mark.parametrize("encoding", ["binary", "ascii"])
@@ -173,7 +178,7 @@ def test_vti_reads_in_vtk(tmp_path, encoding):
     for i in range(pd.GetNumberOfArrays()):
         a = vtk_to_numpy(pd.GetArray(i))
         arrays[pd.GetArrayName(i)] = a.reshape(a.shape[0], -1)
-    assert pd.GetVectors().GetName() == "displacement" and pd.GetTensors().GetName() == "F"
+    assert pd.GetVectors().GetName() == "displacement_um" and pd.GetTensors().GetName() == "F"
     _check_vti_against_truth(points, arrays, g)
 
 
@@ -342,13 +347,17 @@ def test_vti_uncertainties_read_in_vtk(tmp_path, encoding):
     for i in range(pd.GetNumberOfArrays()):
         a = vtk_to_numpy(pd.GetArray(i))
         arrays[pd.GetArrayName(i)] = a.reshape(a.shape[0], -1)
-    n = int(np.prod(g.shape))
-    assert np.allclose(arrays["displacement_std"], g.u_std.reshape(n, 3), rtol=1e-6, atol=0)
-    assert np.allclose(arrays["e_std"], g.e_std.reshape(n, 9), rtol=1e-6, atol=0)
-    assert np.allclose(arrays["F_std"], g.F_std.reshape(n, 9), rtol=1e-6, atol=0)
-    assert np.allclose(arrays["e_std_xz"][:, 0], g.e_std[..., 0, 2].ravel(), rtol=1e-6, atol=0)
+    inside = g.mask.ravel()
+    n = int(inside.sum())
+    for name in ("displacement_std_um", "e_std", "F_std", "e_std_xz"):
+        assert np.isnan(arrays[name][~inside]).all(), name  # unsupported nodes: NaN
+        arrays[name] = arrays[name][inside]
+    assert np.allclose(arrays["displacement_std_um"], g.u_std[g.mask], rtol=1e-6, atol=0)
+    assert np.allclose(arrays["e_std"], g.e_std[g.mask].reshape(n, 9), rtol=1e-6, atol=0)
+    assert np.allclose(arrays["F_std"], g.F_std[g.mask].reshape(n, 9), rtol=1e-6, atol=0)
+    assert np.allclose(arrays["e_std_xz"][:, 0], g.e_std[..., 0, 2][g.mask], rtol=1e-6, atol=0)
     # the σ of u_z (2 µm per particle) shows: 2 / 0.3 × that of u_y, σ/√N < u_std < σ
-    u_sd = arrays["displacement_std"]
+    u_sd = arrays["displacement_std_um"]
     assert np.all(u_sd[:, 2] > 2.0 / np.sqrt(80)) and np.all(u_sd[:, 2] < 2.0)
     assert np.median(u_sd[:, 2] / u_sd[:, 1]) > 3.0
 
