@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
+from scipy import stats
 from scipy.spatial import cKDTree
 
 from lfsim.errors import ConfigError
@@ -52,10 +51,18 @@ def test_seed_box_reproducible():
 
 
 def test_seed_box_uniform_marginals():
-    pos = seed_box(4000, ((0.0, 1000.0),) * 3, 15.0, np.random.default_rng(3))
-    # each coordinate ~ U(0, 1000): mean 500 ± 3 sigma (sigma = 1000/sqrt(12 n))
-    sigma = 1000.0 / np.sqrt(12 * 4000)
-    assert np.all(np.abs(pos.mean(axis=0) - 500.0) < 4 * sigma)
+    """Each coordinate is uniform over its range: a Kolmogorov–Smirnov test per axis (the
+    whole distribution, not only its mean) at the 1 % level, fixed seed. With 4 000 points
+    it refuses a marginal whose CDF departs from the uniform one by more than about
+    1.63 / sqrt(4000) = 0.026 anywhere, e.g. points crowding a face or the centre."""
+    box = ((0.0, 1000.0), (-300.0, 300.0), (50.0, 450.0))
+    pos = seed_box(4000, box, 15.0, np.random.default_rng(3))
+    for axis, (lo, hi) in enumerate(box):
+        res = stats.kstest(pos[:, axis], "uniform", args=(lo, hi - lo))
+        assert res.pvalue > 0.01, (axis, res)
+    # the test can fail: the same points squeezed towards the middle of x are refused
+    squeezed = 500.0 + 0.9 * (pos[:, 0] - 500.0)
+    assert stats.kstest(squeezed, "uniform", args=(0.0, 1000.0)).pvalue < 1e-6
 
 
 def test_seed_box_impossible_by_packing():
@@ -90,12 +97,10 @@ def test_seed_box_bad_arguments(args, match):
         seed_box(*args, np.random.default_rng(0))
 
 
-def test_seed_10000_fast():
+def test_seed_10000():
+    """A paper-size seeding (its time: benchmarks/bench_seeding.py)."""
     box = ((-1000.0, 1000.0), (-700.0, 700.0), (-80.0, 720.0))
-    t0 = time.perf_counter()
     pos = seed_box(10_000, box, 15.0, np.random.default_rng(5))
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 2.0
     assert pos.shape == (10_000, 3)
     assert _min_distance(pos) >= 15.0
     assert _inside(pos, box)

@@ -10,8 +10,6 @@ frames linked right, also within one spacing of the faces; ≤ 0.2 % wrong links
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -198,12 +196,9 @@ def test_anisotropic_noise_keeps_every_particle_of_a_translation():
 @pytest.mark.slow
 def test_steep_vortex_10000_particles():
     p = make_pair("vortex", 10_000, 1.5, seed=12)
-    t0 = time.perf_counter()
-    res = link_pair(p.ref_xyz_um, p.def_xyz_um)
-    seconds = time.perf_counter() - t0
+    res = link_pair(p.ref_xyz_um, p.def_xyz_um)  # its time: benchmarks/bench_heterogeneous.py
     sc = score_link(p, res.matches)
     assert sc.tracking_ratio >= 0.995 and sc.face_tracking_ratio >= 0.99 and sc.n_wrong == 0
-    assert seconds < 30.0
 
 
 # ---------------------------------------------------------------------- series predictor

@@ -8,8 +8,6 @@ both frames. Ground truth comes from the particle ids.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -154,12 +152,9 @@ def test_simple_shear_10000_particles():
     x = random_cloud(10_000, seed=8)
     motion = motions(x)["simple_shear_gamma_1"]
     a, b, ia, ib = make_pair(x, motion, seed=9)
-    t0 = time.perf_counter()
-    res = link_pair(a, b)
-    seconds = time.perf_counter() - t0
+    res = link_pair(a, b)  # its time: benchmarks/bench_track.py
     ratio, wrong, _, fld = score(res, x, motion, ia, ib)
     assert wrong == 0 and ratio >= 0.99 and fld <= 0.01
-    assert seconds < 20.0
 
 
 def test_unrelated_clouds_are_flagged_not_linked():
