@@ -25,9 +25,19 @@ def test_box_is_three_fwhm_of_the_particles(sigma_vox):
         assert abs(b - BOX_FWHM * f) <= BOX_FWHM * 2 * d, (box, fwhm_um)
 
 
-def test_box_never_exceeds_half_the_volume():
-    vol = np.zeros((20, 30, 30))
-    vol[10, 15, 15] = 1.0
-    vol[:, 15, 15] += 0.9  # a streak through the whole volume
-    box = auto_box_um(vol, (5.0, 2.0, 2.0))
-    assert box[0] <= 10 * 5.0 and box[1] <= 15 * 2.0
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_box_never_exceeds_half_the_volume(axis):
+    """A streak through the whole volume along ``axis``: the box is cut to exactly half the
+    volume along it, and stays within half the volume along all three axes."""
+    shape, spacing = (20, 30, 40), (5.0, 2.0, 1.5)
+    vol = np.zeros(shape)
+    vol[10, 15, 20] = 1.0
+    line = [10, 15, 20]
+    line[axis] = slice(None)
+    vol[tuple(line)] += 0.9
+    box = np.array(auto_box_um(vol, spacing))
+    half_um = np.array(shape) / 2.0 * np.array(spacing)
+    assert box[axis] == pytest.approx(half_um[axis], rel=1e-12), box
+    assert np.all(box <= half_um + 1e-9), (box, half_um)
+    others = [a for a in range(3) if a != axis]
+    assert np.all(box[others] < half_um[others]), box  # only the streak's axis is cut
