@@ -80,11 +80,29 @@ def test_optics_mismatch_can_be_allowed(calib, frame, tmp_path, capsys):
 
 
 def test_tiny_differences_are_accepted(calib, frame, tmp_path, capsys):
+    """A difference of 1e-9 in the pixel size is rounding: no error, no optics warning (not
+    even without -q), the volume written, and nothing written anywhere else (the scene,
+    calibration and frame unchanged, no other file beside the output folder)."""
+    import hashlib
+
+    from lfsim.io import read_json
+
     scene = scene_with(tmp_path, "same.xml", pixel_um=100 / 15 * (1 + 1e-9))
-    rc, _, err = run(
-        capsys, "run", frame, "--scene", scene, "--calib", calib, *FAST, "-o", tmp_path / "v"
+    inputs = [scene, Path(calib), Path(frame)]
+    before = [hashlib.sha256(p.read_bytes()).hexdigest() for p in inputs]
+    listing = sorted(p.name for p in tmp_path.iterdir())
+    out = tmp_path / "v"
+    rc, stdout, err = run(
+        capsys, "run", frame, "--scene", scene, "--calib", calib, *FAST, "-o", out, quiet=False
     )
     assert rc == 0, err
+    assert "error" not in err and "warning" not in err and "calibration)" not in err, err
+    assert "mismatch" not in stdout + err, (stdout, err)
+    record = read_json(out / "recon.json")
+    assert record["status"] == "complete" and [f["index"] for f in record["frames"]] == [0]
+    assert (out / "000000.tif").is_file()
+    assert [hashlib.sha256(p.read_bytes()).hexdigest() for p in inputs] == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*listing, "v"])
 
 
 def test_calibration_of_another_sensor_is_refused(base_frame, backend, tmp_path, capsys):
