@@ -310,10 +310,22 @@ def read_field_time(path: str | os.PathLike) -> tuple[int | None, float | None]:
     the deformed configuration and its time (s); None for what it does not record."""
     path = Path(path)
     if path.suffix == ".vti":
-        path, img = _parse_vti(path)
-        fd = {el.get("Name"): el for el in img.findall("FieldData/DataArray")}
-        frame = int(_vti_values(fd["frame"], path)[0]) if "frame" in fd else None
-        t = float(_vti_values(fd["TimeValue"], path)[0]) if "TimeValue" in fd else None
+        fd = {}
+        try:  # the field data come before the point data: read up to the first piece
+            for event, el in ET.iterparse(path, events=("start", "end")):
+                if event == "start" and el.tag == "Piece":
+                    break
+                if event == "end" and el.tag == "DataArray":
+                    fd[el.get("Name")] = el
+        except FileNotFoundError:
+            raise InputError(f"{path} does not exist") from None
+        except (OSError, ET.ParseError) as exc:
+            raise InputError(f"cannot read field file {path}: {exc}") from exc
+        try:
+            frame = int(_vti_values(fd["frame"], path)[0]) if "frame" in fd else None
+            t = float(_vti_values(fd["TimeValue"], path)[0]) if "TimeValue" in fd else None
+        except (ValueError, IndexError) as exc:
+            raise InputError(f"cannot read field file {path}: bad frame or TimeValue") from exc
         return frame, t
     try:
         with np.load(path, allow_pickle=False) as z:
