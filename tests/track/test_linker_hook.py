@@ -8,7 +8,7 @@ import numpy as np
 
 import track
 from track.fields import GridSettings
-from track.matching import LinkSettings
+from track.matching import LinkSettings, link_pair
 from track.pipeline import track_volumes
 from track.series import SeriesSettings
 
@@ -49,9 +49,9 @@ def test_a_custom_linker_is_called_and_its_matches_are_the_output(tmp_path):
         want = _reversed(len(ref), len(dfm))
         assert np.array_equal(p.matches, want)
         assert np.allclose(p.displacement_um, dfm[want[:, 1]] - ref[want[:, 0]])
-    # the default linker finds the 1.5 µm x steps with other matches: the output above is
-    # the custom linker's
-    default = track_volumes(vols, tmp_path / "ref", detect=det, series=series)
-    assert not np.array_equal(default.pairs[0].matches, res.pairs[0].matches)
-    for p in default.pairs:
-        assert np.allclose(np.median(p.displacement_um, axis=0), [1.5, 0, 0], atol=0.1)
+    # the default linker pairs the frames otherwise (their 1.5 µm x steps): the output
+    # above is the custom linker's
+    ref, dfm = (res.frames[k].positions_um for k in (0, 1))
+    default = link_pair(ref, dfm, link)
+    assert not np.array_equal(default.matches, res.pairs[0].matches)
+    assert np.allclose(np.median(default.displacement_um, axis=0), [1.5, 0, 0], atol=0.1)
