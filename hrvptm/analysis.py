@@ -109,7 +109,7 @@ class VariantData:
 
     @classmethod
     def load(cls, study, paths: VariantPaths) -> VariantData:
-        from lfsim.io import read_json
+        from hrvbase.io import read_json
         from lfsim.particles import Particles
         from track.tables import read_point_sigmas, read_points_csv
 

@@ -31,7 +31,7 @@ def _plt():
 
 
 def _save(fig, path: Path) -> Path:
-    from lfsim.io import atomic_path
+    from hrvbase.io import atomic_path
 
     try:
         with atomic_path(path, overwrite=True) as tmp:

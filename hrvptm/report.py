@@ -16,7 +16,7 @@ import json
 import math
 from pathlib import Path
 
-from lfsim.io import atomic_write_text
+from hrvbase.io import atomic_write_text
 
 from .paper import references
 

@@ -88,7 +88,7 @@ def _open_report(report: Path, study: Study, overwrite: bool) -> dict:
 
 
 def _save_state(report: Path, state: dict) -> None:
-    from lfsim.io import write_json
+    from hrvbase.io import write_json
 
     write_json(report / STATE, state, overwrite=True)
 

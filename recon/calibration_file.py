@@ -175,7 +175,7 @@ def check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: boo
 def dataset_optics(dataset: Path):
     """The optics recorded in an lfsim dataset's ``dataset.json`` (None if absent)."""
     from lfsim.errors import ConfigError
-    from lfsim.io import read_json
+    from hrvbase.io import read_json
     from lfsim.optics import Optics
 
     record = read_json(dataset / "dataset.json")

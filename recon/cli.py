@@ -592,7 +592,7 @@ def _resolve_inputs(args: argparse.Namespace):
     Also the input folders: those given, and the folders of the frames a glob pattern or a
     list file names (an output inside them is refused, as inside a folder given).
     """
-    from lfsim.io import read_json
+    from hrvbase.io import read_json
     from lfsim.scene import read_optics
 
     from .frames import (
@@ -668,7 +668,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from hrvbase.io import check_output_folder, guard_output
     from lfsim import init_backend
 
-    from .frames import time_source
+    from .frames import camera_records, time_source
     from .pipeline import reconstruct_series
     from .preprocess import Preprocess, read_frame
 
@@ -746,6 +746,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "frame_selection": args.select,
             "fps": args.fps,
             "frame_times": time_source(frames, args.fps),
+            "camera": camera_records(frames),
         },
         parallel=parallel,
     )

@@ -2,15 +2,18 @@
 
 ``recon run`` takes its frames in any of these forms (mixed freely, in the order given):
 
-- a **folder**: every TIFF in it (``.tif``/``.tiff``, any letter case, hidden files skipped),
-  in **natural order** of the frame number in the file name (below);
+- a **folder**: every frame file in it (TIFF ``.tif``/``.tiff``, Phantom ``.cine``, or any
+  format of the reader registry :mod:`hrvbase.formats.registry`; any letter case, hidden
+  files skipped), in **natural order** of the frame number in the file name (below);
 - a **glob pattern** (quoted, so that the shell does not expand it, e.g. ``'run3/img_*.tif'``):
   the matching files, in natural order;
 - a **list file**: a text file naming one frame per line (paths relative to the list file);
   blank lines and lines starting with ``#`` are ignored; the list gives the order, and a frame
   it names twice is refused;
-- a **TIFF file**: one frame, or, for a multi-page stack (the usual high-speed camera export),
-  one frame per page in page order. Explicit files keep the order they are given in.
+- a **frame file**: a TIFF holds one frame, or, for a multi-page stack (the usual high-speed
+  camera export), one frame per page in page order; a Phantom ``.cine`` file holds one frame
+  per recorded image. A file is recognised by its content, else by its name. Explicit files
+  keep the order they are given in.
 
 Natural order. The frame number of ``img_0012.tif`` is the last run of digits in the name
 without its extension (12). All files of a folder or pattern must be named alike around
@@ -21,17 +24,21 @@ order explicitly. Gaps in the numbering are reported with a warning (``missing f
 9``); files numbered in steps (0, 2, 4, …) are not gaps.
 
 Series checks (:func:`build_series`). Every frame must have the same size, pixel type and bit
-depth; this is read from the TIFF headers (no pixels) before anything is reconstructed, and
+depth; this is read from the files' headers (no pixels) before anything is reconstructed, and
 the first file that differs is refused. A file may appear once in a series (given twice, or as
 a folder and a file in it, it is refused: it would be reconstructed twice), and no two frames
 may carry the same frame number (:func:`check_distinct`).
 
 Frame numbers and times. Every frame carries its original number: the number in its file
 name, or for a page of a stack its page index (counted on across consecutive stacks, as
-cameras split a long recording into several files). Its time is ``number / fps`` when a frame
-rate is given; otherwise it is read from the file's metadata when present (the ``finterval``
-of an ImageJ stack, or a ``"time_s"`` entry in the JSON metadata that ``lfsim.io.write_tiff``
-writes, or in a JSON image description); otherwise unknown.
+cameras split a long recording into several files), or the number the file records (a
+``.cine`` image's position in its recording). Its time is ``number / fps`` when a frame
+rate is given; otherwise it is read from the file's metadata when present (the time block of
+a ``.cine`` file, the ``finterval`` of an ImageJ stack, or a ``"time_s"`` entry in the JSON
+metadata that :func:`hrvbase.formats.tiff_layout.write_tiff` writes, or in a JSON image
+description); otherwise unknown. What a file records of its camera (the frame rate,
+exposure and bit depth of a ``.cine`` recording) goes into ``recon.json``
+(:func:`camera_records`).
 """
 
 from __future__ import annotations
@@ -39,7 +46,6 @@ from __future__ import annotations
 import glob
 import hashlib
 import itertools
-import json
 import logging
 import math
 import os
@@ -50,17 +56,22 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from hrvbase.formats.registry import (
+    FrameHeader,
+    format_by_name,
+    frame_format_for,
+    frame_suffixes,
+    probe_frames,
+)
+from hrvbase.formats.tiff_frames import SUFFIXES as TIFF_SUFFIXES
+
+from .errors import InputError, recon_input_errors
 
 log = logging.getLogger(__name__)
-
-#: File name endings (compared in lower case) of the TIFFs a folder contributes.
-TIFF_SUFFIXES = (".tif", ".tiff")
 
 #: What the user is told when a folder or pattern cannot be ordered by its file names.
 ORDER_HINT = "give the order explicitly (a list file or explicit files)"
 
-_TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 _GLOB_CHARS = frozenset("*?[")
 _NAME_NUMBER = re.compile(r"^(.*?)(\d+)(\D*)$")
 #: Runs listed in a "missing frames" message before it is cut short.
@@ -69,14 +80,15 @@ _MAX_RUNS_SHOWN = 10
 
 @dataclass(frozen=True)
 class FrameRef:
-    """One frame of a series: a single-image TIFF, or one page of a stack.
+    """One frame of a series: a single-image file, or one page (image) of a stack or recording.
 
     Parameters
     ----------
     path : Path
-        The TIFF file.
+        The frame file (TIFF, ``.cine``, …).
     page : int or None
-        Page (0-based) of a multi-page stack; ``None`` for a file holding one image.
+        Page (0-based) of a multi-page stack, or image of a ``.cine`` recording; ``None`` for
+        a file holding one image.
     number : int or None
         Original frame number: from the file name, or the page index for a stack (see the
         module docstring); ``None`` when unknown.
@@ -108,35 +120,8 @@ class FrameRef:
         return cls(Path(frame), None, None if parsed is None else parsed[1])
 
 
-@dataclass(frozen=True)
-class TiffHeader:
-    """What :func:`probe_tiff` reads from a TIFF's header (no pixels).
-
-    Attributes
-    ----------
-    n_images : int
-        Images (pages) of the file's image series: 1 for a plain frame.
-    shape : tuple of int
-        ``(height, width)`` of one image in pixels.
-    dtype : str
-        NumPy pixel type (``"uint16"``).
-    bits : int
-        Bits per sample recorded in the file (12 for a packed 12-bit camera image).
-    frame_interval_s : float or None
-        ImageJ ``finterval`` (s) of a stack, if recorded.
-    time_s : float or None
-        ``"time_s"`` of a JSON image description, if recorded.
-    """
-
-    n_images: int
-    shape: tuple[int, int]
-    dtype: str
-    bits: int
-    frame_interval_s: float | None = None
-    time_s: float | None = None
-
-    def describe(self) -> str:
-        return f"{self.shape[1]} × {self.shape[0]} px {self.dtype} ({self.bits} bit)"
+#: What a frame reader reads from a file's header (the name of the TIFF reader's days).
+TiffHeader = FrameHeader
 
 
 # -- names and natural order ------------------------------------------------------------
@@ -145,15 +130,21 @@ def is_tiff_name(path: str | os.PathLike) -> bool:
     return Path(path).suffix.lower() in TIFF_SUFFIXES
 
 
+def is_frame_name(path: str | os.PathLike) -> bool:
+    """Whether the file name ends like a frame file of a registered format (``.tif``,
+    ``.tiff``, ``.cine``, …; any letter case)."""
+    return Path(path).suffix.lower() in frame_suffixes()
+
+
 def _stem(path: str | os.PathLike) -> str:
     p = Path(path)
-    return p.name[: -len(p.suffix)] if is_tiff_name(p) else p.stem
+    return p.name[: -len(p.suffix)] if is_frame_name(p) else p.stem
 
 
 def parse_frame_name(path: str | os.PathLike) -> tuple[str, int, str] | None:
     """``(prefix, number, suffix)`` of a frame file name, or ``None`` without a number.
 
-    The number is the last run of digits of the name without its TIFF extension:
+    The number is the last run of digits of the name without its frame-file extension:
     ``img_0012.tif`` → ``("img_", 12, "")``, ``run2_f7_cam.TIF`` → ``("run2_f", 7, "_cam")``.
     """
     m = _NAME_NUMBER.match(_stem(path))
@@ -294,29 +285,30 @@ def has_glob_chars(text: str) -> bool:
 
 def is_tiff_file(path: str | os.PathLike) -> bool:
     """Whether the file starts like a TIFF (classic or BigTIFF, either byte order)."""
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(4) in _TIFF_MAGIC
-    except OSError:
-        return False
+    fmt = frame_format_for(path)
+    return fmt is not None and fmt.NAME == "tiff" and Path(path).is_file()
 
 
 def folder_frames(folder: Path) -> list[Path]:
-    """The TIFFs of a folder (not hidden ones) in natural order.
+    """The frame files of a folder (TIFF, ``.cine``, …; not hidden ones) in natural order.
 
     Raises
     ------
     InputError
-        No TIFF in the folder, or names that cannot be ordered (:func:`natural_order`).
+        No frame file in the folder, or names that cannot be ordered (:func:`natural_order`).
     """
     folder = Path(folder)
     files = [
         p
         for p in folder.iterdir()
-        if is_tiff_name(p) and not p.name.startswith(".") and p.is_file()
+        if is_frame_name(p) and not p.name.startswith(".") and p.is_file()
     ]
     if not files:
-        raise InputError(f"no TIFF frames (.tif, .tiff) in folder {str(folder)!r}")
+        others = ", ".join(s for s in frame_suffixes() if s not in TIFF_SUFFIXES)
+        raise InputError(
+            f"no TIFF frames (.tif, .tiff) nor other frame files ({others}) in folder "
+            f"{str(folder)!r}"
+        )
     return natural_order(files, where=f"folder {str(folder)!r}")
 
 
@@ -397,22 +389,16 @@ def expand_argument(arg: str | os.PathLike) -> tuple[list[Path], str]:
         return pattern_frames(text), "pattern"
     if not path.is_file():
         raise InputError(f"frame {text!r} does not exist")
-    if is_tiff_name(path) or is_tiff_file(path):
+    if is_frame_name(path) or frame_format_for(path) is not None:
         return [path], "file"
     return list_file_frames(path), "list"
 
 
 # -- headers, series and pages --------------------------------------------------------------
-def _finite_or_none(value) -> float | None:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
-def probe_tiff(path: str | os.PathLike) -> TiffHeader:
-    """Image count, size, pixel type and timing metadata of a TIFF, from its header only.
+def probe_tiff(path: str | os.PathLike, what: str = "frame") -> FrameHeader:
+    """Image count, size, pixel type, bit depth and timing metadata of a frame file (TIFF,
+    ``.cine``, any registered format), from its header only
+    (:func:`hrvbase.formats.registry.probe_frames`).
 
     Raises
     ------
@@ -420,57 +406,12 @@ def probe_tiff(path: str | os.PathLike) -> TiffHeader:
         Missing or unreadable file, images of several sizes or types in one file, colour or
         multi-channel images, a non-numeric pixel type (names the file).
     """
-    import tifffile
+    with recon_input_errors():
+        return probe_frames(path, what)
 
-    from lfsim.io import METADATA_TAG
 
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"frame {str(path)!r} is a folder, not a TIFF file")
-    if not path.is_file():
-        raise InputError(f"frame {str(path)!r} does not exist")
-    try:
-        with tifffile.TiffFile(path) as tif:
-            series = tif.series
-            first = series[0]
-            shape, axes, dtype = tuple(first.shape), first.axes, np.dtype(first.dtype)
-            page = tif.pages[0]
-            bits = int(page.bitspersample)
-            tag = page.tags.get(METADATA_TAG)  # lfsim's JSON; older files: the description
-            description = str(tag.value) if tag is not None else page.description or ""
-            ij = tif.imagej_metadata or {}
-    except (OSError, ValueError, IndexError, KeyError, tifffile.TiffFileError) as exc:
-        raise InputError(f"cannot read frame {str(path)!r} as TIFF: {exc}") from exc
-    if len(series) > 1:
-        raise InputError(
-            f"frame {str(path)!r} holds images of {len(series)} different sizes or pixel "
-            "types; expected one image or a stack of equal images"
-        )
-    colour = {a: n for a, n in zip(axes, shape, strict=True) if a in "SC" and n > 1}
-    if len(shape) < 2 or colour:
-        raise InputError(
-            f"frame {str(path)!r} holds an array of shape {shape} (axes {axes}); expected "
-            "grey-level images (y, x), one per page"
-        )
-    if dtype.kind not in "uif":
-        raise InputError(f"frame {str(path)!r} has unsupported pixel type {dtype}")
-    time_s = None
-    if description.lstrip().startswith("{"):
-        try:
-            meta = json.loads(description)
-        except json.JSONDecodeError:
-            meta = {}
-        if isinstance(meta, dict):
-            time_s = _finite_or_none(meta.get("time_s"))
-    interval = _finite_or_none(ij.get("finterval"))
-    return TiffHeader(
-        n_images=math.prod(shape[:-2]),
-        shape=(int(shape[-2]), int(shape[-1])),
-        dtype=str(dtype),
-        bits=bits,
-        frame_interval_s=interval if interval and interval > 0 else None,
-        time_s=time_s,
-    )
+#: The header of a frame file of any registered format.
+probe_frame_file = probe_tiff
 
 
 def check_uniform(headers: Sequence[tuple[Path, TiffHeader]]) -> None:
@@ -533,8 +474,8 @@ def check_distinct(refs: Sequence[FrameRef]) -> None:
         numbers[r.number] = r
 
 
-def check_frames(refs: Sequence[FrameRef]) -> dict[Path, TiffHeader]:
-    """Check a series from its TIFF headers: files exist, pages exist, equal images.
+def check_frames(refs: Sequence[FrameRef]) -> dict[Path, FrameHeader]:
+    """Check a series from its files' headers: files exist, pages exist, equal images.
 
     Returns
     -------
@@ -549,7 +490,7 @@ def check_frames(refs: Sequence[FrameRef]) -> dict[Path, TiffHeader]:
         twice or two frames of one number (:func:`check_distinct`).
     """
     check_distinct(refs)
-    headers: dict[Path, TiffHeader] = {}
+    headers: dict[Path, FrameHeader] = {}
     for r in refs:
         if r.path not in headers:
             headers[r.path] = probe_tiff(r.path)
@@ -590,7 +531,7 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
     """
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise InputError(f"--fps must be a finite number > 0 (frames per second), got {fps!r}")
-    headers: dict[Path, TiffHeader] = {}
+    headers: dict[Path, FrameHeader] = {}
     for f in files:
         if f not in headers:
             headers[f] = probe_tiff(f)
@@ -599,6 +540,9 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
     pages_before = 0  # pages of the stacks earlier in the series
     for f in files:
         h = headers[f]
+        if h.numbers is not None:  # the file numbers (and times) its images itself
+            refs += _recorded_frames(f, h, fps)
+            continue
         if h.n_images == 1:
             parsed = parse_frame_name(f)
             number = None if parsed is None else parsed[1]
@@ -631,6 +575,29 @@ def build_series(files: Sequence[Path], *, fps: float | None = None) -> list[Fra
                 unnumbered[0].path.name,
             )
     return refs
+
+
+def _recorded_frames(path: Path, h: FrameHeader, fps: float | None) -> list[FrameRef]:
+    """The frames of a file that records its images' numbers (and times): a ``.cine``."""
+    out = []
+    for i, number in enumerate(h.numbers):
+        t = h.times_s[i] if h.times_s is not None else None
+        if fps is not None:
+            t = number / fps
+        out.append(FrameRef(path, None if h.n_images == 1 else i, int(number), t))
+    return out
+
+
+def camera_records(refs: Sequence[FrameRef]) -> list[dict] | None:
+    """What the series' files record of their camera (``.cine``: format, frame rate,
+    exposure, bit depth, first image number, trigger time), one entry per file, for
+    ``recon.json``; None when no file records anything (TIFF frames)."""
+    out = []
+    for path in dict.fromkeys(r.path for r in refs):
+        camera = probe_tiff(path).camera
+        if camera:
+            out.append({"input": str(path), **camera})
+    return out or None
 
 
 def time_source(refs: Sequence[FrameRef], fps: float | None) -> str | None:
@@ -691,16 +658,17 @@ def select_frames(refs: Sequence[FrameRef], text: str | None) -> list[FrameRef]:
 
 
 class FrameReader:
-    """Reads frames one by one, keeping the current stack open between its pages.
+    """Reads frames one by one, keeping the current file open between its pages.
 
     Use as a context manager (``with FrameReader() as reader: reader.read(ref)``); a page
-    of a long stack is then read without parsing the file again.
+    of a long stack (or an image of a ``.cine`` recording) is then read without parsing the
+    file again. Each file is read by the reader of its format
+    (:func:`hrvbase.formats.registry.frame_format_for`; TIFF when none claims it).
     """
 
     def __init__(self) -> None:
-        self._path: Path | None = None
-        self._tif = None
-        self._n_pages = 0
+        self._key: tuple[Path, str] | None = None
+        self._file = None
 
     def __enter__(self) -> FrameReader:
         return self
@@ -709,9 +677,17 @@ class FrameReader:
         self.close()
 
     def close(self) -> None:
-        if self._tif is not None:
-            self._tif.close()
-        self._tif, self._path = None, None
+        if self._file is not None:
+            self._file.close()
+        self._file, self._key = None, None
+
+    def _open(self, path: Path, what: str):
+        if self._key != (path, what) or self._file is None:
+            self.close()
+            fmt = frame_format_for(path) or format_by_name("tiff")
+            self._file = fmt.open_file(path, what)
+            self._key = (path, what)
+        return self._file
 
     def read(self, ref: FrameRef, what: str = "frame") -> np.ndarray:
         """Pixels of one frame as stored (2-D, the file's dtype).
@@ -722,49 +698,12 @@ class FrameReader:
             Missing or unreadable file, a page beyond the end of the stack, or (``page=None``)
             a file holding more than one image (names the file).
         """
-        import tifffile
-
-        path = ref.path
-        if path.is_dir():
-            raise InputError(f"{what} {str(path)!r} is a folder, not a TIFF file")
-        if not path.is_file():
-            raise InputError(f"{what} {str(path)!r} does not exist")
-        errors = (OSError, ValueError, IndexError, KeyError, tifffile.TiffFileError)
-        if ref.page is None:
+        with recon_input_errors():
             try:
-                with tifffile.TiffFile(path) as tif:
-                    n_pages = len(tif.pages)
-                    arr = tif.asarray()
-            except errors as exc:
-                raise InputError(f"cannot read {what} {ref.label!r} as TIFF: {exc}") from exc
-            if arr.ndim != 2 or n_pages != 1:
-                hint = (
-                    " (`recon run` reconstructs every page of a stack)" if what == "frame" else ""
-                )
-                raise InputError(
-                    f"{what} {str(path)!r} holds an array of shape {arr.shape}; expected one "
-                    f"2-D grey-level image (y, x){hint}"
-                )
-            return arr
-        try:
-            if self._path != path:
+                return self._open(ref.path, what).read(ref.page, ref.label)
+            except Exception:
                 self.close()
-                self._tif = tifffile.TiffFile(path)
-                self._path = path
-                self._n_pages = math.prod(self._tif.series[0].shape[:-2])
-            if ref.page >= self._n_pages:
-                raise InputError(
-                    f"{what} {ref.label!r}: the stack has only {self._n_pages} page(s)"
-                )
-            arr = self._tif.asarray(key=ref.page, series=0)
-        except InputError:
-            raise
-        except errors as exc:
-            self.close()
-            raise InputError(f"cannot read {what} {ref.label!r} as TIFF: {exc}") from exc
-        if arr.ndim != 2:
-            raise InputError(f"{what} {ref.label!r} is not a 2-D image (shape {arr.shape})")
-        return arr
+                raise
 
 
 def read_raw(ref: FrameRef, what: str = "frame") -> np.ndarray:
@@ -776,7 +715,7 @@ def read_raw(ref: FrameRef, what: str = "frame") -> np.ndarray:
 def frame_checksums(refs: Sequence[FrameRef]) -> list[str]:
     """SHA-256 of every frame: of the file for a single image, of the pixel bytes for a page
     of a stack (so that a stack's pages are recognised one by one when a run resumes)."""
-    from lfsim.io import sha256_file
+    from hrvbase.io import sha256_file
 
     out = []
     with FrameReader() as reader:
@@ -796,6 +735,7 @@ __all__ = [
     "FrameRef",
     "TiffHeader",
     "build_series",
+    "camera_records",
     "check_distinct",
     "check_frames",
     "check_uniform",
@@ -803,11 +743,13 @@ __all__ = [
     "folder_frames",
     "format_numbers",
     "frame_checksums",
+    "is_frame_name",
     "list_file_frames",
     "natural_order",
     "parse_frame_name",
     "parse_selection",
     "pattern_frames",
+    "probe_frame_file",
     "probe_tiff",
     "read_raw",
     "select_frames",

@@ -718,7 +718,7 @@ def _check_output(
     (and reconstructed). A record of another format (TIFF volumes, a Zarr image) is refused,
     even with ``overwrite``.
     """
-    from lfsim.io import read_json
+    from hrvbase.io import read_json
 
     out = writer.out
     if out.exists() and not out.is_dir():

@@ -1477,7 +1477,7 @@ def image_metadata(path) -> dict:
     """The JSON metadata of a TIFF written by :mod:`lfsim` (``{}`` if it has none or cannot be
     read: the caller then needs ``--scene``)."""
     from hrvbase.errors import HrvError
-    from lfsim.io import read_tiff
+    from hrvbase.formats.tiff_layout import read_tiff
 
     try:
         _, meta = read_tiff(path)

@@ -19,8 +19,8 @@ interface:
     The frames present, removal of one or all of them, and the name of a frame in messages.
 
 **TIFF** (``--format tiff``, the default): ``OUT/NNNNNN.tif``, float32 ``(z, y, x)`` with
-the voxel size and origin in its metadata (``lfsim.io.write_tiff``); the record is the file's
-size and SHA-256 (:func:`hrvbase.io.file_record`).
+the voxel size and origin in its metadata (:func:`hrvbase.formats.tiff_layout.write_tiff`);
+the record is the file's size and SHA-256 (:func:`hrvbase.io.file_record`).
 
 **Zarr** (``--format zarr``): ``OUT`` is one OME-Zarr image, written as OME-NGFF **0.5**
 (Zarr format 3), the version ``ome-zarr`` writes by default (:data:`NGFF_VERSION`): a group
@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from hrvbase.errors import OutputError
+from hrvbase.formats.geometry import VolumeGeometry
 
 from .errors import InputError, ReconError
 
@@ -70,25 +71,6 @@ ZARR_DATASET = "0"
 
 class OutputExistsError(ReconError):
     """The output holds something this run must not overwrite."""
-
-
-@dataclass(frozen=True)
-class VolumeGeometry:
-    """Where the voxels of every volume of a series lie.
-
-    Attributes
-    ----------
-    shape : tuple of int
-        ``(nz, ny, nx)``.
-    voxel_size_um : tuple of float
-        ``(dz, dy, dx)`` (µm).
-    origin_xyz_um : tuple of float
-        Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm).
-    """
-
-    shape: tuple
-    voxel_size_um: tuple
-    origin_xyz_um: tuple
 
 
 def make_writer(volume_format: str, out: str | os.PathLike, *, zarr_chunk_z: int | None = None):
@@ -141,8 +123,8 @@ class TiffSeriesWriter:
         self.out.mkdir(parents=True, exist_ok=True)
 
     def write(self, k: int, volume: np.ndarray, meta: Mapping) -> dict:
+        from hrvbase.formats.tiff_layout import write_tiff
         from hrvbase.io import file_record
-        from lfsim.io import write_tiff
 
         g = self.geometry
         write_tiff(
