@@ -139,7 +139,7 @@ def analyse_frames(volumes, infos, truths, settings, lenslet_um, redeconvolve=Tr
             axis=1,
         )
         if redeconvolve:
-            dec = deconvolve(vol, psf, settings.deconvolution_iterations)
+            dec = deconvolve(vol, psf, settings.deconvolve_settings())
             loc_dec = localize(dec, p_vox, vs, half_box_vox=(hz, hy, hx))
         for n, t in enumerate(idx):
             if t < 0:

@@ -76,3 +76,105 @@ def test_cli_defaults_are_the_settings_dataclasses(tmp_path):
     series = series_settings(args)
     assert series.grid == GridSettings() and series.link == LinkSettings()
     assert series.mode == SeriesSettings().mode
+
+
+def _track_settings_defaults() -> dict[str, set]:
+    """Field name → its defaults over every ``*Settings`` dataclass of :mod:`track`."""
+    import dataclasses
+    import pkgutil
+
+    import track
+
+    out: dict[str, list] = {}
+    for info in pkgutil.iter_modules(track.__path__):
+        mod = importlib.import_module(f"track.{info.name}")
+        for name, obj in vars(mod).items():
+            if (
+                name.endswith("Settings")
+                and dataclasses.is_dataclass(obj)
+                and obj.__module__ == mod.__name__
+            ):
+                for f in dataclasses.fields(obj):
+                    if f.default is not dataclasses.MISSING:
+                        out.setdefault(f.name, []).append((f"{name}.{f.name}", f.default))
+    return out
+
+
+#: Keyword arguments of track functions that are a settings field under another name.
+_ALIASES = {
+    ("track.segment", "auto_threshold", "k_sigma"): ("SegmentSettings", "auto_k_sigma"),
+    ("track.outliers", "normalized_median_test", "threshold"): (
+        "LinkSettings",
+        "outlier_threshold",
+    ),
+    ("track.regularize", "fit_field", "method"): ("LinkSettings", "regularization"),
+    ("track.regularize", "fit_field_refined", "method"): ("LinkSettings", "regularization"),
+}
+#: Keyword arguments named like a settings field that mean something else.
+_UNRELATED = {
+    ("track._threads", "gaussian_filter", "mode"),  # scipy.ndimage's boundary mode
+    ("track._threads", "maximum_filter3", "mode"),
+}
+
+
+def test_track_function_defaults_are_the_settings_defaults():
+    """A keyword default of a ``track`` function (or method) named like a field of a
+    ``*Settings`` dataclass of ``track`` equals that field's default, so that no function
+    holds a default of its own that the command line and the studies would not use."""
+    import dataclasses
+    import inspect
+    import pkgutil
+
+    import track
+
+    fields = _track_settings_defaults()
+    assert {"threshold", "auto_k_sigma", "auto_size_factors", "outlier_threshold"} <= set(fields)
+    checked, bad = 0, []
+    for info in pkgutil.iter_modules(track.__path__):
+        mod = importlib.import_module(f"track.{info.name}")
+        members = []
+        for name, obj in vars(mod).items():
+            if getattr(obj, "__module__", None) != mod.__name__:
+                continue
+            if inspect.isfunction(obj):
+                members.append((name, obj))
+            elif inspect.isclass(obj) and not dataclasses.is_dataclass(obj):
+                members += [
+                    (f"{name}.{m}", f) for m, f in vars(obj).items() if inspect.isfunction(f)
+                ]
+        for fname, func in members:
+            for p in inspect.signature(func).parameters.values():
+                if p.default is inspect.Parameter.empty or p.default is None:
+                    continue
+                if (mod.__name__, fname, p.name) in _UNRELATED:
+                    continue
+                alias = _ALIASES.get((mod.__name__, fname, p.name))
+                if alias is not None:
+                    want = [
+                        (".".join(alias), d) for n, d in fields[alias[1]] if n == ".".join(alias)
+                    ]
+                elif p.name in fields:
+                    want = fields[p.name]
+                else:
+                    continue
+                checked += 1
+                if not any(p.default == d for _, d in want):
+                    bad.append(f"{mod.__name__}.{fname}({p.name}={p.default!r}) vs {want}")
+    assert checked >= 2  # the aliases at least
+    assert not bad, bad
+
+
+def test_detect_settings_take_the_segment_and_deconvolution_defaults():
+    """DetectSettings' segmentation and deconvolution fields default to the settings of the
+    functions they configure (one definition each)."""
+    import dataclasses
+
+    from track.deconvolve import DeconvolveSettings
+    from track.detect import DetectSettings
+    from track.segment import SegmentSettings
+
+    det = DetectSettings()
+    assert det.segment_settings() == SegmentSettings()
+    assert det.deconvolve_settings() == DeconvolveSettings()
+    for f in dataclasses.fields(SegmentSettings):
+        assert getattr(det, f.name) == f.default, f.name

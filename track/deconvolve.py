@@ -1,9 +1,9 @@
 """Secondary Richardson–Lucy deconvolution of a reconstructed volume with a particle PSF.
 
 The paper (§3.2, Table 1) deconvolves every reconstructed light-field volume a second time,
-with 5 Richardson–Lucy iterations, using the mean particle image of the first volume as the
-PSF (:mod:`track.psf_estimate`). This sharpens the elongated particle images and suppresses
-their halos before segmentation.
+with 5 Richardson–Lucy iterations (:class:`DeconvolveSettings`), using the mean particle
+image of the first volume as the PSF (:mod:`track.psf_estimate`). This sharpens the elongated
+particle images and suppresses their halos before segmentation.
 
 The update of Richardson (1972) and Lucy (1974) for ``y ≈ h * x`` is
 
@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import threading
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft as sfft
@@ -47,6 +48,25 @@ from .psf_estimate import check_psf
 log = logging.getLogger(__name__)
 
 _TINY = 1e-6
+
+
+@dataclass(frozen=True)
+class DeconvolveSettings:
+    """Settings of :func:`deconvolve`; :class:`track.detect.DetectSettings` takes its
+    ``deconvolution_iterations`` default from here.
+
+    Parameters
+    ----------
+    iterations : int
+        Number of Richardson–Lucy updates, ≥ 0 (paper: 5; 0 returns the clipped volume).
+    """
+
+    iterations: int = 5
+
+    def __post_init__(self) -> None:
+        with raised_as(InputError):
+            it = int_in_range(self.iterations, "iterations", 0)
+        object.__setattr__(self, "iterations", it)
 
 
 class _Convolver:
@@ -132,8 +152,10 @@ def _operator(shape: tuple[int, ...], kernel: np.ndarray) -> tuple[_Convolver, n
     return conv, norm
 
 
-def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.ndarray:
-    """Richardson–Lucy deconvolution of a volume with a particle PSF (paper: 5 iterations).
+def deconvolve(
+    volume: np.ndarray, psf: np.ndarray, settings: DeconvolveSettings | None = None
+) -> np.ndarray:
+    """Richardson–Lucy deconvolution of a volume with a particle PSF.
 
     Parameters
     ----------
@@ -142,8 +164,8 @@ def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.n
     psf : ndarray, shape (mz, my, mx)
         Particle PSF with odd size along every axis, centred on its middle voxel, on the same
         voxel grid as ``volume``; normalised here to unit sum.
-    iterations : int
-        Number of RL updates, ≥ 0 (0 returns the clipped volume).
+    settings : DeconvolveSettings, optional
+        The iteration count (default ``DeconvolveSettings()``).
 
     Returns
     -------
@@ -154,12 +176,15 @@ def deconvolve(volume: np.ndarray, psf: np.ndarray, iterations: int = 5) -> np.n
     Raises
     ------
     InputError
-        For a bad volume, PSF or iteration count.
+        For a bad volume, PSF or settings.
     """
     vol = check_volume(volume)
     kernel = check_psf(psf)
-    with raised_as(InputError):
-        iterations = int_in_range(iterations, "iterations", 0)
+    if settings is None:
+        settings = DeconvolveSettings()
+    elif not isinstance(settings, DeconvolveSettings):
+        raise InputError(f"settings must be a DeconvolveSettings, got {type(settings).__name__}")
+    iterations = settings.iterations
     y = np.clip(vol, 0.0, None).astype(np.float32)
     if iterations == 0 or not float(y.max()) > 0:
         return y

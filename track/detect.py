@@ -49,12 +49,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import finite_float, int_in_range, nonnegative_float, per_axis
+
 from ._threads import gaussian_filter
-from .deconvolve import deconvolve
+from .deconvolve import DeconvolveSettings, deconvolve
 from .errors import InputError, TrackingError
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
 from .psf_estimate import check_psf, estimate_psf, particle_fwhm_vox
-from .segment import FACE_VOX, MIN_AUTO_VOX, interior, median_and_sigma, segment
+from .segment import (
+    FACE_VOX,
+    MIN_AUTO_VOX,
+    SegmentSettings,
+    interior,
+    median_and_sigma,
+    segment,
+)
 
 log = logging.getLogger(__name__)
 
@@ -67,16 +77,10 @@ PSF_MIN_FWHM_VOX = 2.0
 #: (a narrower image's shape is sampling noise, which the shape test would read as shape).
 SMOOTH_MIN_VOX = PSF_MIN_FWHM_VOX / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 
-#: :class:`DetectSettings` fields passed on to :func:`track.segment.segment` as they are.
-SEGMENT_SETTINGS = (
-    "threshold",
-    "auto_k_sigma",
-    "blob_min_vox",
-    "blob_max_vox",
-    "auto_size_factors",
-    "max_rel_aspect",
-    "clump_prominence",
-)
+#: :class:`DetectSettings` fields that are the :class:`track.segment.SegmentSettings` of
+#: :func:`track.segment.segment` (their defaults are defined there).
+SEGMENT_SETTINGS = tuple(f.name for f in dataclasses.fields(SegmentSettings))
+_SEGMENT = SegmentSettings()
 
 
 @dataclass(frozen=True)
@@ -166,16 +170,16 @@ class DetectSettings:
     they are then checked on (``hrvptm`` studies report the coverage of the σ).
     """
 
-    deconvolution_iterations: int = 5
+    deconvolution_iterations: int = DeconvolveSettings.iterations
     psf_box_um: tuple[float, float, float] | None = None
     psf_particles: int = 10
-    threshold: float | str = 0.25
-    auto_k_sigma: float = 5.0
-    blob_min_vox: int | None = None
-    blob_max_vox: int | None = None
-    auto_size_factors: tuple[float, float] = (0.1, 3.0)
-    max_rel_aspect: float = 1.8
-    clump_prominence: float = 0.2
+    threshold: float | str = _SEGMENT.threshold
+    auto_k_sigma: float = _SEGMENT.auto_k_sigma
+    blob_min_vox: int | None = _SEGMENT.blob_min_vox
+    blob_max_vox: int | None = _SEGMENT.blob_max_vox
+    auto_size_factors: tuple[float, float] = _SEGMENT.auto_size_factors
+    max_rel_aspect: float = _SEGMENT.max_rel_aspect
+    clump_prominence: float = _SEGMENT.clump_prominence
     edge_margin_um: float = 0.0
     method: str = "radial"
     half_box_vox: tuple[int, int, int] | None = None
@@ -188,112 +192,62 @@ class DetectSettings:
     min_peak_snr: float = 5.0
 
     def __post_init__(self) -> None:
-        it = self.deconvolution_iterations
-        if isinstance(it, bool) or not isinstance(it, int | np.integer) or it < 0:
-            raise InputError(f"deconvolution_iterations must be an integer >= 0, got {it!r}")
-        if self.psf_box_um is not None:
-            object.__setattr__(self, "psf_box_um", check_triple(self.psf_box_um, "psf_box_um"))
-        n = self.psf_particles
-        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
-            raise InputError(f"psf_particles must be a positive integer, got {n!r}")
-        thr = self.threshold
-        if isinstance(thr, str):
-            if thr != "auto":
-                raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}")
-        elif isinstance(thr, bool) or not isinstance(thr, int | float) or not 0 < thr < 1:
-            raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}")
-        for name in (
-            "auto_k_sigma",
-            "max_rel_aspect",
-            "clump_prominence",
-            "edge_margin_um",
-            "smooth_fwhm",
-            "background_fwhm",
-            "min_peak_snr",
-        ):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise InputError(f"{name} must be a finite number, got {v!r}")
-        if self.auto_k_sigma <= 0:
-            raise InputError(f"auto_k_sigma must be > 0, got {self.auto_k_sigma!r}")
-        if self.max_rel_aspect < 1:
-            raise InputError(f"max_rel_aspect must be >= 1, got {self.max_rel_aspect!r}")
-        if not 0 <= self.clump_prominence < 1:
-            raise InputError(f"clump_prominence must lie in [0, 1), got {self.clump_prominence!r}")
-        if self.edge_margin_um < 0:
-            raise InputError(f"edge_margin_um must be >= 0, got {self.edge_margin_um!r}")
-        if self.min_peak_snr < 0:
-            raise InputError(f"min_peak_snr must be >= 0, got {self.min_peak_snr!r}")
-        if self.smooth_fwhm < 0 or self.background_fwhm < 0:
+        with raised_as(InputError):
+            int_in_range(self.deconvolution_iterations, "deconvolution_iterations", 0)
+            int_in_range(self.psf_particles, "psf_particles", 1)
+            for name in ("edge_margin_um", "smooth_fwhm", "background_fwhm", "min_peak_snr"):
+                nonnegative_float(getattr(self, name), name)
+            sys_um = per_axis(self.sigma_systematic_um, "sigma_systematic_um", positive=False)
+            snr_um = per_axis(self.sigma_snr_um, "sigma_snr_um", positive=False)
+            for name, v in (("sigma_systematic_um", sys_um), ("sigma_snr_um", snr_um)):
+                if min(v) < 0:
+                    raise InputError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+            f = self.sigma_noise_factor
+            if isinstance(f, list | tuple | np.ndarray):
+                f = per_axis(f, "sigma_noise_factor")
+            elif not finite_float(f, "sigma_noise_factor") > 0:
+                raise InputError(f"sigma_noise_factor must be finite and > 0, got {f!r}")
+        if not isinstance(self.deconvolution_iterations, int | np.integer):
             raise InputError(
-                f"smooth_fwhm and background_fwhm must be >= 0, got {self.smooth_fwhm!r} and "
-                f"{self.background_fwhm!r}"
+                "deconvolution_iterations must be an integer >= 0, got "
+                f"{self.deconvolution_iterations!r}"
+            )
+        if not isinstance(self.psf_particles, int | np.integer):
+            raise InputError(
+                f"psf_particles must be a positive integer, got {self.psf_particles!r}"
             )
         if 0 < self.background_fwhm <= self.smooth_fwhm:
             raise InputError(
                 f"background_fwhm ({self.background_fwhm!r}) must exceed smooth_fwhm "
                 f"({self.smooth_fwhm!r}) (or be 0)"
             )
-        for name in ("blob_min_vox", "blob_max_vox"):
-            v = getattr(self, name)
-            if v is not None and (
-                isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1
-            ):
-                raise InputError(f"{name} must be a positive integer or None, got {v!r}")
-        if (
-            self.blob_min_vox is not None
-            and self.blob_max_vox is not None
-            and self.blob_min_vox > self.blob_max_vox
-        ):
-            raise InputError(
-                f"blob_min_vox ({self.blob_min_vox}) must not exceed blob_max_vox "
-                f"({self.blob_max_vox})"
-            )
-        lo_hi = self.auto_size_factors
-        if (
-            not isinstance(lo_hi, tuple | list)
-            or len(lo_hi) != 2
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in lo_hi)
-            or not 0 < lo_hi[0] <= 1 <= lo_hi[1]
-        ):
-            raise InputError(
-                f"auto_size_factors must be two numbers with 0 < low <= 1 <= high, got {lo_hi!r}"
-            )
-        object.__setattr__(self, "auto_size_factors", (float(lo_hi[0]), float(lo_hi[1])))
+        seg = self.segment_settings()  # validates the segmentation fields
+        for name in SEGMENT_SETTINGS:
+            object.__setattr__(self, name, getattr(seg, name))
+        if self.psf_box_um is not None:
+            object.__setattr__(self, "psf_box_um", check_triple(self.psf_box_um, "psf_box_um"))
         if self.method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
         if self.half_box_vox is not None:
             object.__setattr__(
                 self, "half_box_vox", check_triple(self.half_box_vox, "half_box_vox", integer=True)
             )
-        sys_um = check_triple(self.sigma_systematic_um, "sigma_systematic_um", positive=False)
-        if min(sys_um) < 0:
-            raise InputError(f"sigma_systematic_um must be >= 0, got {self.sigma_systematic_um!r}")
         object.__setattr__(self, "sigma_systematic_um", sys_um)
-        snr_um = check_triple(self.sigma_snr_um, "sigma_snr_um", positive=False)
-        if min(snr_um) < 0:
-            raise InputError(f"sigma_snr_um must be >= 0, got {self.sigma_snr_um!r}")
         object.__setattr__(self, "sigma_snr_um", snr_um)
-        f = self.sigma_noise_factor
-        if isinstance(f, list | tuple | np.ndarray):
-            if len(f) != 3 or any(
-                isinstance(v, bool) or not isinstance(v, int | float | np.number) for v in f
-            ):
-                raise InputError(
-                    f"sigma_noise_factor must be a number or 3 numbers (z, y, x), got {f!r}"
-                )
-            f = tuple(float(v) for v in f)
+        if isinstance(f, tuple):
             object.__setattr__(self, "sigma_noise_factor", f)
-        elif isinstance(f, bool) or not isinstance(f, int | float):
-            raise InputError(
-                f"sigma_noise_factor must be a number or 3 numbers (z, y, x), got {f!r}"
-            )
-        if not all(0 < v < math.inf for v in np.atleast_1d(f)):
-            raise InputError(f"sigma_noise_factor must be finite and > 0, got {f!r}")
         if self.localize_on not in ("deconvolved", "input"):
             raise InputError(
                 f"localize_on must be 'deconvolved' or 'input', got {self.localize_on!r}"
             )
+
+    def segment_settings(self) -> SegmentSettings:
+        """The :class:`track.segment.SegmentSettings` these settings hold."""
+        return SegmentSettings(**{name: getattr(self, name) for name in SEGMENT_SETTINGS})
+
+    def deconvolve_settings(self) -> DeconvolveSettings:
+        """The :class:`track.deconvolve.DeconvolveSettings` of the secondary deconvolution."""
+        return DeconvolveSettings(self.deconvolution_iterations)
 
 
 @dataclass(frozen=True)
@@ -639,6 +593,53 @@ def detect_particles(
         or ``sigma_snr_um`` set without an ``snr``.
     """
     t0 = time.perf_counter()
+    vol, spacing, origin, settings, psf, snr_term_um = _check_inputs(
+        volume, voxel_size_um, settings, psf, origin_xyz_um, snr
+    )
+    report: dict = {"volume_shape": list(vol.shape), "voxel_size_um": list(spacing)}
+    if snr is not None:
+        report["snr"] = float(snr)
+    timings: dict = {}
+
+    # the volume particles are found in (``vol`` itself without a lenslet period)
+    found_in, period = vol, None
+    if lenslet_period_vox is not None:
+        period, phase = _check_lenslet(lenslet_period_vox, lenslet_phase_vox)
+        t = time.perf_counter()
+        found_in, report["lenslet_phases"] = equalize_lenslet_phases(vol, period, phase)
+        timings["lenslet_phases_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    work = _secondary_deconvolution(found_in, psf, spacing, settings, report)
+    if settings.deconvolution_iterations > 0:
+        timings["deconvolve_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    # a light-field reconstruction piles the light from outside its field onto its outer
+    # lenslets (s voxels laterally) and depth planes
+    face_fill = None
+    if period is not None:
+        face_fill = (FACE_VOX, max(FACE_VOX, period), max(FACE_VOX, period))
+    seg_vol, plane_sigma = _bandpass(work, settings, report, face_fill)
+    timings["bandpass_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    seg = _segment(seg_vol, spacing, settings, report)
+    timings["segment_s"] = time.perf_counter() - t
+    accepted = _significant_blobs(seg, seg_vol, plane_sigma, settings, report)
+
+    t = time.perf_counter()
+    loc_vol = work if settings.localize_on == "deconvolved" else found_in
+    if accepted and _localize_on_bandpassed(period, report.get("particle_fwhm_vox"), vol.shape):
+        loc_vol = seg_vol
+        report["localized_on"] = "band-passed"
+    located = _localize_blobs(loc_vol, accepted, spacing, settings, snr_term_um, report)
+    timings["localize_s"] = time.perf_counter() - t
+    timings["total_s"] = time.perf_counter() - t0
+    return _detection(located, spacing, origin, settings, seg.threshold, report, timings)
+
+
+def _check_inputs(volume, voxel_size_um, settings, psf, origin_xyz_um, snr) -> tuple:
+    """The validated inputs of :func:`detect_particles`: volume, voxel size, origin, settings,
+    PSF and the camera-SNR term of the σ (``sigma_snr_um / snr``, z, y, x µm)."""
     vol = check_volume(volume)
     spacing = check_voxel_size_um(voxel_size_um)
     origin = check_triple(origin_xyz_um, "origin_xyz_um", positive=False)
@@ -648,89 +649,86 @@ def detect_particles(
         raise InputError(f"settings must be a DetectSettings, got {type(settings).__name__}")
     if psf is not None:
         psf = check_psf(psf)
-    snr_term_um = _snr_term(settings.sigma_snr_um, snr)
-    report: dict = {"volume_shape": list(vol.shape), "voxel_size_um": list(spacing)}
-    if snr is not None:
-        report["snr"] = float(snr)
-    timings: dict = {}
+    return vol, spacing, origin, settings, psf, _snr_term(settings.sigma_snr_um, snr)
 
-    # the volume particles are found in (``vol`` itself without a lenslet period)
-    found_in = vol
-    if lenslet_period_vox is not None:
-        period, phase = _check_lenslet(lenslet_period_vox, lenslet_phase_vox)
-        t = time.perf_counter()
-        found_in, report["lenslet_phases"] = equalize_lenslet_phases(vol, period, phase)
-        timings["lenslet_phases_s"] = time.perf_counter() - t
-    work = found_in.astype(np.float32)
-    if settings.deconvolution_iterations > 0:
-        t = time.perf_counter()
-        fwhm_in = particle_fwhm_vox(found_in) if psf is None else None
-        if fwhm_in is not None and fwhm_in.min() < PSF_MIN_FWHM_VOX:
-            # an image this sharp (many RL iterations) is not resolved on the voxel grid: a
-            # PSF made of it is sampling noise, and deconvolving with it only sharpens noise
-            report["psf"] = (
-                f"not estimated: the particles are {[float(v) for v in fwhm_in]} voxels wide "
-                f"(FWHM), under {PSF_MIN_FWHM_VOX} along some axis (unresolved)"
-            )
-            log.info("detect_particles: no deconvolution: %s", report["psf"])
-        elif psf is None:
-            try:
-                psf = estimate_psf(
-                    found_in,
-                    spacing,
-                    n_particles=settings.psf_particles,
-                    box_um=settings.psf_box_um,
-                )
-                report["psf"] = f"estimated from this volume, shape {list(psf.shape)}"
-            except (TrackingError, InputError) as exc:
-                log.warning("detect_particles: no deconvolution: %s", exc)
-                report["psf"] = f"not available: {exc}"
-        else:
-            report["psf"] = f"given, shape {list(psf.shape)}"
-        if psf is not None:
-            work = deconvolve(found_in, psf, settings.deconvolution_iterations)
-            report["deconvolution_iterations"] = settings.deconvolution_iterations
-            fwhm_out = particle_fwhm_vox(work) if fwhm_in is not None else None
-            if fwhm_out is not None and fwhm_out.min() < PSF_MIN_FWHM_VOX:
-                # a PSF estimated from resolved maxima that deconvolves them to unresolved
-                # images was made of noise, not particles (a particle-free light-field
-                # volume: face light and noise spikes, the PSF of one "isolated particle"),
-                # and the deconvolution sharpened noise into blobs: the input is used
-                work = found_in.astype(np.float32)
-                report["deconvolution_iterations"] = 0
-                report["psf"] += (
-                    f"; deconvolution discarded: it left the maxima "
-                    f"{[float(v) for v in fwhm_out]} voxels wide (FWHM, from "
-                    f"{[float(v) for v in fwhm_in]}), under {PSF_MIN_FWHM_VOX} along some "
-                    "axis (unresolved)"
-                )
-                log.info("detect_particles: %s", report["psf"])
-        else:
-            report["deconvolution_iterations"] = 0
-        timings["deconvolve_s"] = time.perf_counter() - t
-    else:
+
+def _secondary_deconvolution(
+    found_in: np.ndarray,
+    psf: np.ndarray | None,
+    spacing: tuple[float, float, float],
+    settings: DetectSettings,
+    report: dict,
+) -> np.ndarray:
+    """The volume segmentation starts from (float32): ``found_in`` deconvolved with ``psf``
+    (given, or estimated from ``found_in``), or ``found_in`` itself when the deconvolution is
+    off, has no PSF or would only sharpen noise (module docstring); ``report["psf"]`` and
+    ``report["deconvolution_iterations"]`` say which."""
+    if settings.deconvolution_iterations == 0:
         report["psf"] = "not used (deconvolution off)"
         report["deconvolution_iterations"] = 0
+        return found_in.astype(np.float32)
+    fwhm_in = particle_fwhm_vox(found_in) if psf is None else None
+    if fwhm_in is not None and fwhm_in.min() < PSF_MIN_FWHM_VOX:
+        # an image this sharp (many RL iterations) is not resolved on the voxel grid: a PSF
+        # made of it is sampling noise, and deconvolving with it only sharpens noise
+        report["psf"] = (
+            f"not estimated: the particles are {[float(v) for v in fwhm_in]} voxels wide "
+            f"(FWHM), under {PSF_MIN_FWHM_VOX} along some axis (unresolved)"
+        )
+        log.info("detect_particles: no deconvolution: %s", report["psf"])
+    elif psf is None:
+        try:
+            psf = estimate_psf(
+                found_in, spacing, n_particles=settings.psf_particles, box_um=settings.psf_box_um
+            )
+            report["psf"] = f"estimated from this volume, shape {list(psf.shape)}"
+        except (TrackingError, InputError) as exc:
+            log.warning("detect_particles: no deconvolution: %s", exc)
+            report["psf"] = f"not available: {exc}"
+    else:
+        report["psf"] = f"given, shape {list(psf.shape)}"
+    if psf is None:
+        report["deconvolution_iterations"] = 0
+        return found_in.astype(np.float32)
+    work = deconvolve(found_in, psf, settings.deconvolve_settings())
+    report["deconvolution_iterations"] = settings.deconvolution_iterations
+    fwhm_out = particle_fwhm_vox(work) if fwhm_in is not None else None
+    if fwhm_out is not None and fwhm_out.min() < PSF_MIN_FWHM_VOX:
+        # a PSF estimated from resolved maxima that deconvolves them to unresolved images was
+        # made of noise, not particles (a particle-free light-field volume: face light and
+        # noise spikes, the PSF of one "isolated particle"), and the deconvolution sharpened
+        # noise into blobs: the input is used
+        report["deconvolution_iterations"] = 0
+        report["psf"] += (
+            f"; deconvolution discarded: it left the maxima "
+            f"{[float(v) for v in fwhm_out]} voxels wide (FWHM, from "
+            f"{[float(v) for v in fwhm_in]}), under {PSF_MIN_FWHM_VOX} along some "
+            "axis (unresolved)"
+        )
+        log.info("detect_particles: %s", report["psf"])
+        return found_in.astype(np.float32)
+    return work
 
-    t = time.perf_counter()
-    # a light-field reconstruction piles the light from outside its field onto its outer
-    # lenslets (s voxels laterally) and depth planes
-    face_fill = None
-    if lenslet_period_vox is not None:
-        face_fill = (FACE_VOX, max(FACE_VOX, period), max(FACE_VOX, period))
-    seg_vol, plane_sigma = _bandpass(work, settings, report, face_fill)
-    timings["bandpass_s"] = time.perf_counter() - t
-    t = time.perf_counter()
+
+def _segment(seg_vol: np.ndarray, spacing, settings: DetectSettings, report: dict):
+    """:func:`track.segment.segment` of the band-passed volume with the edge margin of
+    ``settings``; resolved particles (one measured FWHM apart) are split, not rejected."""
     margin_vox = tuple(math.ceil(settings.edge_margin_um / d) for d in spacing)
-    seg = segment(
+    return segment(
         seg_vol,
         spacing,
+        settings.segment_settings(),
         edge_margin_vox=margin_vox,
-        # particles at least one measured FWHM apart are resolved: split, not rejected
         split_min_sep_vox=report.get("particle_fwhm_vox"),
-        **{name: getattr(settings, name) for name in SEGMENT_SETTINGS},
     )
-    timings["segment_s"] = time.perf_counter() - t
+
+
+def _significant_blobs(
+    seg, seg_vol: np.ndarray, plane_sigma: np.ndarray | None, settings: DetectSettings, report
+) -> list:
+    """The accepted blobs of ``seg`` whose peak stands ``min_peak_snr`` noise σ above the
+    background (the volume's σ, or that of the blob's depth plane where larger); the
+    segmentation's counts and rejections, these included, go to ``report``."""
     accepted = seg.accepted
     noise = report.get("noise_sigma_segmented")
     floor = settings.min_peak_snr * noise if noise is not None else 0.0
@@ -757,8 +755,6 @@ def detect_particles(
         for b, f in zip(accepted, floors, strict=True)
         if b.peak - base < f
     ]
-    n_insignificant = len(insignificant)
-    accepted = significant
     report.update(
         {
             "threshold": seg.threshold,
@@ -771,64 +767,85 @@ def detect_particles(
                 b.as_dict() for b in [*seg.rejected, *insignificant] if b.n_vox >= MIN_AUTO_VOX
             ],
             "rejected_specks": sum(1 for b in seg.rejected if b.n_vox < MIN_AUTO_VOX),
-            "rejections": {**seg.rejections, "insignificant": n_insignificant},
+            "rejections": {**seg.rejections, "insignificant": len(insignificant)},
             "min_peak": base + floor,
         }
     )
+    return significant
 
-    t = time.perf_counter()
-    if accepted:
-        if settings.half_box_vox is not None:
-            half = settings.half_box_vox
-        else:
-            ext = np.array(
-                [
-                    [b.bbox[1] - b.bbox[0], b.bbox[3] - b.bbox[2], b.bbox[5] - b.bbox[4]]
-                    for b in accepted
-                ],
-                dtype=float,
-            )
-            half = tuple(int(v) for v in np.maximum(np.ceil(0.75 * np.median(ext, axis=0)), 2))
-        seeds = np.array([b.centroid_vox for b in accepted])
-        # the phase-equalised input when a lenslet period is given: the noise spikes of a
-        # few phases pull the radial-symmetry centre off (s = 15, 3 iterations, SNR 5, seed
-        # 2: 3 of 6 particles localised within the tolerances on the original intensities,
-        # 6 of 6 on the equalised ones)
-        loc_vol = work if settings.localize_on == "deconvolved" else found_in
-        fwhm = report.get("particle_fwhm_vox")
-        if (
-            lenslet_period_vox is not None
-            and fwhm is not None
-            and any(w > 0.5 * n for w, n in zip(fwhm, vol.shape, strict=True))
-        ):
-            # particles longer than half the volume (one iteration: the out-of-focus cone
-            # spans the depth): the box around each is cut by the faces and the pedestal
-            # it holds pulls the centre towards the middle (1 iteration, SNR 5: 2-3 of 6
-            # localised 70-100 µm off in z); the band-passed volume has no pedestal
-            loc_vol = seg_vol
-            report["localized_on"] = "band-passed"
-        loc = localize(loc_vol, seeds, spacing, half_box_vox=half, method=settings.method)
-        keep = loc.ok
-        n_ok = int(keep.sum())
-        pos_vox = loc.positions_vox[keep]
-        factor = np.asarray(settings.sigma_noise_factor, dtype=float)  # scalar or (z, y, x)
-        rand_zyx_um = np.hypot(factor * loc.sigma_vox[keep] * np.asarray(spacing), snr_term_um)
-        sig_zyx_um = np.hypot(rand_zyx_um, np.asarray(settings.sigma_systematic_um))
-        report["noise_sigma_median"] = float(np.nanmedian(loc.noise_sigma)) if n_ok else None
-        report["half_box_vox"] = list(half)
-        report["localization_fallbacks"] = int(loc.fallback.sum())
-        report["localization_failures"] = int((~keep).sum())
-        intens = np.array([b.peak for b in accepted], dtype=float)[keep]
-        sizes = np.array([b.n_vox for b in accepted], dtype=np.int64)[keep]
-    else:
-        pos_vox = np.zeros((0, 3))
-        sig_zyx_um = rand_zyx_um = np.zeros((0, 3))
-        intens = np.zeros(0)
-        sizes = np.zeros(0, dtype=np.int64)
+
+def _localize_on_bandpassed(period: int | None, fwhm, shape) -> bool:
+    """Whether a light-field volume's particles are longer than half the volume along some
+    axis (one iteration: the out-of-focus cone spans the depth): the box around each is cut
+    by the faces and the pedestal it holds pulls the centre towards the middle (1 iteration,
+    SNR 5: 2-3 of 6 localised 70-100 µm off in z); the band-passed volume has no pedestal."""
+    return (
+        period is not None
+        and fwhm is not None
+        and any(w > 0.5 * n for w, n in zip(fwhm, shape, strict=True))
+    )
+
+
+@dataclass(frozen=True)
+class _Located:
+    """Localised particles (rows of the accepted blobs that were localised)."""
+
+    pos_vox: np.ndarray  # (N, 3) z, y, x voxels
+    sig_zyx_um: np.ndarray  # (N, 3) total σ, µm
+    rand_zyx_um: np.ndarray  # (N, 3) random part of the σ, µm
+    intensities: np.ndarray  # (N,)
+    sizes: np.ndarray  # (N,) int64
+
+
+def _half_box(accepted, settings: DetectSettings) -> tuple[int, int, int]:
+    """The localisation half box: the setting, or 1.5 × the median blob half-extent per axis
+    (at least 2 voxels)."""
+    if settings.half_box_vox is not None:
+        return settings.half_box_vox
+    ext = np.array(
+        [[b.bbox[1] - b.bbox[0], b.bbox[3] - b.bbox[2], b.bbox[5] - b.bbox[4]] for b in accepted],
+        dtype=float,
+    )
+    return tuple(int(v) for v in np.maximum(np.ceil(0.75 * np.median(ext, axis=0)), 2))
+
+
+def _localize_blobs(
+    loc_vol: np.ndarray, accepted, spacing, settings: DetectSettings, snr_term_um, report: dict
+) -> _Located:
+    """Sub-voxel positions and σ of the ``accepted`` blobs in ``loc_vol`` (the phase-equalised
+    input when a lenslet period is given: the noise spikes of a few phases pull the
+    radial-symmetry centre off); the localiser's counts go to ``report``."""
+    if not accepted:
         report["localization_fallbacks"] = 0
         report["localization_failures"] = 0
-    timings["localize_s"] = time.perf_counter() - t
-    timings["total_s"] = time.perf_counter() - t0
+        empty = np.zeros((0, 3))
+        return _Located(np.zeros((0, 3)), empty, empty, np.zeros(0), np.zeros(0, dtype=np.int64))
+    half = _half_box(accepted, settings)
+    seeds = np.array([b.centroid_vox for b in accepted])
+    loc = localize(loc_vol, seeds, spacing, half_box_vox=half, method=settings.method)
+    keep = loc.ok
+    n_ok = int(keep.sum())
+    factor = np.asarray(settings.sigma_noise_factor, dtype=float)  # scalar or (z, y, x)
+    rand_zyx_um = np.hypot(factor * loc.sigma_vox[keep] * np.asarray(spacing), snr_term_um)
+    sig_zyx_um = np.hypot(rand_zyx_um, np.asarray(settings.sigma_systematic_um))
+    report["noise_sigma_median"] = float(np.nanmedian(loc.noise_sigma)) if n_ok else None
+    report["half_box_vox"] = list(half)
+    report["localization_fallbacks"] = int(loc.fallback.sum())
+    report["localization_failures"] = int((~keep).sum())
+    return _Located(
+        loc.positions_vox[keep],
+        sig_zyx_um,
+        rand_zyx_um,
+        np.array([b.peak for b in accepted], dtype=float)[keep],
+        np.array([b.n_vox for b in accepted], dtype=np.int64)[keep],
+    )
+
+
+def _detection(
+    located: _Located, spacing, origin, settings: DetectSettings, threshold, report, timings
+) -> Detection:
+    """The :class:`Detection` of the localised particles, with the report's final counts."""
+    pos_vox = located.pos_vox
     report["counts"]["localized"] = int(pos_vox.shape[0])
     report["rejections"]["localization"] = report["localization_failures"]
     log.info(
@@ -840,17 +857,17 @@ def detect_particles(
     report["empty"] = bool(pos_vox.shape[0] == 0)
     report["timings"] = timings
     if report["empty"]:
-        log.warning("detect_particles: no particle found (threshold %.4g)", seg.threshold)
+        log.warning("detect_particles: no particle found (threshold %.4g)", threshold)
     else:
         log.info("detect_particles: %d particles in %.2f s", pos_vox.shape[0], timings["total_s"])
     return Detection(
         positions_um=voxel_to_um(pos_vox, spacing, origin),
         positions_vox=pos_vox,
-        intensities=intens,
-        sizes_vox=sizes,
+        intensities=located.intensities,
+        sizes_vox=located.sizes,
         report=report,
         voxel_size_um=spacing,
         origin_xyz_um=origin,
-        sigma_um=sig_zyx_um[:, ::-1].copy(),
-        sigma_random_um=rand_zyx_um[:, ::-1].copy(),
+        sigma_um=located.sig_zyx_um[:, ::-1].copy(),
+        sigma_random_um=located.rand_zyx_um[:, ::-1].copy(),
     )

@@ -498,7 +498,7 @@ def localize(
     volume: np.ndarray,
     seeds_vox: np.ndarray,
     voxel_size_um: Sequence[float],
-    half_box_vox: Sequence[int] = (6, 3, 3),
+    half_box_vox: Sequence[int],
     method: str = "radial",
     noise_sigma: float | None = None,
 ) -> Localization:
@@ -515,7 +515,9 @@ def localize(
         ``(dz, dy, dx)`` (µm).
     half_box_vox : sequence of 3 int
         Patch half-size ``(hz, hy, hx)`` in voxels: the patch is ``2 h + 1`` voxels per axis
-        (cut at the volume's faces), each ≥ 1. Cover about 2–3 σ of the particle image.
+        (cut at the volume's faces), each ≥ 1. Cover about 2–3 σ of the particle image
+        (:func:`track.detect.detect_particles` sizes it from the blobs, ``DetectSettings.
+        half_box_vox``).
     method : {"radial", "centroid"}
         ``"radial"``: :func:`radial_symmetry_3d`, falling back to :func:`weighted_centroid`
         where it is not finite or lies outside the patch; ``"centroid"``: the centroid only.

@@ -8,8 +8,8 @@ the same with documented automatic choices:
 
 Threshold
     A float ``t`` in (0, 1) is a fraction of the intensity range:
-    ``min + t (max − min)`` (the paper's 0.25). ``"auto"`` is a robust noise threshold
-    ``median + k σ`` with ``σ = 1.4826 MAD`` (``k = auto_k_sigma``, default 5): particles
+    ``min + t (max − min)`` (the paper's 0.25, the default). ``"auto"`` is a robust noise
+    threshold ``median + k σ`` with ``σ = 1.4826 MAD`` (``k = auto_k_sigma``): particles
     fill a small fraction of a seeded volume, so the median and MAD describe the background
     and its noise. Unlike Otsu's method it does not assume two classes of comparable size,
     and unlike a fraction of the maximum it does not depend on the brightest particle. It is
@@ -68,6 +68,9 @@ import numpy as np
 from scipy import ndimage
 from skimage.morphology import h_maxima
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import finite_float, fixed_length, int_in_range, positive_float
+
 from .errors import InputError
 from .localize import check_triple, check_volume, check_voxel_size_um
 
@@ -82,6 +85,84 @@ SPLIT_DIP = 0.5
 #: iterations) are deep-valleyed but fainter (measured 0.37–0.51 of the main lobe).
 SPLIT_MIN_RATIO = 0.7
 """Smallest blob (voxels) taken into the automatic size reference."""
+
+
+@dataclass(frozen=True)
+class SegmentSettings:
+    """Settings of :func:`segment` (module docstring); :class:`track.detect.DetectSettings`
+    takes its segmentation defaults from here.
+
+    Parameters
+    ----------
+    threshold : float or "auto"
+        Fraction of the intensity range in (0, 1) (paper: 0.25), or ``"auto"``.
+    auto_k_sigma : float
+        ``k`` of the automatic threshold ``median + k σ`` (> 0).
+    blob_min_vox, blob_max_vox : int or None
+        Blob size limits (voxels); None chooses each from the size histogram.
+    auto_size_factors : tuple of 2 float
+        Automatic limits as factors of the voxel-weighted median blob size
+        (``0 < low <= 1 <= high``).
+    max_rel_aspect : float
+        Largest accepted relative aspect ratio (≥ 1) against the median blob, unless the
+        blobs' own scatter is wider (module docstring).
+    clump_prominence : float
+        Prominence, as a fraction of ``peak − threshold``, that makes a second maximum count,
+        in [0, 1); 0 disables the clump test.
+    """
+
+    threshold: float | str = 0.25
+    auto_k_sigma: float = 5.0
+    blob_min_vox: int | None = None
+    blob_max_vox: int | None = None
+    auto_size_factors: tuple[float, float] = (0.1, 3.0)
+    max_rel_aspect: float = 1.8
+    clump_prominence: float = 0.2
+
+    def __post_init__(self) -> None:
+        with raised_as(InputError):
+            thr = self.threshold
+            if thr != "auto":
+                if isinstance(thr, str) or not 0 < finite_float(thr, "threshold") < 1:
+                    raise InputError(
+                        f"threshold must be a fraction in (0, 1) or 'auto', got {thr!r}"
+                    )
+                thr = float(thr)
+            k = positive_float(self.auto_k_sigma, "auto_k_sigma")
+            aspect = finite_float(self.max_rel_aspect, "max_rel_aspect")
+            if not aspect >= 1:
+                raise InputError(f"max_rel_aspect must be >= 1, got {self.max_rel_aspect!r}")
+            prom = finite_float(self.clump_prominence, "clump_prominence")
+            if not 0 <= prom < 1:
+                raise InputError(
+                    f"clump_prominence must lie in [0, 1), got {self.clump_prominence!r}"
+                )
+            sizes = [
+                None if v is None else int_in_range(v, name, 1)
+                for name, v in (
+                    ("blob_min_vox", self.blob_min_vox),
+                    ("blob_max_vox", self.blob_max_vox),
+                )
+            ]
+            if None not in sizes and sizes[0] > sizes[1]:
+                raise InputError(
+                    f"blob_min_vox ({sizes[0]}) must not exceed blob_max_vox ({sizes[1]})"
+                )
+            what = "two numbers with 0 < low <= 1 <= high"
+            lo_hi = fixed_length(self.auto_size_factors, "auto_size_factors", 2, what)
+            lo, hi = (finite_float(v, "auto_size_factors") for v in lo_hi)
+            if not 0 < lo <= 1 <= hi:
+                raise InputError(f"auto_size_factors must be {what}, got {lo_hi!r}")
+        for name, v in (
+            ("threshold", thr),
+            ("auto_k_sigma", k),
+            ("max_rel_aspect", aspect),
+            ("clump_prominence", prom),
+            ("blob_min_vox", sizes[0]),
+            ("blob_max_vox", sizes[1]),
+            ("auto_size_factors", (lo, hi)),
+        ):
+            object.__setattr__(self, name, v)
 
 
 @dataclass(frozen=True)
@@ -223,9 +304,10 @@ def median_and_sigma(values: np.ndarray) -> tuple[float, float]:
     return med, 1.4826 * float(np.median(np.abs(v - med)))
 
 
-def auto_threshold(volume: np.ndarray, k_sigma: float = 5.0) -> float:
+def auto_threshold(volume: np.ndarray, k_sigma: float = SegmentSettings.auto_k_sigma) -> float:
     """Robust noise threshold ``median + k · 1.4826 MAD``, floored at 5 % of the range (the
-    range of the interior, see :func:`interior`)."""
+    range of the interior, see :func:`interior`); ``k_sigma`` defaults to
+    :attr:`SegmentSettings.auto_k_sigma`."""
     vol = check_volume(volume)
     med, sigma = median_and_sigma(vol)
     top = float(interior(vol).max())
@@ -233,14 +315,9 @@ def auto_threshold(volume: np.ndarray, k_sigma: float = 5.0) -> float:
 
 
 def _threshold(vol: np.ndarray, threshold: float | str, k_sigma: float) -> float:
-    if isinstance(threshold, str):
-        if threshold != "auto":
-            raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {threshold!r}")
+    """The intensity threshold of a validated setting (:class:`SegmentSettings`)."""
+    if threshold == "auto":
         return auto_threshold(vol, k_sigma)
-    if isinstance(threshold, bool) or not isinstance(threshold, int | float | np.floating):
-        raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {threshold!r}")
-    if not 0.0 < float(threshold) < 1.0:
-        raise InputError(f"threshold must be a fraction in (0, 1) or 'auto', got {threshold!r}")
     core = interior(vol)
     lo, hi = float(core.min()), float(core.max())
     return lo + float(threshold) * (hi - lo)
@@ -252,33 +329,11 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
-def _number(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise InputError(f"{name} must be a number, got {value!r}")
-    if not np.isfinite(value):
-        raise InputError(f"{name} must be finite, got {value!r}")
-    return float(value)
-
-
-def _positive_int_or_none(name: str, value) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise InputError(f"{name} must be a positive integer or None, got {value!r}")
-    return int(value)
-
-
 def segment(
     volume: np.ndarray,
     voxel_size_um: Sequence[float],
+    settings: SegmentSettings | None = None,
     *,
-    threshold: float | str = "auto",
-    auto_k_sigma: float = 5.0,
-    blob_min_vox: int | None = None,
-    blob_max_vox: int | None = None,
-    auto_size_factors: tuple[float, float] = (0.3, 3.0),
-    max_rel_aspect: float = 1.8,
-    clump_prominence: float = 0.2,
     edge_margin_vox: Sequence[int] = (0, 0, 0),
     split_min_sep_vox: Sequence[float] | None = None,
 ) -> Segmentation:
@@ -290,20 +345,8 @@ def segment(
         Intensities (typically the deconvolved reconstruction).
     voxel_size_um : sequence of 3 float
         ``(dz, dy, dx)`` (µm), for the shape test.
-    threshold : float or "auto"
-        Fraction of the intensity range in (0, 1) (paper: 0.25), or ``"auto"``.
-    auto_k_sigma : float
-        ``k`` of the automatic threshold ``median + k σ``.
-    blob_min_vox, blob_max_vox : int or None
-        Blob size limits (voxels); None chooses each from the size histogram.
-    auto_size_factors : tuple of 2 float
-        Automatic limits as factors of the voxel-weighted median blob size.
-    max_rel_aspect : float
-        Largest accepted relative aspect ratio (≥ 1) against the median blob, unless the
-        blobs' own scatter is wider (module docstring).
-    clump_prominence : float
-        Prominence, as a fraction of ``peak − threshold``, that makes a second maximum count;
-        0 disables the clump test.
+    settings : SegmentSettings, optional
+        Threshold and filters (default ``SegmentSettings()``).
     edge_margin_vox : sequence of 3 int
         Margin ``(z, y, x)`` in voxels a blob's bounding box must keep from the faces;
         0 rejects only blobs touching a face.
@@ -323,31 +366,16 @@ def segment(
     vol = check_volume(volume)
     spacing = np.asarray(check_voxel_size_um(voxel_size_um))
     margin = check_triple(edge_margin_vox, "edge_margin_vox", positive=False, integer=True)
-    bmin = _positive_int_or_none("blob_min_vox", blob_min_vox)
-    bmax = _positive_int_or_none("blob_max_vox", blob_max_vox)
-    if bmin is not None and bmax is not None and bmin > bmax:
-        raise InputError(f"blob_min_vox ({bmin}) must not exceed blob_max_vox ({bmax})")
-    try:
-        f_lo, f_hi = (float(v) for v in auto_size_factors)
-    except (TypeError, ValueError):
-        raise InputError(
-            f"auto_size_factors must be two numbers, got {auto_size_factors!r}"
-        ) from None
-    if not 0 < f_lo <= 1 <= f_hi:
-        raise InputError(
-            f"auto_size_factors must satisfy 0 < low <= 1 <= high, got {auto_size_factors!r}"
-        )
-    max_rel_aspect = _number("max_rel_aspect", max_rel_aspect)
-    clump_prominence = _number("clump_prominence", clump_prominence)
-    auto_k_sigma = _number("auto_k_sigma", auto_k_sigma)
-    if not max_rel_aspect >= 1.0:
-        raise InputError(f"max_rel_aspect must be >= 1, got {max_rel_aspect!r}")
-    if not 0.0 <= float(clump_prominence) < 1.0:
-        raise InputError(f"clump_prominence must lie in [0, 1), got {clump_prominence!r}")
-    if not float(auto_k_sigma) > 0:
-        raise InputError(f"auto_k_sigma must be > 0, got {auto_k_sigma!r}")
+    if settings is None:
+        settings = SegmentSettings()
+    elif not isinstance(settings, SegmentSettings):
+        raise InputError(f"settings must be a SegmentSettings, got {type(settings).__name__}")
+    bmin, bmax = settings.blob_min_vox, settings.blob_max_vox
+    f_lo, f_hi = settings.auto_size_factors
+    max_rel_aspect = settings.max_rel_aspect
+    clump_prominence = settings.clump_prominence
 
-    thr = _threshold(vol, threshold, float(auto_k_sigma))
+    thr = _threshold(vol, settings.threshold, settings.auto_k_sigma)
     mask = vol > thr
     labels, n = ndimage.label(mask, structure=ndimage.generate_binary_structure(3, 1))
     labels = labels.astype(np.int32)

@@ -7,7 +7,7 @@ import pytest
 import tifffile
 from scipy.spatial import cKDTree
 
-from track.deconvolve import deconvolve
+from track.deconvolve import DeconvolveSettings, deconvolve
 from track.detect import (
     PHASE_SIGMA_TOL,
     DetectSettings,
@@ -102,7 +102,7 @@ def test_deconvolution_sharpens_conserves_flux_and_stays_positive(rng):
     centres = random_centres(rng, shape, 6, (14, 8, 8), (12, 10, 10))
     vol = render_blobs(shape, centres, SIGMA)
     psf = _true_psf((21, 11, 11))
-    out = deconvolve(vol, psf, iterations=5)
+    out = deconvolve(vol, psf, DeconvolveSettings(5))
     assert out.shape == shape and out.dtype == np.float32 and out.min() >= 0
     assert out.sum() == pytest.approx(vol.sum(), rel=0.01)
     assert out.max() > 2.0 * vol.max()
@@ -114,12 +114,14 @@ def test_deconvolution_sharpens_conserves_flux_and_stays_positive(rng):
     # noisy data with negative voxels and zero regions: no blow-ups, still non-negative
     noisy = vol + rng.normal(0, 0.05, shape)
     noisy[:, :, :10] = 0.0
-    out2 = deconvolve(noisy, psf, iterations=5)
+    out2 = deconvolve(noisy, psf, DeconvolveSettings(5))
     assert np.all(np.isfinite(out2)) and out2.min() >= 0 and out2.max() < 10 * out.max()
     assert np.all(out2[:, :, :4] == 0)
-    np.testing.assert_array_equal(deconvolve(vol, psf, iterations=0), vol.astype(np.float32))
+    np.testing.assert_array_equal(
+        deconvolve(vol, psf, DeconvolveSettings(0)), vol.astype(np.float32)
+    )
     with pytest.raises(InputError, match="iterations"):
-        deconvolve(vol, psf, iterations=-1)
+        deconvolve(vol, psf, DeconvolveSettings(-1))
     with pytest.raises(InputError, match="odd"):
         deconvolve(vol, np.ones((4, 3, 3)))
 
@@ -128,7 +130,7 @@ def test_deconvolution_keeps_a_uniform_background_uniform_at_the_faces():
     """Bertero–Boccacci boundaries: a constant volume stays constant up to the faces (estimating
     the object on the volume alone piled it onto the faces, ×2 per iteration)."""
     vol = np.full((40, 30, 30), 3.0, dtype=np.float32)
-    out = deconvolve(vol, _true_psf((21, 11, 11)), iterations=5)
+    out = deconvolve(vol, _true_psf((21, 11, 11)), DeconvolveSettings(5))
     assert out.max() < 1.05 * 3.0 and out.min() > 0.95 * 3.0
 
 
@@ -147,8 +149,14 @@ def test_psf_estimate_ignores_bright_face_artefacts(rng):
     centres = random_centres(rng, shape, 4, (14, 8, 8), (14, 12, 12))
     vol = render_blobs(shape, centres, SIGMA)
     vol[:, 0, :] += 10.0 * vol.max()  # a light-field reconstruction's boundary artefact
-    isolated, _ = find_isolated_peaks(vol, (21, 11, 11))
+    isolated, crowded = find_isolated_peaks(vol, (21, 11, 11))
     assert len(isolated) >= 2
+    # every isolated peak is one of the particles (at its centre's voxel), none on the face
+    dist, _ = cKDTree(centres).query(isolated)
+    assert np.all(dist < 1.0), isolated
+    assert np.all(isolated[:, 1] >= 12), isolated  # the particles' margin from y = 0
+    for found in (isolated, crowded):  # the face is not even a candidate
+        assert found.size == 0 or np.all(found[:, 1] > 0)
 
 
 # -- the pipeline ----------------------------------------------------------------------------
@@ -330,11 +338,21 @@ def test_detection_follows_the_particle_scale(rng, sigma, ripple, pedestal):
 
 
 def test_particle_fwhm_measures_the_blobs_not_the_faces(rng):
-    shape = (40, 40, 40)
-    truth = random_centres(rng, shape, 5, (1.0, 10.0, 10.0), (10, 8, 8))
-    vol = render_blobs(shape, truth, (2.0, 1.5, 1.0))
+    """The width is the count of voxels above half the peak on the lines through the peak
+    voxel of the volume smoothed with a 0.7-voxel Gaussian: for a blob centred on a voxel,
+    the odd count ``2 floor(W / 2) + 1`` of the analytic FWHM ``W = 2 sqrt(2 ln 2) σ'``,
+    ``σ'² = σ² + 0.7²``. The σ put ``W / 2`` mid-way between integers, so the count is
+    exact and a width off by one voxel fails."""
+    shape = (40, 40, 48)
+    sigma = np.array([2.0, 1.06, 2.9])
+    truth = np.round(random_centres(rng, shape, 5, (1.0, 12.0, 17.0), (10, 8, 10)))
+    vol = render_blobs(shape, truth, sigma)
     vol[:, :, 0] += 5.0  # a bright boundary artefact
-    np.testing.assert_allclose(particle_fwhm_vox(vol), [5.0, 3.0, 3.0], atol=1.01)
+    half_w = np.sqrt(2 * np.log(2)) * np.sqrt(sigma**2 + 0.7**2)
+    assert np.all(np.abs(half_w - np.round(half_w)) > 0.45)  # far from a count's edge
+    expected = 2 * np.floor(half_w) + 1
+    np.testing.assert_array_equal(expected, [5, 3, 7])
+    np.testing.assert_array_equal(particle_fwhm_vox(vol), expected)
     assert particle_fwhm_vox(np.zeros(shape)) is None
 
 

@@ -98,9 +98,9 @@ def test_localize_many_particles_from_offset_seeds(rng):
     cen, ok_c = localize(vol, seeds, VOXEL, half_box_vox=(6, 3, 3), method="centroid")
     assert ok_c.all() and np.max(np.abs(cen - centres)) < 0.5
     # a seed outside the volume is reported, not raised
-    res = localize(vol, [[50, 0, 0]], VOXEL)
+    res = localize(vol, [[50, 0, 0]], VOXEL, (6, 3, 3))
     assert not res.ok[0] and res.positions_vox.shape == (1, 3)
-    assert localize(vol, np.zeros((0, 3)), VOXEL).positions_vox.shape == (0, 3)
+    assert localize(vol, np.zeros((0, 3)), VOXEL, (6, 3, 3)).positions_vox.shape == (0, 3)
 
 
 @pytest.mark.parametrize(
@@ -189,10 +189,10 @@ def test_noise_estimate_and_localize_sigmas(rng):
     ratio = np.sqrt(np.mean(np.square(errs), axis=0) / np.mean(np.square(sigs), axis=0))
     assert np.all(np.abs(ratio - 1) < 0.3), ratio
     # the centroid's σ (fallback) comes from the same propagation
-    cen = localize(clean + rng.normal(0, noise, shape), seeds, VOXEL, method="centroid")
+    cen = localize(clean + rng.normal(0, noise, shape), seeds, VOXEL, (6, 3, 3), method="centroid")
     assert np.all(np.isfinite(cen.sigma_vox)) and np.all(cen.sigma_vox > 0)
     with pytest.raises(InputError, match="noise_sigma"):
-        localize(clean, seeds, VOXEL, noise_sigma=-1.0)
+        localize(clean, seeds, VOXEL, (6, 3, 3), noise_sigma=-1.0)
     # the fit's residual (departure from point symmetry) measures the noise of one patch
     patch = clean[4:17, 7:14, 7:14] + rng.normal(0, noise, (13, 7, 7))
     est = antisymmetric_noise_sigma(patch, centres[0] - [4, 7, 7])

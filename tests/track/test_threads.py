@@ -40,15 +40,17 @@ def test_deconvolution_same_for_any_thread_count_and_operator_reused(monkeypatch
         -0.5 * np.sum(np.mgrid[-4:5, -2:3, -2:3] ** 2 / [[[[4.0]]], [[[1.0]]], [[[1.0]]]], 0)
     )
     monkeypatch.setenv("HRVPTM_THREADS", "1")
-    one = dc.deconvolve(vol, psf, 3)
+    one = dc.deconvolve(vol, psf, dc.DeconvolveSettings(3))
     conv = dc._LAST["conv"]
-    again = dc.deconvolve(vol * 2, psf, 3)
+    again = dc.deconvolve(vol * 2, psf, dc.DeconvolveSettings(3))
     assert dc._LAST["conv"] is conv  # same shape and PSF: the kernel's transform is reused
     monkeypatch.setenv("HRVPTM_THREADS", "2")
-    two = dc.deconvolve(vol, psf, 3)
+    two = dc.deconvolve(vol, psf, dc.DeconvolveSettings(3))
     np.testing.assert_array_equal(one, two)  # bit for bit
     np.testing.assert_allclose(again, 2 * one, rtol=1e-4, atol=1e-6)  # RL is scale-covariant
-    other = dc.deconvolve(vol, psf[::-1].copy() + 0.01, 3)  # another PSF: a new operator
+    other = dc.deconvolve(
+        vol, psf[::-1].copy() + 0.01, dc.DeconvolveSettings(3)
+    )  # another PSF: a new operator
     assert dc._LAST["conv"] is not conv and not np.array_equal(other, one)
 
 
