@@ -4,6 +4,8 @@ the units and NaN of the ParaView .vti fields."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -339,3 +341,12 @@ def test_trackpy_links_what_track_detect_found(tmp_path):
     assert len(back) == len(linked) and back["track_id"].nunique() == len(truth)
     want = linked.sort_values(["frame", "particle"])[["frame", "particle", "x", "y", "z"]]
     assert np.array_equal(track.to_trackpy(back)[list(want.columns)].to_numpy(), want.to_numpy())
+
+
+def test_import_track_imports_pandas_only_for_the_dataframes():
+    code = (
+        "import sys, track; a = 'pandas' in sys.modules; track.read_tracks; "
+        "print(a, 'pandas' in sys.modules, track.read_tracks is track.dataframes.read_tracks)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True", "True"]
