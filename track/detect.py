@@ -87,6 +87,11 @@ _SEGMENT = SegmentSettings()
 class DetectSettings:
     """Settings of :func:`detect_particles` (defaults follow the paper's Table 1 where it has one).
 
+    The segmentation fields (:data:`SEGMENT_SETTINGS`) are a
+    :class:`track.segment.SegmentSettings` (:meth:`segment_settings`) and
+    ``deconvolution_iterations`` a :class:`track.deconvolve.DeconvolveSettings`
+    (:meth:`deconvolve_settings`): their defaults are defined there, once.
+
     Parameters
     ----------
     deconvolution_iterations : int
