@@ -321,7 +321,11 @@ def test_trackpy_links_what_track_detect_found(tmp_path):
     )
     origin = np.asarray(track.volumes.scan_volumes(tmp_path / "vols")[0].origin_xyz_um)
     truth = origin + centres[:, ::-1] * np.asarray(VOXEL[::-1])  # µm, x y z
+    res = track.read_results(out)  # detection only: particles, no matches, tracks or fields
+    assert res.matches is None and res.tracks is None and res.field_files == {}
+    assert res.summary["command"] == "detect"
     f = track.to_trackpy(track.read_particles(out))
+    pd.testing.assert_frame_equal(f, track.to_trackpy(res.particles))
     assert {"frame", "x", "y", "z"} <= set(f.columns)
     linked = trackpy.link(f, search_range=3.0, memory=0)
     # each detection's blob: the nearest truth centre (moved 1.5 µm per frame), within 1 µm
