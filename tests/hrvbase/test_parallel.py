@@ -127,7 +127,7 @@ def test_cli_options(monkeypatch):
 
 
 def test_unreachable_scheduler_names_the_option(monkeypatch):
-    monkeypatch.setattr("hrvbase.parallel.CONNECT_TIMEOUT_S", 2.0)
+    monkeypatch.setattr("hrvbase.scheduler.CONNECT_TIMEOUT_S", 2.0)
     par = Parallel(scheduler="tcp://127.0.0.1:9")  # discard port: nothing listens
     with pytest.raises(InputError, match=r"^--scheduler tcp://127.0.0.1:9: nothing is listening"):
         list(frame_map(_frame, range(2), parallel=par))

@@ -191,7 +191,7 @@ def test_a_frame_failing_on_a_worker_fails_the_command(dataset4, tmp_path, capsy
     ],
 )
 def test_bad_parallel_options(dataset4, tmp_path, capsys, monkeypatch, option, message):
-    monkeypatch.setattr("hrvbase.parallel.CONNECT_TIMEOUT_S", 2.0)
+    monkeypatch.setattr("hrvbase.scheduler.CONNECT_TIMEOUT_S", 2.0)
     out = tmp_path / "vol"
     rc, _, err = run(capsys, "run", dataset4, *ARGS, *option, "-o", out)
     assert rc == 2
