@@ -174,8 +174,8 @@ def check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: boo
 
 def dataset_optics(dataset: Path):
     """The optics recorded in an lfsim dataset's ``dataset.json`` (None if absent)."""
-    from lfsim.errors import ConfigError
     from hrvbase.io import read_json
+    from lfsim.errors import ConfigError
     from lfsim.optics import Optics
 
     record = read_json(dataset / "dataset.json")
