@@ -21,9 +21,8 @@ one each: :func:`shared_cluster`.
 Shared read-only inputs (a PSF bank, a projector) are a :class:`WorkerContext`: its
 ``build(*args)`` runs at most once per process — in this process for ``workers=1``, once in
 every worker process otherwise — with ``args`` sent to each worker once (``scatter`` with
-``broadcast``), never once per frame. (Sending is as fast as loading from disk: a 41 MB PSF
-bank reached 2 local workers in 0.8–1.0 s by ``scatter``, against 0.7 s for each to load it
-from the PSF cache, and it needs neither a cache nor a file system shared with the workers.)
+``broadcast``), never once per frame: it needs neither a cache nor a file system shared with
+the workers (timings: docs/validation_notes.md, "Time").
 
 Failures. A worker process that dies (killed, out of memory) has its frames redone on
 another one by the scheduler (a finished frame whose result was lost with it, and which the
@@ -70,8 +69,8 @@ from .threads import available_cores
 log = logging.getLogger(__name__)
 
 #: Memory one local worker process needs besides its frames' shared context (bytes): Python
-#: with Dask and the toolkit imported, and a small frame's arrays (a worker of ``recon run`` on
-#: a 300 × 300 px, 3-frame series peaked at 188 MiB).
+#: with Dask and the toolkit imported, and a small frame's arrays (docs/validation_notes.md,
+#: "Time").
 WORKER_BASE_BYTES = 256 * 2**20
 
 
@@ -657,7 +656,7 @@ def shared_cluster(parallel: Parallel | None) -> Iterator[Parallel | None]:
     """One local cluster for several frame maps (e.g. every stage of a study).
 
     For a ``parallel`` that would start a local cluster in every :func:`frame_map`
-    (``workers > 1``, no ``scheduler``), starts it once (≈ 10 s on 2 cores) and yields a
+    (``workers > 1``, no ``scheduler``), starts it once and yields a
     :class:`Parallel` that uses it (its ``scheduler``, the same threads per worker and
     retries), stopping it on exit. Any other ``parallel`` (None, in process, an existing
     scheduler) is yielded as it is. The results are the same either way; a worker keeps the

@@ -99,17 +99,14 @@ class EulerianCumulation:
         (``u_std² = Σ_k u_std,k²``, the same for ``F_std``; the first-order product rule is
         left out). Consecutive increments share a frame's localisation noise, with opposite
         signs, but drop-outs and each increment's own smoothing keep most of it from
-        cancelling: on bench_fields' 11-frame series 61 % / 85 % of the total displacement
-        errors fall within 1σ / 2σ (smoothing bias included), against 32 % / 56 % with the
-        last increment's σ alone.
+        cancelling (coverage of this σ: docs/validation_notes.md, "Gridded fields").
 
         ``increment_field``, the increment gridded on the same grid (:func:`field_on_grid`),
         lends its values, gradients and uncertainties at the displaced positions
         (:func:`_grid_lookup`: trilinear gradients and σ, Taylor-corrected values), instead
-        of evaluating the spline there: exact for the first increment and for affine fields;
-        on bench_fields' 41-frame series the last total differs from the spline's by
-        1e-4 RMS in E (its error against the truth: 2.8e-2), for 17 % less CPU in the fields.
-        Without it the spline is evaluated (:meth:`DisplacementInterpolant.value_and_gradient`,
+        of evaluating the spline there: exact for the first increment and for affine fields,
+        second order in the node spacing elsewhere (docs/validation_notes.md). Without it
+        the spline is evaluated (:meth:`DisplacementInterpolant.value_and_gradient`,
         :meth:`~DisplacementInterpolant.std`).
         """
         x = self._X + self._u

@@ -37,8 +37,9 @@ else the noise level the smoothing residuals imply (:meth:`DisplacementInterpola
 On a grid they are computed on a sub-grid of about one particle spacing and interpolated
 (:data:`STD_GRID_SUB_SPACING`).
 
-Default grid: the particles' bounding box sampled with one isotropic spacing chosen so that
-the grid has about ``target_nodes`` = 50 000 nodes (the paper's value).
+The grids and their settings are in :mod:`track.grid` (re-exported here); the thin-plate
+spline's basis and GCV in :mod:`track.thin_plate`, its evaluation and uncertainties in
+:mod:`track.thin_plate_fit`.
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ class GridSettings:
         Above this many particles the RBF uses only the nearest ``rbf_neighbours``.
     gcv_max_points : int
         Above this many particles ``"gcv"`` chooses λ on a random subset of this many (λ
-        rescaled to the full particle density; about 0.5 s for 1000 on one core).
+        rescaled to the full particle density).
     rbf_neighbours : int
         Neighbours of the local RBF.
     support_radius_um : float, optional

@@ -155,8 +155,8 @@ class _ThinPlateBasis:
     without its last step: ``Q₂ᵀ K Q₂ = Z T Zᵀ`` (``dsytrd``, ``T`` tridiagonal, ``Z`` kept as
     its Householder reflectors), ``T = S diag(γ) Sᵀ`` (``dstevd``, divide and conquer), and
     ``V = Z S`` is never formed: ``Z`` is applied to the few vectors that need it (``dormqr``,
-    :meth:`_z`). The same γ and ``V`` as ``eigh`` (bit for bit on bench_fields' series) for
-    about 60 % of its time (the N × N back-transformation was 40 % of it).
+    :meth:`_z`). The same γ and ``V`` as ``eigh`` without its N × N back-transformation
+    (benchmarks/README.md, ``bench_fields.py``).
     """
 
     def __init__(self, X: np.ndarray) -> None:

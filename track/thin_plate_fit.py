@@ -24,16 +24,13 @@ if TYPE_CHECKING:
 #: order of its square times σ²): :meth:`DisplacementInterpolant.std`.
 STD_MODE_CUTOFF = 1e-4
 #: The same for the uncertainties of gridded fields (:func:`field_on_grid`), where the cost
-#: matters (measured on bench_fields' series: 36 of 480 modes, u σ within 0.3 % and gradient
-#: σ within 2.5 % of the value with every mode).
+#: matters (its accuracy: benchmarks/README.md, ``bench_fields.py``).
 STD_GRID_MODE_CUTOFF = 3e-2
 #: The gridded fields' uncertainties are computed on a sub-grid (every ``k``-th node along each
 #: axis, and the last) whose spacing is at most this many median nearest-neighbour distances
 #: of the particles, and interpolated (trilinear) in between: they vary over a particle
-#: spacing, not a node spacing. Measured on bench_fields' series (``nodes_per_spacing=2``,
-#: ``k = 2``): ``u_std`` and ``F_std`` within 3.6 % of every node's own (median 0.4 % / 0.1 %);
-#: on a clustered cloud with σ varying 5× between particles (tests) median 1 %, 99th
-#: percentile 6 % / 11 %, up to 17 % / 37 % next to isolated particles. 0: every node.
+#: spacing, not a node spacing (its accuracy: benchmarks/README.md, ``bench_fields.py``).
+#: 0: every node.
 STD_GRID_SUB_SPACING = 1.0
 #: Rows of query points evaluated at once (a block of ``rows × N`` kernel values).
 _BLOCK_ROWS = 256
@@ -125,8 +122,8 @@ class _ThinPlateFit:
         With ``single``, ``log`` is taken in single precision (a third of the time of
         double's; the rest stays double, and the log is of ``r²`` over the centres' squared
         extent, near 1): values and exact gradients then carry a relative error of about
-        1e-7 of the field's magnitude (measured on bench_fields' series: 6e-6 of ``u_std``,
-        3e-6 of ``F_std``), far below any noise, but too rough for finite
+        1e-7 of the field's magnitude (benchmarks/README.md), far below any noise, but too
+        rough for finite
         differences with tiny steps, so only the gridded fields and the Eulerian composition
         (exact gradients) use it. ``r`` is clamped at ``sqrt(_R2_FLOOR)``: at a centre
         ``r² log r`` → 0 and its gradient term ``(q − x) φ'(r)/r`` → 0 with any finite log.
@@ -293,8 +290,8 @@ class _ThinPlateFit:
         Xc = self.basis.Xc
         r = keep.size
         # float32 weights: the product is the largest of the grid (P × N × 5 r) and variances
-        # need no more (measured on bench_fields' series: 2e-6 of u_std and F_std); each
-        # block computed in double and rounded once
+        # need no more (benchmarks/README.md, bench_fields.py); each block computed in double
+        # and rounded once
         scales = np.vstack([np.ones(Xc.shape[0]), self._xsq, Xc.T])  # (5, N)
         Wb = np.empty((Xc.shape[0], 5 * r), dtype=np.float32)
         Wb[:, :r] = Bk
