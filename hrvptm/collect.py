@@ -93,8 +93,9 @@ def _overview(loaded) -> list[str]:
     lines = [
         "## Overview",
         "",
-        "| study | quantity | paper | ours (no inverse crime) | ours (matched model) |",
-        "|---|---|---|---|---|",
+        "| study | quantity | paper | ours (no inverse crime) | ours (matched model) "
+        "| ours, specimen left out (as air) |",
+        "|---|---|---|---|---|---|",
     ]
     times = [
         "",
@@ -177,7 +178,7 @@ def _overview_rows(data: dict) -> tuple[list[str], list[str]]:
     name = data["study"]["experiment"]["experiment"]["name"]
     for row in data.get("comparison", []):
         cells = []
-        for variant in ("mismatched", "matched"):
+        for variant in ("mismatched", "matched", "as_air"):
             if variant not in row:
                 cells.append("")
                 continue

@@ -12,6 +12,9 @@ are relative to the TOML file's folder. Lengths in µm::
     recon_scene = "../paper_4x.xml"  # forward model of the reconstruction: the one a user
                                    #   has for real data (default: the experiment's scene)
     matched = true                 # also run the matched model: render with recon_scene
+    specimen_as_air = true         # also reconstruct the same frames as if the specimen were
+                                   #   air (recon_scene without its interfaces): the error of
+                                   #   a model that leaves the specimen out
     match_radius_um = 30           # largest distance of a detection from its true particle
     time_step_s = 0.002            # frame interval, for time axes (Fig. 7); default: none
     group_size = 2                 # pairs: frames per group of identical shots (Fig. 4c: 3)
@@ -109,6 +112,7 @@ class StudySpec:
     figure: str = ""
     recon_scene: Path | None = None
     matched: bool = False
+    specimen_as_air: bool = False
     match_radius_um: float = 30.0
     time_step_s: float | None = None
     group_size: int = 2
@@ -120,6 +124,10 @@ class StudySpec:
             raise StudyConfigError(f"figure must be one of {FIGURES} or empty, got {self.figure!r}")
         if not isinstance(self.matched, bool):
             raise StudyConfigError(f"matched must be true or false, got {self.matched!r}")
+        if not isinstance(self.specimen_as_air, bool):
+            raise StudyConfigError(
+                f"specimen_as_air must be true or false, got {self.specimen_as_air!r}"
+            )
         if not _num(self.match_radius_um) or self.match_radius_um <= 0:
             raise StudyConfigError(
                 f"match_radius_um must be a number > 0 (µm), got {self.match_radius_um!r}"
@@ -133,6 +141,9 @@ class StudySpec:
         if self.recon_scene is not None:
             object.__setattr__(self, "recon_scene", Path(self.recon_scene))
 
+
+#: The variant that reconstructs the frames as if the specimen were air.
+AS_AIR = "as_air"
 
 #: Keys of ``[study]``.
 STUDY_KEYS = tuple(f.name for f in dataclasses.fields(StudySpec))
@@ -203,13 +214,26 @@ class Study:
         ``"mismatched"``: the experiment as given, rendered with another model than the
         reconstruction's (``"matched"`` when its scene is ``recon_scene`` itself); with
         ``matched = true`` also ``"matched"``: the same experiment rendered through
-        ``recon_scene``, the forward model of the reconstruction."""
-        out = {"mismatched" if self.is_crime_free else "matched": self.experiment}
+        ``recon_scene``, the forward model of the reconstruction; with ``specimen_as_air =
+        true`` also ``"as_air"``: the first variant's frames (not rendered again)
+        reconstructed with ``recon_scene`` as if its specimen were air
+        (:func:`hrvptm.stages.recon_optics`)."""
+        first = "mismatched" if self.is_crime_free else "matched"
+        out = {first: self.experiment}
         if self.study.matched and self.is_crime_free:
             out["matched"] = dataclasses.replace(
                 self.experiment, scene=self.recon_scene, optics=None
             )
+        if self.study.specimen_as_air:
+            out[AS_AIR] = self.experiment
         return out
+
+    def dataset_variant(self, variant: str) -> str:
+        """The variant whose rendered dataset ``variant`` reconstructs (itself, but for
+        ``"as_air"``, which reuses the first variant's frames)."""
+        if variant == AS_AIR:
+            return "mismatched" if self.is_crime_free else "matched"
+        return variant
 
     @property
     def is_crime_free(self) -> bool:
@@ -419,6 +443,12 @@ def _check_recon_scene(where: str, study: Study) -> None:
             f"than the experiment's scene {str(study.experiment.scene)!r}: {'; '.join(diffs)}; "
             "a study reconstructs with the optics it renders with (only the lenslet model, "
             "glass or ideal, may differ)"
+        )
+    if study.study.specimen_as_air and not optics.has_interfaces:
+        raise StudyConfigError(
+            f"{where}: [study] specimen_as_air = true, but recon_scene "
+            f"{str(study.recon_scene)!r} has no specimen to leave out (medium_ior = "
+            f"immersion_ior = {optics.immersion_ior:g}, no cover glass)"
         )
     grid = study.track.series.grid
     if study.study.kind != "series" or grid.spacing_um is None or study.recon.roi_px is not None:

@@ -2,7 +2,8 @@
 
 Every function takes ``{variant: Analysis}`` (:mod:`hrvptm.analysis`) and writes one PNG
 atomically; it returns the path. Variants are drawn in the same panels (solid: the
-no-inverse-crime run, dashed: the matched model) so the gap between them is visible.
+no-inverse-crime run, dashed: the matched model, dotted: the frames reconstructed as if the
+specimen were air) so the gap between them is visible.
 """
 
 from __future__ import annotations
@@ -16,8 +17,12 @@ from .compare import AXES, TENSOR_COMPONENTS
 
 #: SNR of the paper's validations and experiments (dashed line of Figs. 4b–c).
 PAPER_SNR = 17.0
-STYLE = {"mismatched": "-", "matched": "--"}
-LABEL = {"mismatched": "glass MLA → ideal model", "matched": "matched model"}
+STYLE = {"mismatched": "-", "matched": "--", "as_air": ":"}
+LABEL = {
+    "mismatched": "glass MLA → ideal model",
+    "matched": "matched model",
+    "as_air": "specimen left out (as air)",
+}
 COLORS = {"x": "tab:blue", "y": "tab:orange", "z": "tab:green"}
 
 
@@ -98,7 +103,7 @@ def plot_uncertainty(results: dict, path: Path, title: str = "") -> Path:
     """
     plt = _plt()
     fig, axs = plt.subplots(2, 3, figsize=(12, 6.5))
-    colors = {"mismatched": "tab:blue", "matched": "tab:orange"}
+    colors = {"mismatched": "tab:blue", "matched": "tab:orange", "as_air": "tab:red"}
     zz = np.linspace(-4, 4, 200)
     for variant, a in results.items():
         unc = a.arrays.get("uncertainty") or {}

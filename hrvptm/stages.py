@@ -1,7 +1,9 @@
 """The pipeline stages of a study, each run through the library of the tool a user would run.
 
 For each variant (``mismatched``: rendered with the experiment's scene — glass lenslets —
-and reconstructed with ``recon_scene``; ``matched``: rendered with ``recon_scene`` itself)::
+and reconstructed with ``recon_scene``; ``matched``: rendered with ``recon_scene`` itself;
+``as_air``: the first variant's frames reconstructed with ``recon_scene`` as if its specimen
+were air, :func:`recon_optics`, its ``dataset/`` that variant's)::
 
     REPORT/<variant>/dataset/   lfsim.generate_dataset       (white.tif, frames/, truth/)
     REPORT/<variant>/calib.json recon.calibrate_white of white.tif
@@ -29,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .calibrated import AXIAL_DIR, DETECT_DIR, TRACK_DIR
+from .config import AS_AIR
 from .errors import StageError
 
 log = logging.getLogger(__name__)
@@ -36,13 +39,27 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class VariantPaths:
-    """Folders of one variant of a study inside the report folder."""
+    """Folders of one variant of a study inside the report folder.
+
+    ``dataset_root``: the variant folder whose ``dataset/`` it reconstructs (default: its
+    own; the ``as_air`` variant reconstructs the first variant's frames)."""
 
     root: Path
+    dataset_root: Path | None = None
+
+    @classmethod
+    def of(cls, study, report: Path, variant: str) -> VariantPaths:
+        """The folders of ``variant`` of ``study`` in the report folder ``report``."""
+        source = study.dataset_variant(variant)
+        return cls(report / variant, None if source == variant else report / source)
+
+    @property
+    def variant(self) -> str:
+        return self.root.name
 
     @property
     def dataset(self) -> Path:
-        return self.root / "dataset"
+        return (self.dataset_root or self.root) / "dataset"
 
     @property
     def calib(self) -> Path:
@@ -65,6 +82,25 @@ class VariantPaths:
     def axial(self) -> Path:
         """References and corrected tables of the axial self-calibration."""
         return self.root / AXIAL_DIR
+
+
+def recon_optics(study, variant: str):
+    """The optics ``variant`` reconstructs with: ``recon_scene``'s, or for ``"as_air"`` the
+    same microscope with the specimen left out (the specimen of the immersion medium's index,
+    the cover glass the objective is corrected for), what a user who describes a gel as air
+    reconstructs with."""
+    import dataclasses
+
+    from lfsim.scene import read_optics
+
+    optics = read_optics(study.recon_scene)
+    if variant != AS_AIR:
+        return optics
+    return dataclasses.replace(
+        optics,
+        medium_ior=optics.immersion_ior,
+        coverslip_thickness_um=optics.coverslip_corrected_um,
+    )
 
 
 def frame_preprocess(experiment=None):
@@ -115,7 +151,6 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
     (``recon_scene``), the frames on ``parallel`` (default: in process). Returns seconds
     spent."""
     from hrvbase.errors import HrvError
-    from lfsim.scene import read_optics
     from recon.calibration import calibrate_white
     from recon.calibration_file import read_white
     from recon.pipeline import reconstruct_series
@@ -127,7 +162,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
             f"{paths.dataset}: expected {study.experiment.frames} frames, found {len(frames)}"
         )
     try:
-        optics = read_optics(study.recon_scene)
+        optics = recon_optics(study, paths.variant)
         white = read_white(paths.dataset / "white.tif")
         grid = calibrate_white(white, expected_pitch_px=optics.px_per_lenslet)
         grid.save(paths.calib, overwrite=True)
@@ -140,7 +175,11 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
             preprocess=frame_preprocess(study.experiment),
             overwrite=True,  # inside the report: replace only an outdated run of this study
             progress=progress,
-            provenance={"scene": str(Path(study.recon_scene).resolve()), "command": "hrvptm"},
+            provenance={
+                "scene": str(Path(study.recon_scene).resolve()),
+                "command": "hrvptm",
+                **({"specimen": "left out (as air)"} if paths.variant == AS_AIR else {}),
+            },
             parallel=parallel,
         )
     except HrvError as exc:
@@ -189,7 +228,6 @@ def track_calibrated(
     tables a study analyses are :func:`particle_tables`. Returns seconds spent: ``track``
     (detection, linking, fields) and ``axial_calibration`` (references and correction)."""
     from hrvbase.errors import HrvError
-    from lfsim.scene import read_optics
     from recon.lenslet_grid import LensletGrid
 
     from .calibrated import ReconModel, detect_volumes_calibrated, track_volumes_calibrated
@@ -206,7 +244,7 @@ def track_calibrated(
     }
     try:
         model = ReconModel(
-            read_optics(study.recon_scene), LensletGrid.load(paths.calib), study.recon
+            recon_optics(study, paths.variant), LensletGrid.load(paths.calib), study.recon
         )
         if study.study.kind == "series":
             _, secs = track_volumes_calibrated(

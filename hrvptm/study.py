@@ -126,12 +126,16 @@ def _run_stages(study, report, state, variants, seconds, last, progress, paralle
     """Simulate, reconstruct and track every variant up to stage ``last`` (resuming), their
     seconds into ``seconds`` and the state record."""
     for variant, experiment in variants.items():
-        paths = VariantPaths(report / variant)
+        paths = VariantPaths.of(study, report, variant)
         totals = state["seconds_total"].setdefault(variant, {})
+        # a variant that reconstructs another's frames renders nothing itself
+        shared = paths.dataset_root is not None
         steps = (
             (
                 "simulate",
-                lambda e=experiment, p=paths: simulate(e, p, progress=progress, parallel=parallel),
+                lambda e=experiment, p=paths, s=shared: (
+                    0.0 if s else simulate(e, p, progress=progress, parallel=parallel)
+                ),
             ),
             (
                 "reconstruct",
@@ -226,7 +230,7 @@ def run_study(
     out_variants = {}
     for variant in variants:
         t0 = time.perf_counter()
-        paths = VariantPaths(report / variant)
+        paths = VariantPaths.of(study, report, variant)
         try:
             a = analyse(study, paths)
         except (OSError, KeyError, ValueError) as exc:

@@ -43,6 +43,7 @@ def test_every_example_is_a_valid_study_and_experiment(path):
         names = list(study.variants())
         assert names[0] == "mismatched"
         assert ("matched" in names) == study.study.matched
+        assert ("as_air" in names) == study.study.specimen_as_air
 
 
 def test_matched_variant_renders_through_the_reconstruction_model():
@@ -52,6 +53,33 @@ def test_matched_variant_renders_through_the_reconstruction_model():
     assert v["matched"].optics.mla_kind == "ideal"
     assert v["matched"].scene == study.recon_scene
     assert v["matched"].fingerprint() != v["mismatched"].fingerprint()
+
+
+def test_specimen_as_air_reconstructs_the_first_variants_frames_without_the_specimen(tmp_path):
+    from hrvptm.stages import VariantPaths, recon_optics
+
+    study = load_study(EXPERIMENTS / "fig5b_axial_layer_gel_test.toml")
+    assert list(study.variants()) == ["mismatched", "as_air"]
+    assert study.variants()["as_air"] == study.experiment  # the same frames, not rendered again
+    paths = VariantPaths.of(study, tmp_path, "as_air")
+    assert paths.root == tmp_path / "as_air"
+    assert paths.dataset == tmp_path / "mismatched" / "dataset"
+    assert paths.volumes == tmp_path / "as_air" / "volumes"
+    assert VariantPaths.of(study, tmp_path, "mismatched").dataset == paths.dataset
+    gel, air = recon_optics(study, "mismatched"), recon_optics(study, "as_air")
+    assert gel.medium_ior == 1.35 and gel.coverslip_thickness_um == 170
+    assert air.medium_ior == air.immersion_ior == 1.0 and air.coverslip_thickness_um == 0
+    assert not air.has_interfaces and air.axial_scale == 1.0
+    # everything else is the same microscope
+    for f in ("na", "mla_pitch_um", "pixel_um", "sensor_px", "axis_px", "mla_kind"):
+        assert getattr(air, f) == getattr(gel, f), f
+
+
+def test_specimen_as_air_needs_a_specimen(tmp_path):
+    with pytest.raises(StudyConfigError, match="specimen_as_air = true, but recon_scene"):
+        load_study(_write(tmp_path, "\n[study]\nspecimen_as_air = true\n"))
+    with pytest.raises(StudyConfigError, match="specimen_as_air must be true or false"):
+        load_study(_write(tmp_path, "\n[study]\nspecimen_as_air = 1\n"))
 
 
 def test_defaults_when_no_study_sections(tmp_path):
