@@ -12,7 +12,9 @@ Pipeline (:mod:`track.pipeline`)
     :func:`track_volumes` (detect → link → fields from a folder of volumes, resumable),
     :func:`track_clouds` (link point clouds), returning a :class:`TrackResult`
     (:class:`FrameDetections`, :class:`PairOutcome`) and writing the results folder;
-    :class:`FailedFramesError` when frames fail and partial results are not allowed.
+    :class:`FailedFramesError` when frames fail and partial results are not allowed; its
+    stages in :mod:`track.detections` and :mod:`track.link_outputs`, the results folder in
+    :mod:`track.results`.
 Detection (:mod:`track.detect`, :mod:`track.psf_estimate`)
     :class:`DetectSettings`, :class:`Detection`, :func:`detect_particles`,
     :func:`estimate_psf`.
@@ -25,11 +27,15 @@ Strain (:mod:`track.strain`)
 Fields (:mod:`track.fields`)
     :class:`GridSettings`, :class:`GridField`, :func:`gridded_field`,
     :func:`fit_displacement`, :func:`grid_axes`, :func:`gcv_smoothing` (the default smoothing,
-    chosen by generalised cross-validation).
+    chosen by generalised cross-validation); grids in :mod:`track.grid`, the thin-plate
+    spline in :mod:`track.thin_plate` and :mod:`track.thin_plate_fit`.
 Series (:mod:`track.series`)
     :class:`SeriesSettings`, :func:`track_series` (returns a :class:`SeriesResult`;
     incremental / cumulative modes,
-    trajectories, Eulerian cumulation), :func:`link_tracks`, :func:`cumulate_eulerian`.
+    trajectories, Eulerian cumulation), :func:`link_tracks`, :func:`cumulate_eulerian`; the
+    settings in :mod:`track.series_settings`, pairwise linking in :mod:`track.pairs`,
+    trajectories in :mod:`track.tracks`, the per-match σ in :mod:`track.sigma_model`, the
+    increments' fields in :mod:`track.increments`, the cumulation in :mod:`track.eulerian`.
 Files (:mod:`track.tables`, :mod:`track.field_files`, :mod:`track.volumes`)
     point/match/track CSV tables; ``.npz`` and ParaView ``.vti`` fields; volume series
     (TIFF volumes placed in object space from their metadata or ``recon.json``).
@@ -56,15 +62,11 @@ import importlib
 from typing import Any
 
 from .errors import FailedFramesError, InputError, TrackError, TrackingError
-from .fields import (
-    GridField,
-    GridSettings,
-    fit_displacement,
-    gcv_smoothing,
-    grid_axes,
-    gridded_field,
-)
-from .series import SeriesResult, SeriesSettings, cumulate_eulerian, link_tracks, track_series
+from .eulerian import cumulate_eulerian
+from .fields import fit_displacement, gridded_field
+from .grid import GridField, GridSettings, grid_axes
+from .series import SeriesResult, track_series
+from .series_settings import SeriesSettings
 from .strain import (
     LocalFitSettings,
     ParticleStrain,
@@ -73,6 +75,8 @@ from .strain import (
     infinitesimal,
     particle_deformation_gradient,
 )
+from .thin_plate import gcv_smoothing
+from .tracks import link_tracks
 
 __version__ = "0.1.0"
 

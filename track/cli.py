@@ -85,8 +85,8 @@ from hrvbase.cli import (
 
 from . import __version__
 from .errors import FailedFramesError
-from .fields import GridSettings
-from .series import MAX_GRID_NODES, MODES, SeriesSettings, check_grid
+from .grid import GridSettings
+from .series_settings import MAX_GRID_NODES, MODES, SeriesSettings, check_grid
 from .tables import read_points_csv
 from .volumes import VolumeInfo, scan_volumes
 

@@ -33,7 +33,7 @@ from scipy.sparse.linalg import cg, splu
 from scipy.spatial import cKDTree
 
 from track.errors import InputError
-from track.fields import GridAxes
+from track.grid import GridAxes
 
 logger = logging.getLogger(__name__)
 
