@@ -20,13 +20,13 @@ files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, a
   displacement within 1σ and 2σ of ``u_std`` (per axis, pooled).
 
 ``--baseline REV`` also runs ``track`` of git revision ``REV`` (extracted with ``git archive``
-to a temporary folder, today's ``synthetic.py`` copied in, run in a subprocess) on the same
-series, side by side. ``--grid`` chooses the grids of the new code (``default``: the
-``GridSettings`` defaults, 50 000 nodes; ``particles``: ``nodes_per_spacing`` (option
-``--nodes-per-spacing``, default 2), the node spacing follows the particle spacing;
-``particles-nostd``: the same without uncertainties); the baseline uses ``--baseline-grid``.
-``--workers 1 2`` also grids the increments on a local Dask cluster of 2 workers (its start
-included in ``fields_s``).
+to a temporary folder, today's ``synthetic.py`` and ``link_score.py`` copied in, run in a
+subprocess) on the same series, side by side. ``--grid`` chooses the grids of the new code
+(``default``: the ``GridSettings`` defaults, 50 000 nodes; ``particles``:
+``nodes_per_spacing`` (option ``--nodes-per-spacing``, default 2), the node spacing follows the
+particle spacing; ``particles-nostd``: the same without uncertainties); the baseline uses
+``--baseline-grid``. ``--workers 1 2`` also grids the increments on a local Dask cluster of 2
+workers (its start included in ``fields_s``).
 
 Usage (from the repository root; ``PYTHONPATH=.`` makes this checkout's ``track`` the one
 imported, ``OPENBLAS_NUM_THREADS=1`` keeps BLAS threads from fighting on a shared machine)::
@@ -178,15 +178,17 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=
 
 
 def run_baseline(rev, frames, n, field, step, seed, grid="default"):
-    """The same series with ``track`` of git revision ``rev`` (and today's synthetic.py)."""
+    """The same series with ``track`` of git revision ``rev`` (and today's synthetic.py).
+
+    The series is imported from ``track.fields`` and ``track.series``, the paths every
+    revision has."""
     with tempfile.TemporaryDirectory(prefix="bench-fields-baseline-") as tmp:
         archive = subprocess.run(
             ["git", "archive", rev, "track", "hrvbase"], cwd=ROOT, capture_output=True, check=True
         ).stdout
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        (Path(tmp) / "track" / "synthetic.py").write_bytes(
-            (ROOT / "track" / "synthetic.py").read_bytes()
-        )
+        for name in ("synthetic.py", "link_score.py"):  # today's series (and what it imports)
+            (Path(tmp) / "track" / name).write_bytes((ROOT / "track" / name).read_bytes())
         out = Path(tmp) / "row.json"
         cmd = [sys.executable, str(Path(__file__).resolve()), "--_worker", str(out)]
         cmd += ["--frames", str(frames), "--n", str(n), "--field", field]
