@@ -71,8 +71,7 @@ class SeriesSettings:
         The move in depth (µm, > 0) over which the *lateral* coordinates' bias changes; None
         (default): ``bias_length_um``'s z, as the axial bias. A light-field reconstruction's
         lateral bias follows the particle's phase under the lenslets far more than its depth
-        (paper-size Fig. 5b: a layer moved 20-500 µm in z keeps its x and y bias; σ with
-        the axial length 1.0 µm against errors of 0.21 µm).
+        (docs/validation_notes.md, "Standard uncertainties").
     predictor : bool
         Incremental mode: link each pair from the previous increment's displacement field
         (:func:`track.matching.increment_predictor`) as the linker's initial guess; the

@@ -30,7 +30,7 @@ def bias_decorrelation(displacement_um, length_xyz_um, period_um: float = 0.0) -
     Without a period every coordinate's bias changes with a move along any axis:
     ``ρ_a = g_x g_y g_z``. With one, ``ρ_x = k_x g_z``, ``ρ_y = k_y g_z`` and
     ``ρ_z = k_x k_y g_z``: a lateral coordinate's bias follows the phase along its own axis
-    (measured: calibration runs translated along y keep their x bias), the axial bias both.
+    (docs/validation_notes.md, "Standard uncertainties"), the axial bias both.
     The lateral coordinates' depth factor may have its own length ``L_z,lat`` (a fourth
     length): their bias changes with depth more slowly than the axial one.
 
