@@ -18,6 +18,13 @@ if ! have_llvm; then
         exit 1
     fi
 fi
+# Xvfb and the X libraries of Qt's xcb platform: the napari plugin's tests draw on a virtual display.
+if ! { command -v Xvfb && ldconfig -p | grep libxcb-cursor.so.0; } >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    $SUDO apt-get install -y -qq xvfb libgl1 libegl1 libdbus-1-3 libfontconfig1 libxkbcommon-x11-0 libxcb-cursor0 \
+        libxcb-icccm4 libxcb-image0 libxcb-keysyms1 libxcb-randr0 libxcb-render-util0 libxcb-shape0 libxcb-xkb1
+fi
 PY=${PYTHON:-python3}
 [ -d .venv ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
