@@ -25,6 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hrvbase.errors import raised_as
+from hrvbase.validate import int_in_range, positive_float
+
 from .errors import InputError
 from .localize import localize
 
@@ -63,13 +66,14 @@ class AxialCalibration:
         if self.method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
         d = self.sphere_diameter_um
-        if d is not None and (
-            not isinstance(d, int | float) or isinstance(d, bool) or not 0 < d < 1e4
-        ):
-            raise InputError(f"sphere_diameter_um must be a number > 0 (µm), got {d!r}")
         r = self.rays_per_particle
-        if r is not None and (not isinstance(r, int) or isinstance(r, bool) or r < 1000):
-            raise InputError(f"rays_per_particle must be an integer >= 1000, got {r!r}")
+        with raised_as(InputError):
+            if d is not None and not positive_float(d, "sphere_diameter_um") < 1e4:
+                raise InputError(f"sphere_diameter_um must be a number > 0 (µm), got {d!r}")
+            if r is not None:
+                if not isinstance(r, int):
+                    raise InputError(f"rays_per_particle must be an integer >= 1000, got {r!r}")
+                int_in_range(r, "rays_per_particle", 1000)
         if not isinstance(self.lateral, bool):
             raise InputError(f"lateral must be true or false, got {self.lateral!r}")
 

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hrvbase.validate import points_xyz
+from hrvbase.errors import raised_as
+from hrvbase.validate import finite_float, int_in_range, points_xyz
 
 from .errors import InputError
 
@@ -156,14 +157,14 @@ class LocalFitSettings:
     max_condition: float = 100.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.n_neighbours, bool) or not isinstance(
-            self.n_neighbours, int | np.integer
-        ):
+        if not isinstance(self.n_neighbours, int | np.integer):
             raise InputError(f"n_neighbours must be an integer, got {self.n_neighbours!r}")
-        if self.n_neighbours < 4:
-            raise InputError(f"n_neighbours must be at least 4, got {self.n_neighbours}")
-        if not (np.isfinite(self.max_condition) and self.max_condition > 1):
-            raise InputError(f"max_condition must be finite and > 1, got {self.max_condition!r}")
+        with raised_as(InputError):
+            int_in_range(self.n_neighbours, "n_neighbours", 4)
+            if not finite_float(self.max_condition, "max_condition") > 1:
+                raise InputError(
+                    f"max_condition must be finite and > 1, got {self.max_condition!r}"
+                )
 
 
 @dataclass(frozen=True)
