@@ -177,30 +177,24 @@ def points_layer(
 ) -> LayerData | None:
     """The particles of every frame as one Points layer ``(t, z, y, x)`` with the features
     ``frame``, ``intensity`` and ``sigma_{x,y,z}_um`` (NaN where unknown); None when the
-    folder has no particle tables."""
-    from track.tables import read_point_sigmas, read_points_csv
+    folder has no particle tables (read with :func:`track.dataframes.read_particles`)."""
+    from track.dataframes import read_particles
 
     folder = _folder(folder)
+    if not _particle_files(folder):
+        return None
     if positions is None:
         positions = _frame_positions(_json(folder / "summary.json") or {})
-    rows, feats = [], {"frame": [], "intensity": [], "sigma_x_um": [], "sigma_y_um": [],
-                       "sigma_z_um": []}  # fmt: skip
-    for frame, path in _particle_files(folder):
-        xyz = read_points_csv(path)
-        sig = read_point_sigmas(path)
-        inten = _optional_column(path, "intensity", len(xyz))
-        t = np.full((len(xyz), 1), float(_position(positions, frame)))
-        rows.append(np.hstack([t, xyz[:, ::-1]]))
-        feats["frame"] += [frame] * len(xyz)
-        feats["intensity"] += list(inten)
-        for i, c in enumerate("xyz"):
-            feats[f"sigma_{c}_um"] += list(sig[:, i])
-    if not rows:
-        return None
-    data = np.vstack(rows)
+    df = read_particles(folder)
+    frame = df["frame"].to_numpy(dtype=int)
+    t = np.array([_position(positions, int(f)) for f in frame], dtype=float)
+    data = np.column_stack([t, df["z_um"], df["y_um"], df["x_um"]]).astype(float)
+    features = {"frame": frame}
+    for key in ("intensity", "sigma_x_um", "sigma_y_um", "sigma_z_um"):
+        features[key] = df[key].to_numpy(dtype=float) if key in df else np.full(len(df), np.nan)
     kwargs = {
         "name": name,
-        "features": {k: np.asarray(v) for k, v in feats.items()},
+        "features": features,
         "size": _point_size(data),
         "face_color": "transparent",
         "border_color": "yellow",
@@ -219,21 +213,13 @@ def _point_size(data: np.ndarray) -> float:
     return float(np.clip(extent / 10.0, 5.0, 30.0))
 
 
-def _optional_column(path: Path, column: str, n: int) -> np.ndarray:
-    from hrvbase.tables import read_table
-
-    t = read_table(path, required=(), optional=(column,), allow_nan=True)
-    v = t.get(column)
-    return np.full(n, np.nan) if v is None else np.asarray(v, dtype=float)
-
-
 def tracks_layer(
     folder: str | os.PathLike, *, name: str = "tracks", positions: Mapping | None = None
 ) -> LayerData | None:
     """``tracks.csv`` as a Tracks layer: napari's ``track_id, t, z, y, x`` (µm; ``t`` the
     frame's position in the series), with the features ``frame`` and ``sigma_{x,y,z}_um``;
-    None without ``tracks.csv``."""
-    from track.tables import read_tracks_csv
+    None without ``tracks.csv`` (read with :func:`track.dataframes.read_tracks`)."""
+    from track.dataframes import read_tracks
 
     folder = _folder(folder)
     path = folder / "tracks.csv"
@@ -241,18 +227,16 @@ def tracks_layer(
         return None
     if positions is None:
         positions = _frame_positions(_json(folder / "summary.json") or {})
-    t = read_tracks_csv(path)
-    frame = np.asarray(t["frame"], dtype=int)
+    df = read_tracks(path).sort_values(["track_id", "frame"], kind="stable")
+    frame = df["frame"].to_numpy(dtype=int)
     tpos = np.array([_position(positions, int(f)) for f in frame], dtype=float)
-    data = np.column_stack([t["track_id"], tpos, t["z_um"], t["y_um"], t["x_um"]]).astype(float)
-    order = np.lexsort((data[:, 1], data[:, 0]))  # napari wants each track's points in time
+    data = np.column_stack([df["track_id"], tpos, df["z_um"], df["y_um"], df["x_um"]])
     features = {"frame": frame}
     for c in "xyz":
         key = f"sigma_{c}_um"
-        features[key] = np.asarray(t.get(key, np.full(len(frame), np.nan)), dtype=float)
-    features = {k: v[order] for k, v in features.items()}
+        features[key] = df[key].to_numpy(dtype=float) if key in df else np.full(len(df), np.nan)
     kwargs = {"name": name, "features": features, "tail_length": 30, "tail_width": 2}
-    return data[order], kwargs, "tracks"
+    return data.astype(float), kwargs, "tracks"
 
 
 def displacement_layer(
@@ -260,43 +244,39 @@ def displacement_layer(
 ) -> LayerData | None:
     """The linked particles' displacements as a Vectors layer: one vector per match, from the
     particle in the reference frame of its pair to its position in the deformed frame, shown
-    at the deformed frame's ``t``; features ``u_um`` (length, µm) and ``frame``. None without
-    linked pairs."""
-    from track.tables import read_matches_csv, read_points_csv
+    at the deformed frame's ``t``; features ``u_um`` (length, µm) and ``frame`` (the deformed
+    frame). None without linked pairs (read with :func:`track.dataframes.read_matches` and
+    :func:`~track.dataframes.read_particles`)."""
+    from track.dataframes import read_matches, read_particles
 
     folder = _folder(folder)
-    summary = _json(folder / "summary.json") or {}
-    if positions is None:
-        positions = _frame_positions(summary)
-    vecs, length, frames = [], [], []
-    for inc in summary.get("increments") or ():
-        if not isinstance(inc, Mapping) or not inc.get("matches"):
-            continue
-        mpath = folder / str(inc["matches"])
-        ref = folder / "particles" / f"{int(inc['ref_frame']):06d}.csv"
-        if not (mpath.is_file() and ref.is_file()):
-            continue
-        rows, d = read_matches_csv(mpath)
-        start = read_points_csv(ref)[rows[:, 0]]
-        t = float(_position(positions, int(inc["def_frame"])))
-        v = np.zeros((len(d), 2, 4))
-        v[:, 0, 0] = t
-        v[:, 0, 1:] = start[:, ::-1]
-        v[:, 1, 1:] = d[:, ::-1]
-        vecs.append(v)
-        length += list(np.linalg.norm(d, axis=1))
-        frames += [int(inc["def_frame"])] * len(d)
-    if not vecs:
+    if not any(folder.glob("matches_*.csv")) or not _particle_files(folder):
         return None
+    if positions is None:
+        positions = _frame_positions(_json(folder / "summary.json") or {})
+    m = read_matches(folder)
+    if "ref_frame" not in m or "def_frame" not in m:
+        return None
+    parts = read_particles(folder).set_index(["frame", "row"])
+    start = parts.loc[list(zip(m["ref_frame"], m["row_ref"], strict=True)),
+                      ["z_um", "y_um", "x_um"]].to_numpy(dtype=float)  # fmt: skip
+    d = m[["uz_um", "uy_um", "ux_um"]].to_numpy(dtype=float)
+    v = np.zeros((len(m), 2, 4))
+    v[:, 0, 0] = [_position(positions, int(f)) for f in m["def_frame"]]
+    v[:, 0, 1:] = start
+    v[:, 1, 1:] = d
     kwargs = {
         "name": name,
-        "features": {"u_um": np.asarray(length), "frame": np.asarray(frames)},
+        "features": {
+            "u_um": np.linalg.norm(d, axis=1),
+            "frame": m["def_frame"].to_numpy(dtype=int),
+        },
         "edge_color": "cyan",
         "edge_width": 1.0,
         "length": 1.0,
         "ndim": 4,
     }
-    return np.concatenate(vecs), kwargs, "vectors"
+    return v, kwargs, "vectors"
 
 
 def _field_files(folder: Path) -> list[tuple[int, Path]]:
