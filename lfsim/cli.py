@@ -302,18 +302,19 @@ def cmd_white(args) -> int:
 
 
 def cmd_micrometer(args) -> int:
-    from .render import micrometer_sources, render_micrometer
+    from .render import micrometer_placement, micrometer_sources, render_micrometer
 
     out = _check_output(args, args.scene)
     _check_numbers(args, "--rays-per-line")
     scene = _read_scene(args.scene)
-    try:  # the reticle fits the field (before tracing)
+    try:  # the reticle fits the field and its slide (before tracing)
+        slide, z_um = micrometer_placement(scene.optics, args.z_um)
         micrometer_sources(
-            scene.optics,
+            slide,
             args.division_um,
             args.line_width_um,
             args.axis,
-            z_um=args.z_um,
+            z_um=z_um,
             rotation_deg=args.rotation_deg,
         )
     except ConfigError as exc:
@@ -529,7 +530,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--z-um",
         float,
         0.0,
-        "depth of the reticle in µm, i.e. its defocus (0: native object plane, in focus)",
+        "depth of the reticle in µm, i.e. its defocus (0: native object plane, in focus); "
+        "in a scene with a specimen the reticle lies on the cover glass and this is its "
+        "distance beyond the focus (>= 0)",
     )
     image_options(m, snr=WhiteConfig.snr, bits=WhiteConfig.bit_depth, what="micrometer image")
     m.set_defaults(func=cmd_micrometer, needs_backend=True)

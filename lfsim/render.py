@@ -284,8 +284,59 @@ def micrometer_sources(
     else:
         sizes[:, 1], sizes[:, 0] = line_width_um, seg_len
     centers[:, 2] = z_um
-    sizes[:, 2] = 1.0
+    sizes[:, 2] = RETICLE_THICKNESS_UM
     return Sources.boxes(centers, sizes, weights=seg_len / base)
+
+
+def micrometer_optics(optics):
+    """The optics a stage micrometer is imaged with in a microscope with a specimen.
+
+    The reticle is a calibration slide laid on the cover glass (or dish bottom) in place of
+    the specimen: beyond the cover glass lies air (the immersion medium when there is no
+    cover glass, as for a dipping objective), and the focus is set on the cover glass. The
+    lateral magnification of a focused plane does not depend on the planar interfaces, so
+    the pixel size measured on the reticle is the specimen's.
+
+    Parameters
+    ----------
+    optics : Optics
+
+    Returns
+    -------
+    Optics
+        ``optics`` itself without interfaces; otherwise the same microscope with
+        ``medium_ior`` 1 (or ``immersion_ior``) and ``focus_depth_um`` the cover glass's
+        paraxial focal shift the other way, so that the native object plane lies on the cover
+        glass (``surface_z_um`` ≈ 0; the rays of the full aperture focus a little deeper).
+    """
+    from dataclasses import replace
+
+    if not optics.has_interfaces:
+        return optics
+    medium = 1.0 if optics.coverslip_thickness_um > 0 else optics.immersion_ior
+    dry = replace(optics, medium_ior=medium, focus_depth_um=0.0)
+    if not dry.has_interfaces:
+        return dry
+    return replace(dry, focus_depth_um=-dry._coverslip_residual_um)
+
+
+#: Thickness of the reticle's lines along z (µm): the boxes of :func:`micrometer_sources`.
+RETICLE_THICKNESS_UM = 1.0
+
+
+def micrometer_placement(optics, z_um: float = 0.0):
+    """The optics a micrometer is imaged with (:func:`micrometer_optics`) and the depth of
+    its reticle in them (µm): ``z_um`` itself without a specimen; with one, the reticle lies
+    on the cover glass, ``z_um`` (≥ 0, else :class:`ConfigError`) beyond it."""
+    slide = micrometer_optics(optics)
+    if slide is optics:
+        return slide, z_um
+    if not z_um >= 0:
+        raise ConfigError(
+            f"z_um {z_um:g} µm puts the reticle inside the cover glass it lies on (the "
+            "microscope has a specimen: the reticle lies on its cover glass); give z_um >= 0"
+        )
+    return slide, slide.surface_z_um + RETICLE_THICKNESS_UM / 2 + z_um
 
 
 def render_micrometer(
@@ -301,9 +352,22 @@ def render_micrometer(
     z_um: float = 0.0,
 ) -> np.ndarray:
     """Light-field image of a stage micrometer (paper §4), by default in the native object
-    plane; see :func:`micrometer_sources` for the reticle, its rotation and depth."""
+    plane; see :func:`micrometer_sources` for the reticle, its rotation and depth.
+
+    In a microscope with a specimen (``Optics.has_interfaces``) the reticle lies on the
+    cover glass in place of the specimen (:func:`micrometer_optics`), ``z_um`` (≥ 0) beyond
+    the plane in focus."""
+    optics = getattr(scene, "optics", scene)
+    slide, z_um = micrometer_placement(optics, z_um)
+    if slide is not optics:
+        if tracer == "mitsuba":
+            from .scene import scene_from_optics
+
+            scene = scene_from_optics(slide)
+        else:
+            scene = slide
     src = micrometer_sources(
-        getattr(scene, "optics", scene),
+        slide,
         division_um,
         line_width_um,
         axis,

@@ -296,3 +296,18 @@ def test_focal_shift_agrees_with_the_exact_ray_optics(backend, kw):
     z_star = -traced / (_least_squares_focus_um(o, 50.0) - traced) * 50.0
     measured = o.focal_shift_um + z_star
     assert measured == pytest.approx(o.focal_shift_um, rel=0.01, abs=0.1)
+
+
+def test_lfsim_micrometer_in_a_specimen_scene_lies_on_the_cover_glass(tmp_path, capsys):
+    """``lfsim micrometer`` on a gel scene: the reticle lies on the cover glass, so a depth
+    into the glass is one line naming the option, and nothing is written."""
+    from pathlib import Path
+
+    from lfsim.cli import main
+
+    scene = Path(__file__).resolve().parents[2] / "scenes" / "medium_gel.xml"
+    out = tmp_path / "m.tif"
+    rc = main(["-q", "micrometer", str(scene), "-o", str(out), "--z-um", "-5"])
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and not out.exists()
+    assert len(err.splitlines()) == 1 and "--z-um" in err and "cover glass" in err

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from lfsim.errors import ConfigError
 from recon.cli import main
 from recon.errors import InputError
 from recon.pixel_size import (
@@ -523,3 +524,31 @@ def test_a_rotated_ruling_that_is_not_found_names_its_angle(backend, nominal):
     """40° at SNR 5: no ruling fits; the message names the angle as the cause."""
     with pytest.raises(PixelSizeError, match="40° from the lenslet x axis"):
         measure_pixel_size(_rendered(nominal, 40.0, snr=5.0, seed=2), nominal, 10.0)
+
+
+def test_a_micrometer_on_the_cover_glass_of_a_specimen_gives_the_specimens_pixel_size(
+    backend, nominal
+):
+    """In a microscope with a gel (n = 1.35) behind 170 µm of glass the reticle lies on the
+    cover glass in air, in focus, and measures the lateral scale of the specimen (planar
+    interfaces leave a focused plane's magnification unchanged)."""
+    from lfsim.render import micrometer_optics
+
+    gel = replace(
+        true_optics(nominal, 0.05),
+        medium_ior=1.35,
+        coverslip_thickness_um=170.0,
+        coverslip_ior=1.523,
+        focus_depth_um=200.0,
+    )
+    slide = micrometer_optics(gel)
+    assert slide.medium_ior == 1.0 and slide.coverslip_thickness_um == 170.0
+    assert abs(slide.surface_z_um) < 2.0  # the focus on the cover glass (rays of full NA)
+    assert micrometer_optics(nominal) is nominal  # no specimen: the scene itself
+    res = measure_pixel_size(micrometer(gel, 10.0, 1.0), replace(nominal), 10.0)
+    assert abs(res.um_per_px / gel.object_pixel_um - 1) < 4 * res.um_per_px_std / res.um_per_px
+    assert res.magnification == pytest.approx(gel.magnification, rel=0.002)
+    from lfsim.render import render_micrometer
+
+    with pytest.raises(ConfigError, match="inside the cover glass"):
+        render_micrometer(gel, 10.0, tracer="paraxial", z_um=-5.0)
