@@ -52,10 +52,22 @@ import numpy as np
 from .errors import InputError
 from .grid import GridAxes, GridField, GridSettings, grid_axes, grid_spacing_um
 from .strain import green_lagrange, infinitesimal
-from .thin_plate import GCV_MIN_POINTS, _gcv_choose, _points, _ThinPlateBasis, gcv_smoothing
+from .thin_plate import (
+    GCV_AFFINE_RTOL,
+    GCV_MIN_POINTS,
+    _gcv_choose,
+    _points,
+    _ThinPlateBasis,
+    gcv_smoothing,
+)
 from .thin_plate import _tps_kernel as _tps_kernel  # re-exported (tests)
+from .thin_plate_fit import (
+    STD_GRID_MODE_CUTOFF,
+    STD_GRID_SUB_SPACING,
+    STD_MODE_CUTOFF,
+    _ThinPlateFit,
+)
 from .thin_plate_fit import _sub_indices as _sub_indices  # re-exported (tests)
-from .thin_plate_fit import _ThinPlateFit
 
 log = logging.getLogger(__name__)
 
@@ -517,6 +529,11 @@ def gridded_field(
 
 
 __all__ = [
+    "GCV_AFFINE_RTOL",
+    "GCV_MIN_POINTS",
+    "STD_GRID_MODE_CUTOFF",
+    "STD_GRID_SUB_SPACING",
+    "STD_MODE_CUTOFF",
     "DisplacementInterpolant",
     "GridAxes",
     "GridField",

@@ -63,9 +63,11 @@ import numpy as np
 from hrvbase.io import sha256_file, write_json
 
 from .detections import _detect, _Detections, _known_sigmas, frame_times, volume_extent_um
+from .detections import _first_psf as _first_psf  # re-exported (benchmarks/bench_detect.py)
 from .errors import InputError
 from .link_outputs import _link_and_write
 from .results import (
+    STAGING,
     SUMMARY,
     FrameDetections,
     PairOutcome,
@@ -79,7 +81,7 @@ from .results import (
     failures_of,
     results_line,
 )
-from .series_settings import SeriesSettings, check_grid
+from .series_settings import OK, SeriesSettings, check_grid
 from .tables import read_point_sigmas, read_points_csv, write_points_csv
 from .volumes import VolumeInfo, numbered, scan_volumes, volume_checksum
 
@@ -367,6 +369,8 @@ def track_clouds(
 
 
 __all__ = [
+    "OK",
+    "STAGING",
     "SUMMARY",
     "VTI_ENCODINGS",
     "FrameDetections",
