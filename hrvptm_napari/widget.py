@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import napari.viewer
 from magicgui.widgets import ComboBox, Container, FileEdit, Label, ProgressBar, PushButton
 
 log = logging.getLogger(__name__)
@@ -157,7 +158,7 @@ class RunWidget(Container):
     """Run ``track run`` (a volume folder or OME-Zarr image) or ``recon run`` (an lfsim
     dataset, or frames with a scene and a calibration) into an output folder, then open it."""
 
-    def __init__(self, napari_viewer=None):
+    def __init__(self, napari_viewer: napari.viewer.Viewer | None = None):
         super().__init__(labels=True)
         self.viewer = napari_viewer
         self.task = ComboBox(label="task", choices=TASKS, value=TASKS[0])

@@ -88,8 +88,8 @@ def test_run_widget_tracks_a_folder_and_opens_the_results(viewer, study_report, 
 
     from hrvptm_napari.widget import RunWidget
 
-    widget = RunWidget(viewer)
-    dock = viewer.window.add_dock_widget(widget, name="run")
+    dock, widget = viewer.window.add_plugin_dock_widget("hrvptm", "Run recon / track")
+    assert isinstance(widget, RunWidget) and widget.viewer is not None  # napari hands it over
     widget.task.value = "track run"
     widget.source.value = study_report / "mismatched" / "volumes"
     widget.output.value = tmp_path / "res"
