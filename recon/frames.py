@@ -56,7 +56,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hrvbase.formats import tiff_frames
 from hrvbase.formats.registry import (
+    SNIFF_BYTES,
     FrameHeader,
     format_by_name,
     frame_format_for,
@@ -285,8 +287,11 @@ def has_glob_chars(text: str) -> bool:
 
 def is_tiff_file(path: str | os.PathLike) -> bool:
     """Whether the file starts like a TIFF (classic or BigTIFF, either byte order)."""
-    fmt = frame_format_for(path)
-    return fmt is not None and fmt.NAME == "tiff" and Path(path).is_file()
+    try:
+        with open(path, "rb") as fh:
+            return tiff_frames.sniff(fh.read(SNIFF_BYTES))
+    except OSError:
+        return False
 
 
 def folder_frames(folder: Path) -> list[Path]:
@@ -340,7 +345,8 @@ def list_file_frames(path: Path) -> list[Path]:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError):
         raise InputError(
-            f"{str(path)!r} is neither a TIFF image nor a text file listing frames"
+            f"{str(path)!r} is neither a frame file ({', '.join(frame_suffixes())}) nor a "
+            "text file listing frames"
         ) from None
     out = []
     lines: dict[Path, int] = {}  # resolved file -> its first line
@@ -408,10 +414,6 @@ def probe_tiff(path: str | os.PathLike, what: str = "frame") -> FrameHeader:
     """
     with recon_input_errors():
         return probe_frames(path, what)
-
-
-#: The header of a frame file of any registered format.
-probe_frame_file = probe_tiff
 
 
 def check_uniform(headers: Sequence[tuple[Path, TiffHeader]]) -> None:
@@ -749,7 +751,6 @@ __all__ = [
     "parse_frame_name",
     "parse_selection",
     "pattern_frames",
-    "probe_frame_file",
     "probe_tiff",
     "read_raw",
     "select_frames",
