@@ -1,4 +1,4 @@
-"""hrvbase: the small shared base of the toolkit (no heavy dependencies: numpy only).
+"""hrvbase: the small shared base of the toolkit (numpy only at import; file readers load theirs).
 
 What every package needs, defined once:
 
@@ -13,6 +13,10 @@ What every package needs, defined once:
   indentation, stiff inclusion) that ``lfsim`` prescribes and ``track``'s tests link;
 - :mod:`hrvbase.parallel`: frames of a series in parallel, in process or on Dask (imported
   only when a command runs frames on more than one process).
+- :mod:`hrvbase.formats`: every file format in one place: the readers of camera frames
+  (TIFF, Phantom ``.cine``) and volume series (numbered TIFF volumes, OME-Zarr) chosen by
+  content or name, the TIFF layout of our images and volumes, and the volume geometry
+  (tifffile, zarr and pims are imported only by the readers that use them).
 
 ``lfsim``, ``recon``, ``track`` and ``hrvptm`` import it; it imports none of them.
 """
