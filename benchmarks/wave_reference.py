@@ -96,8 +96,9 @@ def pyolaf_light_fields(optics, depths, q: int, guard: int) -> dict[str, np.ndar
     from pyolaf.geometry import LFM_computeGeometryParameters, LFM_setCameraParams
     from pyolaf.lf import LFM_calcPSF, LFM_mlaTransmittance, LFM_ulensTransmittance, prop2Sensor
 
-    if q % PN:
-        raise SystemExit(f"--pyolaf-px must be a multiple of {PN}")
+    if q % PN or q % 2 == 0:
+        # pyolaf makes its samples per lenslet odd (an even count becomes one more)
+        raise SystemExit(f"--pyolaf-px must be an odd multiple of {PN}")
     n_sensor = optics.sensor_px[0] // PN
     r = n_sensor // 2 + guard
     cfg = {
