@@ -18,11 +18,39 @@ What every package needs, defined once:
   content or name, the TIFF layout of our images and volumes, and the volume geometry
   (tifffile, zarr and pims are imported only by the readers that use them).
 
+- :func:`package_logger`: the silent logger of each package, and ``__version__``, the
+  toolkit's version that every package reports.
+
 ``lfsim``, ``recon``, ``track`` and ``hrvptm`` import it; it imports none of them.
 """
 
 from __future__ import annotations
 
+import logging
+
 from .errors import HrvError, InputError, OutputError
 
-__all__ = ["HrvError", "InputError", "OutputError"]
+#: The version of the toolkit, which every package reports as its own.
+__version__ = "0.1.0"
+
+
+def package_logger(name: str) -> logging.Logger:
+    """The logger of package ``name``, silent until an application configures logging.
+
+    Parameters
+    ----------
+    name : str
+        The package's ``__name__``.
+
+    Returns
+    -------
+    logging.Logger
+        The logger, with a :class:`logging.NullHandler` so that a library user who has not set
+        up logging sees no messages.
+    """
+    logger = logging.getLogger(name)
+    logger.addHandler(logging.NullHandler())
+    return logger
+
+
+__all__ = ["HrvError", "InputError", "OutputError", "package_logger"]

@@ -24,7 +24,7 @@ Command line
 
 from __future__ import annotations
 
-import logging
+from hrvbase import __version__, package_logger
 
 from .analysis import Analysis, analyse
 from .collect import collect
@@ -32,9 +32,7 @@ from .config import Study, load_study
 from .errors import ReportExistsError, StageError, StudyConfigError, StudyError
 from .study import run_study
 
-__version__ = "0.1.0"
-
-logging.getLogger(__name__).addHandler(logging.NullHandler())
+package_logger(__name__)
 
 __all__ = [
     "Analysis",

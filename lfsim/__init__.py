@@ -23,7 +23,7 @@ Importing :mod:`lfsim` never sets a Mitsuba variant.
 
 from __future__ import annotations
 
-import logging
+from hrvbase import __version__, package_logger
 
 from .backend import BackendInfo, find_libllvm, init_backend
 from .camera import CameraModel
@@ -34,9 +34,7 @@ from .io import read_tiff, write_tiff
 from .noise import NoiseSpec, add_gaussian_noise, apply_noise, measure_snr, signal_reference
 from .optics import Optics, paper_optics, small_optics
 
-__version__ = "0.1.0"
-
-logging.getLogger(__name__).addHandler(logging.NullHandler())
+package_logger(__name__)
 
 __all__ = [
     "BackendError",

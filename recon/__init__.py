@@ -36,7 +36,7 @@ Dr.Jit nor Mitsuba: they load when a PSF bank is traced or a Dr.Jit projector is
 
 from __future__ import annotations
 
-import logging
+from hrvbase import __version__, package_logger
 
 from . import errors
 from .calibration import LensletGrid, calibrate_white
@@ -50,9 +50,7 @@ from .psf import PSFBank, compute_psf_bank
 from .rectify import RectifiedGeometry, rectify
 from .settings import ReconSettings
 
-__version__ = "0.1.0"
-
-logging.getLogger(__name__).addHandler(logging.NullHandler())
+package_logger(__name__)
 
 __all__ = [
     "CalibrationError",

@@ -61,6 +61,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from hrvbase import __version__
+
 from .errors import FailedFramesError, InputError, TrackError, TrackingError
 from .eulerian import cumulate_eulerian
 from .fields import fit_displacement, gridded_field
@@ -77,8 +79,6 @@ from .strain import (
 )
 from .thin_plate import gcv_smoothing
 from .tracks import link_tracks
-
-__version__ = "0.1.0"
 
 #: Names imported lazily from the detection and matching modules.
 _LAZY = {
