@@ -18,6 +18,7 @@ from lfsim.wave import (
     native_field,
     pattern_stack,
     propagate,
+    pupil_phase,
 )
 
 LAM = 0.605
@@ -186,3 +187,36 @@ def test_sampling_is_validated():
         WaveSampling(oversample=0)
     with pytest.raises(ConfigError, match="ideal"):
         light_field(paper_optics(sensor_px=(45, 45), mla_kind="glass"), [[0, 0, 0]])
+
+
+def test_gibson_lanni_phase_reduces_to_debye_for_a_corrected_cover_glass():
+    """A cover glass of the thickness the objective is corrected for, over a specimen of the
+    immersion index, adds nothing to the defocus phase."""
+    s = np.linspace(0, 0.79, 50)
+    z = np.array([-20.0, 0.0, 35.0])
+    plain = _low_na(na=0.8, medium_ior=1.333, immersion_ior=1.333)
+    glass = _low_na(
+        na=0.8,
+        medium_ior=1.333,
+        immersion_ior=1.333,
+        coverslip_thickness_um=170.0,
+        coverslip_corrected_um=170.0,
+        focus_depth_um=40.0,
+    )
+    assert glass.has_interfaces and not plain.has_interfaces
+    np.testing.assert_allclose(pupil_phase(glass, s, z), pupil_phase(plain, s, z), atol=1e-9)
+
+
+def test_index_mismatch_focuses_on_the_native_plane():
+    """Dry 0.1-NA objective focused 300 µm into water: the brightest axial point lies at the
+    native object plane z = 0 (paraxially 1.333 × 300 µm deep), not at the nominal focus."""
+    o = _low_na(medium_ior=1.333, focus_depth_um=300.0)
+    assert o.native_plane_depth_um == pytest.approx(1.333 * 300.0, rel=2e-3)
+    z = np.linspace(-60.0, 60.0, 241)
+    i0 = np.abs(native_field(o, np.array([0.0]), z)[:, 0]) ** 2
+    dof = 2 * 1.333 * LAM / o.na**2  # first axial zero, 161 µm
+    assert abs(z[np.argmax(i0)]) < 0.02 * dof
+    # and the focus is the sharp one of a matched medium: peak within 1 % of the matched case
+    matched = _low_na(medium_ior=1.333, immersion_ior=1.333)
+    i_m = np.abs(native_field(matched, np.array([0.0]), [0.0])[0, 0]) ** 2
+    assert i0.max() == pytest.approx(i_m, rel=0.01)
