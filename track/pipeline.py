@@ -62,24 +62,22 @@ import numpy as np
 
 from hrvbase.io import sha256_file, write_json
 
+from . import results
 from .detections import _detect, _Detections, _known_sigmas, frame_times, volume_extent_um
 from .detections import _first_psf as _first_psf  # re-exported (benchmarks/bench_detect.py)
 from .errors import InputError
 from .link_outputs import _link_and_write
+from .results import *  # noqa: F403  (re-exported: the results of a run)
 from .results import (
     STAGING,
     SUMMARY,
     FrameDetections,
-    PairOutcome,
     TrackResult,
     _fingerprint,
     _finish,
     _new_summary,
     _open_results,
     _settings_dict,
-    failure_message,
-    failures_of,
-    results_line,
 )
 from .series_settings import OK, SeriesSettings, check_grid
 from .tables import read_point_sigmas, read_points_csv, write_points_csv
@@ -369,16 +367,10 @@ def track_clouds(
 
 
 __all__ = [
+    *results.__all__,
     "OK",
     "STAGING",
-    "SUMMARY",
     "VTI_ENCODINGS",
-    "FrameDetections",
-    "PairOutcome",
-    "TrackResult",
-    "failure_message",
-    "failures_of",
-    "results_line",
     "track_clouds",
     "track_volumes",
     "volume_extent_um",
