@@ -71,7 +71,8 @@ def reconstruct_folder(
     files = folder_frames(source / "frames" if dataset is not None else source)
     if scene is None and dataset is not None:
         record = read_json_dict(dataset / "dataset.json")
-        named = (record.get("scene") or {}).get("path")
+        named = record.get("scene")
+        named = named.get("path") if isinstance(named, dict) else None
         if isinstance(named, str) and named:
             scene = Path(named) if Path(named).is_absolute() else (dataset / named).resolve()
     if scene is None:
