@@ -20,19 +20,17 @@ The pipeline of the paper's §3.2 (settings of Table 1):
    or weighted centroid in a box around every accepted blob's centroid, on the input volume
    (``localize_on="input"``, default) or the deconvolved one. Deconvolution serves the
    segmentation; the localisation defaults to the input because it is linear in the data and
-   does not inherit a centring error of an estimated PSF (which would shift every particle).
-   On synthetic z-elongated blobs (σ = 2.5, 1.2, 1.2 voxels) it was as accurate or better at
-   SNR ≥ 17 (0.005 vs 0.014 voxel lateral RMS at SNR 100); at SNR 10 the deconvolved volume
-   gave lower lateral errors (0.05 vs 0.08–0.1 voxel), so choose ``"deconvolved"`` for very
-   noisy data.
+   does not inherit a centring error of an estimated PSF (which would shift every particle);
+   for very noisy data choose ``"deconvolved"`` (measurements: docs/validation_notes.md,
+   "Detection").
 
 Given the lenslet period of a light-field reconstruction (``lenslet_period_vox``: its
 super-resolution factor, which ``recon run`` records in ``recon.json``), the noise of every
 sub-lenslet phase is first brought to its depth's typical level
-(:func:`equalize_lenslet_phases`): the reconstruction concentrates noise into single voxels
-and lines at a few phases, which would otherwise pass for particles or set their width. The
-light piled up on its outer lenslets and planes is kept out of the band-pass, and the
-significance test follows the depth-dependent noise (see :func:`detect_particles`).
+(:func:`track.lenslet_phases.equalize_lenslet_phases`): the reconstruction concentrates noise
+into single voxels and lines at a few phases, which would otherwise pass for particles or set
+their width. The light piled up on its outer lenslets and planes is kept out of the band-pass,
+and the significance test follows the depth-dependent noise (see :func:`detect_particles`).
 
 Positions are returned in µm, columns ``x, y, z``: voxel ``(k, j, i)`` (z, y, x indices) has its
 centre at ``origin_xyz_um + (i dx, j dy, k dz)``.
@@ -55,6 +53,12 @@ from hrvbase.validate import finite_float, int_in_range, nonnegative_float, per_
 from ._threads import gaussian_filter
 from .deconvolve import DeconvolveSettings, deconvolve
 from .errors import InputError, TrackingError
+from .lenslet_phases import (  # noqa: F401 (re-exported)
+    PHASE_MIN_VOX,
+    PHASE_SIGMA_TOL,
+    check_lenslet,
+    equalize_lenslet_phases,
+)
 from .localize import METHODS, check_triple, check_volume, check_voxel_size_um, localize
 from .psf_estimate import check_psf, estimate_psf, particle_fwhm_vox
 from .segment import (
@@ -322,109 +326,6 @@ def voxel_to_um(
     return np.stack([x0 + p[:, 2] * dx, y0 + p[:, 1] * dy, z0 + p[:, 0] * dz], axis=1)
 
 
-#: Noise σ (in units of its depth's typical σ) a sub-lenslet phase is brought down to by
-#: :func:`equalize_lenslet_phases`: phases up to it are left as they are (with 144 lenslets
-#: per phase the robust σ of a phase varies by about 10 % by chance, and particles lying on
-#: the lenslets of one phase raise it further).
-PHASE_SIGMA_TOL = 2.0
-#: Fewest voxels per (depth, lenslet phase) for :func:`equalize_lenslet_phases` (its robust
-#: statistics): a volume of fewer than 3 × 3 lenslets is left as it is.
-PHASE_MIN_VOX = 9
-
-
-def equalize_lenslet_phases(
-    volume: np.ndarray,
-    period_vox: int,
-    phase_vox: Sequence[int] = (0, 0),
-) -> tuple[np.ndarray, dict]:
-    """The volume with the noise of every sub-lenslet phase brought to its depth's level.
-
-    A light-field reconstruction's voxel ``(k, j, i)`` lies at sub-lenslet position
-    ``((j + phase_y) mod s, (i + phase_x) mod s)`` of its lenslet (``s = period_vox``, the
-    super-resolution factor; :mod:`recon.geometry`), and its noise depends on that phase: at
-    a few phases the reconstruction piles noise into single voxels and lines (at s = 15 the
-    robust σ differs 10-50× between phases of one depth). For every depth ``k`` and phase
-    ``(a, b)`` the robust median ``m_kab`` and σ ``σ_kab`` (1.4826 × MAD over the voxels of
-    that phase, one per lenslet) are measured, and the voxels become
-
-    ``m_k + (v - m_kab) · min(1, t σ_k / σ_kab)``
-
-    with ``m_k`` and ``σ_k`` the medians of ``m_kab`` and ``σ_kab`` over the phases of depth
-    ``k`` and ``t`` = :data:`PHASE_SIGMA_TOL`: phases more than ``t`` times noisier than
-    their depth's typical phase are scaled down to ``t σ_k``, none is amplified, and the
-    phase offsets are removed. The particles (a few lenslets each) hardly
-    move these statistics. A depth whose typical σ is 0 (a sparse volume) is left as it is.
-
-    Parameters
-    ----------
-    volume : ndarray, shape (nz, ny, nx)
-    period_vox : int
-        Lenslet period ``s`` (voxels, lateral), ≥ 1.
-    phase_vox : sequence of 2 int
-        ``(phase_y, phase_x)``: sub-lenslet position of voxel row/column 0 (0 for volumes
-        written by ``recon run``, whose lateral extent starts at a lenslet corner).
-
-    Returns
-    -------
-    equalized : ndarray, float32, same shape
-        Not below the volume's minimum.
-    info : dict
-        ``period_vox``, ``phase_vox``, ``equalized`` (False when the volume has fewer than
-        :data:`PHASE_MIN_VOX` lenslets per phase, or s = 1), ``max_sigma_ratio`` (largest
-        ``σ_kab / σ_k``).
-    """
-    vol = np.asarray(volume)
-    s = int(period_vox)
-    py, px = (int(v) % s for v in phase_vox)
-    info = {"period_vox": s, "phase_vox": [py, px], "equalized": False, "max_sigma_ratio": 1.0}
-    out = vol.astype(np.float32, copy=True)
-    nz, ny, nx = vol.shape
-    if s == 1 or (ny // s) * (nx // s) < PHASE_MIN_VOX:
-        return out, info
-    # views of every phase (a, b): rows j with (j + py) % s == a, columns likewise
-    views = [[out[:, (a - py) % s :: s, (b - px) % s :: s] for b in range(s)] for a in range(s)]
-    med = np.empty((nz, s, s))
-    sig = np.empty((nz, s, s))
-    for a in range(s):
-        for b in range(s):
-            v = views[a][b].reshape(nz, -1).astype(np.float64)
-            m = np.median(v, axis=1)
-            med[:, a, b] = m
-            sig[:, a, b] = 1.4826 * np.median(np.abs(v - m[:, None]), axis=1)
-    m_k = np.median(med.reshape(nz, -1), axis=1)
-    s_k = np.median(sig.reshape(nz, -1), axis=1)
-    live = s_k > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(live[:, None, None], sig / s_k[:, None, None], 1.0)
-    gain = np.where(
-        live[:, None, None], np.minimum(1.0, PHASE_SIGMA_TOL / np.maximum(ratio, 1e-30)), 1.0
-    )
-    shift = np.where(live[:, None, None], m_k[:, None, None] - med * 1.0, 0.0)
-    for a in range(s):
-        for b in range(s):
-            v = views[a][b]
-            g = gain[:, a, b][:, None, None].astype(np.float32)
-            m = med[:, a, b][:, None, None].astype(np.float32)
-            sh = shift[:, a, b][:, None, None].astype(np.float32)
-            v[...] = m + sh + (v - m) * g
-    np.maximum(out, float(vol.min()), out=out)
-    info["equalized"] = True
-    info["max_sigma_ratio"] = float(np.nanmax(ratio))
-    return out, info
-
-
-def _check_lenslet(period, phase) -> tuple[int, tuple[int, int]]:
-    if isinstance(period, bool) or not isinstance(period, int | np.integer) or period < 1:
-        raise InputError(f"lenslet_period_vox must be a positive integer or None, got {period!r}")
-    try:
-        ph = tuple(phase)
-    except TypeError:
-        ph = ()
-    if len(ph) != 2 or any(isinstance(v, bool) or not isinstance(v, int | np.integer) for v in ph):
-        raise InputError(f"lenslet_phase_vox must be 2 integers (y, x), got {phase!r}")
-    return int(period), (int(ph[0]) % int(period), int(ph[1]) % int(period))
-
-
 def _robust_sigma(vol: np.ndarray) -> float:
     """Noise σ of a sparse volume: the robust σ of its interior (:func:`track.segment.interior`;
     particles fill too few voxels to move it)."""
@@ -609,7 +510,7 @@ def detect_particles(
     # the volume particles are found in (``vol`` itself without a lenslet period)
     found_in, period = vol, None
     if lenslet_period_vox is not None:
-        period, phase = _check_lenslet(lenslet_period_vox, lenslet_phase_vox)
+        period, phase = check_lenslet(lenslet_period_vox, lenslet_phase_vox)
         t = time.perf_counter()
         found_in, report["lenslet_phases"] = equalize_lenslet_phases(vol, period, phase)
         timings["lenslet_phases_s"] = time.perf_counter() - t

@@ -54,7 +54,7 @@ def _first_psf(vol, info, settings):
         return None, "not used (deconvolution off)"
     if info.lenslet_period_vox is not None:
         # the volume detect_particles deconvolves: its lenslet phases equalised
-        from .detect import equalize_lenslet_phases
+        from .lenslet_phases import equalize_lenslet_phases
 
         vol, _ = equalize_lenslet_phases(vol, info.lenslet_period_vox, info.lenslet_phase_vox)
     try:
