@@ -54,6 +54,26 @@ def _as_points(name: str, arr, allow_empty: bool = False) -> np.ndarray:
     return a
 
 
+def _paired_points(
+    points_um,
+    values_um,
+    values_name: str = "displacements_um",
+    *,
+    min_points: int = 1,
+    who: str = "",
+    what: str = "points",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate points and the vectors at them: two finite ``(n, 3)`` arrays of one shape with
+    at least ``min_points`` rows (else "``who`` needs at least ``min_points`` ``what``")."""
+    x = _as_points("points_um", points_um)
+    v = _as_points(values_name, values_um)
+    if x.shape != v.shape:
+        raise InputError(f"points_um {x.shape} and {values_name} {v.shape} differ in shape")
+    if x.shape[0] < min_points:
+        raise InputError(f"{who} needs at least {min_points} {what}, got {x.shape[0]}")
+    return x, v
+
+
 @dataclass(frozen=True)
 class AffineDisplacement:
     """Affine displacement field ``u(X) = (A - I) (X - centre) + t``.
@@ -113,12 +133,7 @@ def fit_affine(points_um, displacements_um, weights=None) -> AffineDisplacement:
     InputError
         Fewer than 4 points, mismatched shapes, or coplanar points.
     """
-    x = _as_points("points_um", points_um)
-    u = _as_points("displacements_um", displacements_um)
-    if x.shape != u.shape:
-        raise InputError(f"points_um {x.shape} and displacements_um {u.shape} differ in shape")
-    if x.shape[0] < 4:
-        raise InputError(f"fit_affine needs at least 4 points, got {x.shape[0]}")
+    x, u = _paired_points(points_um, displacements_um, min_points=4, who="fit_affine")
     c = x.mean(axis=0)
     design = np.hstack([x - c, np.ones((x.shape[0], 1))])
     rhs = u
@@ -404,12 +419,9 @@ def fit_field(
     InputError
         Bad shapes, non-finite values, unknown method, negative weight, or fewer than 4 points.
     """
-    x = _as_points("points_um", points_um)
-    u = _as_points("displacements_um", displacements_um)
-    if x.shape != u.shape:
-        raise InputError(f"points_um {x.shape} and displacements_um {u.shape} differ in shape")
-    if x.shape[0] < 4:
-        raise InputError(f"fit_field needs at least 4 matched points, got {x.shape[0]}")
+    x, u = _paired_points(
+        points_um, displacements_um, min_points=4, who="fit_field", what="matched points"
+    )
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got {method!r}")
     if not np.isfinite(weight) or weight < 0:
@@ -584,11 +596,8 @@ def local_polynomial_predict(
     InputError
         Bad shapes or parameters.
     """
-    x = _as_points("points_um", points_um)
-    v = _as_points("values_um", values_um)
+    x, v = _paired_points(points_um, values_um, "values_um")
     q = _as_points("query_um", query_um, allow_empty=True)
-    if v.shape != x.shape:
-        raise InputError(f"points_um {x.shape} and values_um {v.shape} differ in shape")
     if int(n_neighbors) < 1:
         raise InputError(f"n_neighbors must be ≥ 1, got {n_neighbors}")
     if not radius_um > 0:
