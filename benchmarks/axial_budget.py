@@ -324,32 +324,39 @@ def main() -> int:
         read_white(args.dataset / "white.tif"), expected_pitch_px=optics.px_per_lenslet
     )
     settings = DetectSettings(psf_box_um=tuple(args.psf_box_um), threshold=0.25)
+
+    def reconstruct(out: Path, it: int, dz: float, s: float, la: float, overwrite: bool) -> None:
+        """Reconstruct the frames into ``out`` with ``it`` iterations, z step ``dz`` µm,
+        ``s`` supersampling and Lanczos ``la``."""
+        rs = ReconSettings(
+            z_min_um=args.z_range[0],
+            z_max_um=args.z_range[1],
+            z_step_um=dz,
+            s=s,
+            iterations=it,
+            lanczos_a=la,
+        )
+        reconstruct_series(
+            frames,
+            out,
+            optics=optics,
+            grid=grid,
+            settings=rs,
+            preprocess=Preprocess(background="auto"),
+            overwrite=overwrite,
+            progress=False,
+        )
+
     if args.time_only:
         import shutil
 
         for rep in range(args.time_only):
             for it in args.iterations:
                 for dz in args.z_step:
-                    rs = ReconSettings(
-                        z_min_um=args.z_range[0],
-                        z_max_um=args.z_range[1],
-                        z_step_um=dz,
-                        s=args.s[0],
-                        iterations=it,
-                        lanczos_a=args.lanczos[0],
-                    )
                     out = args.work / f"time_it{it}_dz{dz:g}_{rep}"
                     shutil.rmtree(out, ignore_errors=True)
                     t0, c0 = time.perf_counter(), time.process_time()
-                    reconstruct_series(
-                        frames,
-                        out,
-                        optics=optics,
-                        grid=grid,
-                        settings=rs,
-                        preprocess=Preprocess(background="auto"),
-                        progress=False,
-                    )
+                    reconstruct(out, it, dz, args.s[0], args.lanczos[0], overwrite=False)
                     t = (time.perf_counter() - t0) / len(frames)
                     c = (time.process_time() - c0) / len(frames)
                     print(
@@ -367,29 +374,12 @@ def main() -> int:
         for dz in args.z_step:
             for s in args.s:
                 for la in args.lanczos:
-                    rs = ReconSettings(
-                        z_min_um=args.z_range[0],
-                        z_max_um=args.z_range[1],
-                        z_step_um=dz,
-                        s=s,
-                        iterations=it,
-                        lanczos_a=la,
-                    )
                     out = args.work / f"it{it}_dz{dz:g}_s{s}_l{la:g}"
                     t0 = time.perf_counter()
                     if not (out / "recon.json").exists() or (
                         json.loads((out / "recon.json").read_text()).get("status") != "complete"
                     ):
-                        reconstruct_series(
-                            frames,
-                            out,
-                            optics=optics,
-                            grid=grid,
-                            settings=rs,
-                            preprocess=Preprocess(background="auto"),
-                            overwrite=True,
-                            progress=False,
-                        )
+                        reconstruct(out, it, dz, s, la, overwrite=True)
                     t_rec = (time.perf_counter() - t0) / len(frames)
                     infos = scan_volumes(out)[: len(frames)]
                     vols = [read_volume(v) for v in infos]
