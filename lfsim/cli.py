@@ -327,28 +327,17 @@ def cmd_micrometer(args) -> int:
                 "z_um": "--z-um",
             },
         ) from None
-    clean = render_micrometer(
-        scene,
-        args.division_um,
-        line_width_um=args.line_width_um,
-        axis=args.axis,
-        rays_per_line=args.rays_per_line,
-        seed=args.seed,
-        tracer=args.tracer,
-        rotation_deg=args.rotation_deg,
-        z_um=args.z_um,
-    )
+    # The slide as rendered, and as its metadata records it.
+    slide = {
+        "line_width_um": args.line_width_um,
+        "axis": args.axis,
+        "rays_per_line": args.rays_per_line,
+        "rotation_deg": args.rotation_deg,
+        "z_um": args.z_um,
+    }
+    clean = render_micrometer(scene, args.division_um, seed=args.seed, tracer=args.tracer, **slide)
     _write_noisy_slide(
-        args,
-        scene,
-        clean,
-        "stage micrometer",
-        division_um=args.division_um,
-        line_width_um=args.line_width_um,
-        axis=args.axis,
-        rays_per_line=args.rays_per_line,
-        rotation_deg=args.rotation_deg,
-        z_um=args.z_um,
+        args, scene, clean, "stage micrometer", division_um=args.division_um, **slide
     )
     log.info("wrote %s (divisions every %g µm along %s)", out, args.division_um, args.axis)
     return 0
