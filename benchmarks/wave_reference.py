@@ -258,6 +258,17 @@ def compare_rays(args) -> int:
         )
         for u, zz, a, b in zip(DEPTH_UNITS, depths, ray, wave, strict=True):
             print(f"  {u:5.1f} {zz:9.3f} {pearson(a, b):8.4f} {a.sum():8.4f}")
+        if args.match:
+            # the depth whose ray pattern matches each wave reference best (template matching
+            # over -3.5 … 4.5 z1 in steps of 0.05 z1; not a reconstruction)
+            z1 = z_unit(optics)
+            grid = np.linspace(-3.5, 4.5, 161) * z1
+            bank = ray_patterns(optics, grid, args.ray_count // 10)
+            print("  best-matching ray depth: z um -> z um (r)")
+            for zz, b in zip(depths, wave, strict=True):
+                c = np.array([pearson(a, b) for a in bank])
+                k = int(np.argmax(c))
+                print(f"  {zz:9.3f} -> {grid[k]:9.3f} ({c[k]:.4f})")
     return 0
 
 
@@ -277,6 +288,11 @@ def main(argv=None) -> int:
         help="instead: correlate the ray model's patterns with the wave references saved here",
     )
     ap.add_argument("--ray-count", type=int, default=2_000_000, help="rays per pattern")
+    ap.add_argument(
+        "--match",
+        action="store_true",
+        help="with --rays: the depth whose ray pattern matches each reference best",
+    )
     args = ap.parse_args(argv)
     if args.rays:
         return compare_rays(args)
