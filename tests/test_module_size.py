@@ -33,9 +33,6 @@ NOT_SPLIT_YET = {
     "recon/pixel_size.py:_fit_axis",
     "recon/pixel_size.py:measure_pixel_size",
     "recon/pixel_size.py:_measure",
-    "track/matching.py",
-    "track/matching.py:_grow",
-    "track/matching.py:link_pair",
     "track/segment.py:segment",
     "hrvptm/analysis.py:analyse_series",
 }

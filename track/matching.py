@@ -45,23 +45,39 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hrvbase.errors import raised_as
-from hrvbase.validate import finite_float, int_in_range, nonnegative_float, positive_float
+from track.cloud_matchers import match_descriptors_global, match_nearest, match_predicted
 from track.errors import InputError
 from track.features import (
     cloud_scale_um,
     moment_normalization,
     topology_descriptors,
 )
-from track.outliers import MEDIAN_TEST_THRESHOLD, normalized_median_test, ransac_affine
+from track.link_growth import (
+    _clean,
+    _grow,
+    _loo_noise,
+    _neighbour_rms,
+    _pair_keys,
+    _predict,
+    _robust_rms,
+    _tolerance,
+)
+from track.link_settings import (  # noqa: F401 (the settings are importable from here)
+    GRID_SPACING_SPACINGS,
+    LOCAL_RADIUS_SPACINGS,
+    MIN_PARTICLES,
+    NN_MAX_DISTANCE_SPACINGS,
+    IterationRecord,
+    LinkRadii,
+    LinkResult,
+    LinkSettings,
+)
+from track.outliers import ransac_affine
 from track.regularize import (
-    METHODS,
     AffineDisplacement,
     fit_affine,
     fit_field,
@@ -70,274 +86,6 @@ from track.regularize import (
 )
 
 logger = logging.getLogger(__name__)
-
-MIN_PARTICLES = 4
-#: Default lengths of :class:`LinkSettings`, in mean particle spacings
-#: (:meth:`LinkSettings.radii_um`).
-NN_MAX_DISTANCE_SPACINGS = 0.45
-LOCAL_RADIUS_SPACINGS = 3.0
-GRID_SPACING_SPACINGS = 2.0
-
-
-class LinkRadii(NamedTuple):
-    """The lengths (µm) of :class:`LinkSettings` for a cloud of a given mean spacing."""
-
-    nn_max_distance_um: float
-    local_radius_um: float
-    local_scale_um: float
-    ransac_threshold_um: float
-    grid_spacing_um: float
-
-
-@dataclass(frozen=True)
-class LinkSettings:
-    """Parameters of :func:`link_pair`. Lengths in µm; ``None`` means "derive from the data".
-
-    Attributes
-    ----------
-    n_neighbors_max : int
-        Neighbours of the median test that cleans the seeds (paper Table 1: 16).
-    n_neighbors_min : int
-        Half the neighbours of the median test of every iteration (≥ 3).
-    descriptor_size : int
-        Neighbours in a topology descriptor (≥ 2).
-    descriptor_ratio : float
-        Ratio test of descriptor matches: best distance < ratio × second best (0 < r ≤ 1).
-    outlier_threshold : float
-        Normalised-median-test threshold (paper: 3).
-    outlier_eps_um : float or None
-        Median-test noise level ε, the same on every axis. Default (with
-        ``outlier_eps_xyz_um`` None too): per axis, the robust spread of the matches'
-        leave-one-out residuals, at least 0.02 × the mean spacing.
-    outlier_eps_xyz_um : tuple of 3 float or None
-        Median-test noise levels per axis (x, y, z) in µm; wins over ``outlier_eps_um``.
-    max_iterations : int
-        Iteration cap of seeding, growth and validation (the polishing iterations come on
-        top).
-    regularization : {"gridded", "admm"}
-        Global field solver (:func:`track.regularize.fit_field`).
-    grid_spacing_um : float or None
-        Node spacing of the field grid; default 2 × the mean particle spacing.
-    smoothness : float
-        Dimensionless smoothness weight of the gridded field (≥ 0).
-    refine_field : bool
-        Refine the gridded field per component where the data show finer detail
-        (:func:`track.regularize.fit_field_refined`).
-    nn_max_distance_um : float or None
-        Radius of the ball whose volume caps every tolerance ellipsoid (a semi-axis may reach
-        1.7 ×), and the tolerance of the seeding matches; default 0.45 mean spacings.
-    nn_ratio : float
-        Ratio test of the local matches (normalised distances, both sides; 0 < r ≤ 1).
-    ransac_threshold_um : float or None
-        Consensus radius of the affine bootstrap; default 1 mean spacing.
-    bootstrap_max_particles : int
-        Reference particles (random subset) used by the global bootstrap match.
-    seed : int
-        Seed of the RANSAC sampler and of the random subsets.
-    local_neighbors : int
-        Matched neighbours of each local prediction (≥ 3).
-    local_degree : {1, 2}
-        Degree of the local polynomial predictor (affine by default; quadratic fits the
-        curvature but amplifies the axial noise).
-    local_radius_um : float or None
-        Largest distance of a matched neighbour used by a prediction; default 3 mean
-        spacings.
-    local_scale_um : float or None
-        Gaussian weight length of the local fits; default 1 mean spacing.
-    tolerance_sigmas : float
-        Tolerance semi-axis per estimated standard deviation of the prediction error (> 0).
-    growth_passes : int
-        Growth passes per iteration (≥ 0).
-    growth_q : float
-        Normalised distance (fraction of the tolerance, 0 < q ≤ 1) a growth match must be
-        within; validation then accepts up to 1.
-    guess_min_fraction : float
-        Fraction of the particles an ``initial_guess`` must link consistently to replace
-        the bootstrap (0 ≤ f ≤ 1).
-    guess_confirm_fraction : float
-        When the matches grown from an ``initial_guess`` are fewer than this fraction of
-        the particles, the bootstrap is run as well and the result with more matches kept
-        (0 ≤ f ≤ 1): a predictor extrapolated off its data (a thin layer moving along z,
-        Fig. 5b) can start a consistent but partial set that growth cannot complete.
-    polish_iterations : int
-        Iterations predicting relative to the regularised field of all matches (≥ 0).
-    """
-
-    n_neighbors_max: int = 16
-    n_neighbors_min: int = 5
-    descriptor_size: int = 5
-    descriptor_ratio: float = 0.8
-    outlier_threshold: float = MEDIAN_TEST_THRESHOLD
-    outlier_eps_um: float | None = None
-    outlier_eps_xyz_um: tuple[float, float, float] | None = None
-    max_iterations: int = 20
-    regularization: str = "gridded"
-    grid_spacing_um: float | None = None
-    smoothness: float = 1.0
-    refine_field: bool = True
-    nn_max_distance_um: float | None = None
-    nn_ratio: float = 0.5
-    ransac_threshold_um: float | None = None
-    bootstrap_max_particles: int = 3000
-    seed: int = 0
-    local_neighbors: int = 12
-    local_degree: int = 1
-    local_radius_um: float | None = None
-    local_scale_um: float | None = None
-    tolerance_sigmas: float = 4.0
-    growth_passes: int = 8
-    growth_q: float = 0.5
-    guess_min_fraction: float = 0.3
-    guess_confirm_fraction: float = 0.9
-    polish_iterations: int = 2
-
-    def radii_um(self, spacing_um: float) -> LinkRadii:
-        """The search radii and lengths for a reference cloud of mean particle spacing
-        ``spacing_um`` (µm): each setting, or its default in spacings when None
-        (``nn_max_distance_um`` :data:`NN_MAX_DISTANCE_SPACINGS`, ``local_radius_um``
-        :data:`LOCAL_RADIUS_SPACINGS`, ``local_scale_um`` and ``ransac_threshold_um`` 1,
-        ``grid_spacing_um`` :data:`GRID_SPACING_SPACINGS`)."""
-        return LinkRadii(
-            self.nn_max_distance_um or NN_MAX_DISTANCE_SPACINGS * spacing_um,
-            self.local_radius_um or LOCAL_RADIUS_SPACINGS * spacing_um,
-            self.local_scale_um or spacing_um,
-            self.ransac_threshold_um or spacing_um,
-            self.grid_spacing_um or GRID_SPACING_SPACINGS * spacing_um,
-        )
-
-    def __post_init__(self) -> None:
-        with raised_as(InputError):
-            self._validate()
-
-    def _validate(self) -> None:
-        n_min = int_in_range(self.n_neighbors_min, "n_neighbors_min", 3)
-        if int_in_range(self.n_neighbors_max, "n_neighbors_max", 1) < n_min:
-            raise InputError(
-                f"n_neighbors_max ({self.n_neighbors_max}) must be ≥ n_neighbors_min "
-                f"({self.n_neighbors_min})"
-            )
-        int_in_range(self.descriptor_size, "descriptor_size", 2)
-        int_in_range(self.bootstrap_max_particles, "bootstrap_max_particles", MIN_PARTICLES)
-        int_in_range(self.max_iterations, "max_iterations", 1)
-        if not isinstance(self.seed, int | np.integer):
-            raise InputError(f"seed must be an integer ≥ 0, got {self.seed!r}")
-        int_in_range(self.seed, "seed", 0)
-        int_in_range(self.local_neighbors, "local_neighbors", 3)
-        if self.local_degree not in (1, 2):
-            raise InputError(f"local_degree must be 1 or 2, got {self.local_degree}")
-        for name in ("growth_passes", "polish_iterations"):
-            int_in_range(getattr(self, name), name, 0)
-        for name in ("descriptor_ratio", "nn_ratio", "growth_q"):
-            if not 0 < finite_float(getattr(self, name), name) <= 1:
-                raise InputError(f"{name} must be in (0, 1], got {getattr(self, name)}")
-        for name in ("guess_min_fraction", "guess_confirm_fraction"):
-            if not 0 <= finite_float(getattr(self, name), name) <= 1:
-                raise InputError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        for name in ("outlier_threshold", "tolerance_sigmas"):
-            positive_float(getattr(self, name), name)
-        nonnegative_float(self.smoothness, "smoothness")
-        if self.regularization not in METHODS:
-            raise InputError(
-                f"regularization must be one of {METHODS}, got {self.regularization!r}"
-            )
-        for name in (
-            "outlier_eps_um",
-            "grid_spacing_um",
-            "nn_max_distance_um",
-            "ransac_threshold_um",
-            "local_radius_um",
-            "local_scale_um",
-        ):
-            v = getattr(self, name)
-            if v is not None:
-                positive_float(v, name)
-        if self.outlier_eps_xyz_um is not None:
-            try:
-                eps = np.asarray(self.outlier_eps_xyz_um, dtype=float)
-            except (TypeError, ValueError):
-                eps = np.zeros(0)
-            if eps.shape != (3,) or not np.all(np.isfinite(eps) & (eps > 0)):
-                raise InputError(
-                    "outlier_eps_xyz_um must be None or 3 finite values > 0 (x, y, z in µm), "
-                    f"got {self.outlier_eps_xyz_um!r}"
-                )
-            object.__setattr__(self, "outlier_eps_xyz_um", tuple(float(v) for v in eps))
-
-
-@dataclass(frozen=True)
-class IterationRecord:
-    """What one iteration did (counts are numbers of matches).
-
-    Attributes
-    ----------
-    iteration : int
-        1-based.
-    matcher : str
-        ``"topology"``, ``"topology-moment"`` or ``"nearest"`` (seeding: the winning
-        bootstrap hypothesis, or ``"nearest"`` for the matches of an ``initial_guess``),
-        ``"local"`` (growth and validation) or ``"polish"``.
-    n_neighbors : int
-        Neighbours of the median test.
-    n_candidates, n_matches, n_outliers : int
-        Candidate matches (grown ones included), matches kept, candidates removed.
-    update_rms_um : float
-        RMS change of the predicted displacements since the previous iteration (nan for
-        seeding and for the first iteration).
-    residual_rms_um : float
-        Robust RMS length of the matches' residuals about their predictions.
-    seconds : float
-        Wall time.
-    """
-
-    iteration: int
-    matcher: str
-    n_neighbors: int
-    n_candidates: int
-    n_matches: int
-    n_outliers: int
-    update_rms_um: float
-    residual_rms_um: float
-    seconds: float
-
-
-@dataclass(frozen=True)
-class LinkResult:
-    """Outcome of :func:`link_pair`.
-
-    Attributes
-    ----------
-    matches : ndarray of int, shape (K, 2)
-        0-based rows ``[row_ref, row_def]`` of matched particles.
-    displacement_um : ndarray, shape (K, 3)
-        ``def − ref`` of each match in µm.
-    tracking_ratio : float
-        K / min(N, M).
-    iterations : int
-        Iterations run (bootstrap included).
-    history : tuple of IterationRecord
-        Per-iteration counts and field updates.
-    displacement_field : callable
-        ``field(xyz_um (P, 3)) -> (P, 3)`` µm, the final regularised displacement at
-        reference-configuration points.
-    ok : bool
-        False when no consistent set of matches was found; ``reason`` says why, ``matches``
-        is empty and ``displacement_field`` must not be used.
-    reason : str
-        Empty when ``ok``.
-    mean_spacing_um : float
-        Mean nearest-neighbour distance of the reference cloud.
-    """
-
-    matches: np.ndarray
-    displacement_um: np.ndarray
-    tracking_ratio: float
-    iterations: int
-    history: tuple[IterationRecord, ...]
-    displacement_field: Callable[[np.ndarray], np.ndarray]
-    ok: bool = True
-    reason: str = ""
-    mean_spacing_um: float = float("nan")
-    seconds: float = field(default=0.0, compare=False)
 
 
 # ----------------------------------------------------------------------------- validation
@@ -369,143 +117,12 @@ def _validate_cloud(name: str, xyz) -> np.ndarray:
 # ------------------------------------------------------------------------------- matchers
 
 
-def match_descriptors_global(
-    desc_ref: np.ndarray, desc_def: np.ndarray, ratio: float
-) -> np.ndarray:
-    """Mutual nearest descriptors passing a ratio test, over the whole clouds.
-
-    Parameters
-    ----------
-    desc_ref, desc_def : ndarray, shape (N, D), (M, D)
-        Descriptors (:func:`track.features.topology_descriptors`).
-    ratio : float
-        Best descriptor distance must be < ``ratio`` × the second best.
-
-    Returns
-    -------
-    ndarray of int, shape (K, 2)
-        ``[row_ref, row_def]`` candidates.
-    """
-    d, i = cKDTree(desc_def).query(desc_ref, 2, workers=-1)
-    _, back = cKDTree(desc_ref).query(desc_def, 1, workers=-1)
-    rows = np.arange(desc_ref.shape[0])
-    ok = (d[:, 0] < ratio * d[:, 1]) & (back[i[:, 0]] == rows)
-    return np.column_stack([rows[ok], i[ok, 0]])
-
-
-def match_nearest(
-    warped_ref: np.ndarray, def_xyz: np.ndarray, max_distance_um: float, ratio: float
-) -> np.ndarray:
-    """Mutual nearest neighbours within ``max_distance_um`` passing a distance-ratio test.
-
-    Returns ``[row_ref, row_def]`` pairs, shape (K, 2).
-    """
-    k = 2 if def_xyz.shape[0] > 1 else 1
-    d, i = cKDTree(def_xyz).query(warped_ref, k)
-    d, i = d.reshape(len(d), -1), i.reshape(len(i), -1)
-    _, back = cKDTree(warped_ref).query(def_xyz, 1)
-    rows = np.arange(warped_ref.shape[0])
-    ok = (d[:, 0] <= max_distance_um) & (back[i[:, 0]] == rows)
-    if k == 2:
-        ok &= d[:, 0] < ratio * d[:, 1]
-    return np.column_stack([rows[ok], i[ok, 0]])
-
-
-def match_predicted(
-    warped_ref: np.ndarray, def_xyz: np.ndarray, tolerance_xyz_um: np.ndarray, ratio: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Unambiguous deformed particle inside each predicted position's tolerance ellipsoid.
-
-    The distance of deformed particle ``j`` from warped reference particle ``i`` is
-    ``q_ij = |(def_j − warped_i) / tolerance_i|`` (per-axis tolerances, so anisotropic noise
-    gets an ellipsoid). A pair is kept when ``q ≤ 1`` and it beats every other candidate of
-    both ``i`` and ``j`` by the ratio: ``q < ratio × q_second``.
-
-    Parameters
-    ----------
-    warped_ref : ndarray, shape (N, 3)
-        Predicted deformed positions of the reference particles (µm).
-    def_xyz : ndarray, shape (M, 3)
-        Deformed particles (µm).
-    tolerance_xyz_um : ndarray, shape (N, 3)
-        Semi-axes (x, y, z) of each particle's tolerance ellipsoid (µm, > 0).
-    ratio : float
-        Ratio test, 0 < ratio ≤ 1.
-
-    Returns
-    -------
-    pairs : ndarray of int, shape (K, 2)
-        ``[row_ref, row_def]``.
-    q : ndarray, shape (K,)
-        Normalised distance of each pair.
-    """
-    n = warped_ref.shape[0]
-    tol = np.asarray(tolerance_xyz_um, dtype=float)
-    k = min(4, def_xyz.shape[0])
-    reach = float(np.max(tol)) / ratio
-    d, j = cKDTree(def_xyz).query(warped_ref, k, distance_upper_bound=reach)
-    d, j = d.reshape(n, k), j.reshape(n, k)
-    valid = np.isfinite(d)
-    safe = np.where(valid, j, 0)
-    q = np.sqrt(np.sum(((def_xyz[safe] - warped_ref[:, None, :]) / tol[:, None, :]) ** 2, axis=2))
-    q[~valid] = np.inf
-    order = np.argsort(q, axis=1)
-    q1 = np.take_along_axis(q, order[:, :1], axis=1)[:, 0]
-    q2 = np.take_along_axis(q, order[:, 1:2], axis=1)[:, 0] if k > 1 else np.full(n, np.inf)
-    best_j = np.take_along_axis(safe, order[:, :1], axis=1)[:, 0]
-    ok = (q1 <= 1.0) & (q1 < ratio * q2)
-    # deformed side: j's best claimant must be i and beat j's other claimants by the ratio
-    rows = np.repeat(np.arange(n), k)[valid.ravel()]
-    cols = safe.ravel()[valid.ravel()]
-    qq = q.ravel()[valid.ravel()]
-    srt = np.lexsort((qq, cols))
-    rows, cols, qq = rows[srt], cols[srt], qq[srt]
-    first = np.ones(cols.size, dtype=bool)
-    first[1:] = cols[1:] != cols[:-1]
-    nxt = np.full(cols.size, np.inf)
-    same_next = np.zeros(cols.size, dtype=bool)
-    same_next[:-1] = cols[1:] == cols[:-1]
-    nxt[:-1] = np.where(same_next[:-1], qq[1:], np.inf)
-    owner = np.full(def_xyz.shape[0], -1)
-    owner_ok = np.zeros(def_xyz.shape[0], dtype=bool)
-    owner[cols[first]] = rows[first]
-    owner_ok[cols[first]] = qq[first] < ratio * nxt[first]
-    ok &= (owner[best_j] == np.arange(n)) & owner_ok[best_j]
-    sel = np.flatnonzero(ok)
-    return np.column_stack([sel, best_j[sel]]).astype(np.int64), q1[sel]
-
-
 # ------------------------------------------------------------------------------- the loop
-
-
-def _robust_rms(residual: np.ndarray) -> float:
-    """RMS of residual vectors estimated from their median squared length (Gaussian)."""
-    if residual.shape[0] == 0:
-        return float("inf")
-    return float(np.sqrt(np.median(np.sum(residual**2, axis=1)) * 3.0 / 2.366))
 
 
 def _mean_spacing(xyz: np.ndarray) -> float:
     d, _ = cKDTree(xyz).query(xyz, 2)
     return float(np.mean(d[:, 1]))
-
-
-def _clean(ref, dfm, pairs, k, settings, eps_um, predicted):
-    """Median-test the residuals of ``pairs`` w.r.t. the predicted (warped) positions.
-
-    Testing residuals rather than raw displacements keeps particles on the border of a
-    strongly rotating or stretching region, whose neighbours all lie on one side.
-    """
-    if pairs.shape[0] == 0:
-        return pairs
-    keep = normalized_median_test(
-        ref[pairs[:, 0]],
-        dfm[pairs[:, 1]] - predicted[pairs[:, 0]],
-        n_neighbors=k,
-        threshold=settings.outlier_threshold,
-        eps_um=eps_um,
-    )
-    return pairs[keep]
 
 
 def _verify(ref, dfm, aff, settings, spacing, eps_um):
@@ -711,233 +328,6 @@ def _failed(reason: str, spacing: float, history, t0: float) -> LinkResult:
     )
 
 
-def _loo_noise(resid: np.ndarray, spacing: float) -> np.ndarray:
-    """Robust per-axis standard deviation (x, y, z) of match residuals, floored."""
-    if resid.shape[0] < 4:
-        return np.full(3, 0.05 * spacing)
-    mad = np.median(np.abs(resid - np.median(resid, axis=0)), axis=0)
-    return np.maximum(1.4826 * mad, 1e-3 * spacing)
-
-
-def _predict(ref, dfm, pairs, u_base, settings, spacing, rows=None):
-    """Displacement prediction at reference particles from the current matches.
-
-    ``u_base`` (the global field at every reference particle, (N, 3)) plus a
-    moving-least-squares polynomial fit (:func:`track.regularize.local_polynomial_predict`)
-    of the matched residuals about it, leave-one-out for matched particles. ``rows`` selects
-    the reference rows to predict (default all). Returns (prediction (R, 3), misfit (R, 3),
-    neighbour count (R,)).
-    """
-    rows = np.arange(ref.shape[0]) if rows is None else rows
-    x = ref[pairs[:, 0]]
-    r = dfm[pairs[:, 1]] - x - u_base[pairs[:, 0]]
-    slot = np.full(ref.shape[0], -1, dtype=np.int64)
-    slot[pairs[:, 0]] = np.arange(pairs.shape[0])
-    lp = local_polynomial_predict(
-        x,
-        r,
-        ref[rows],
-        n_neighbors=settings.local_neighbors,
-        radius_um=settings.radii_um(spacing).local_radius_um,
-        scale_um=settings.radii_um(spacing).local_scale_um,
-        exclude=slot[rows],
-        degree=settings.local_degree,
-    )
-    return u_base[rows] + lp.values_um, lp.misfit_um, lp.n_neighbors
-
-
-def _tolerance_limits(settings, spacing):
-    hi = settings.radii_um(spacing).nn_max_distance_um
-    return min(0.1 * spacing, hi), hi
-
-
-def _tolerance(sigma, noise, settings, spacing):
-    """Per-particle tolerance semi-axes (x, y, z): κ × (noise ⊕ local error σ).
-
-    Each semi-axis lies in [lo, 1.7 hi] and the ellipsoid's volume is at most that of the
-    ball of radius ``hi`` (``nn_max_distance_um``, default 0.45 mean spacings): the chance
-    that an unrelated particle falls inside is what limits it, and a thin ellipsoid (the
-    lateral error is often ten times smaller than the axial) may reach further along its
-    long axis.
-    """
-    lo, hi = _tolerance_limits(settings, spacing)
-    sig = np.sqrt(noise**2 + np.where(np.isfinite(sigma), sigma, hi) ** 2)
-    t = np.clip(settings.tolerance_sigmas * sig, lo, 1.7 * hi)
-    vol = np.prod(t, axis=1)
-    shrink = np.minimum(1.0, (hi**3 / vol) ** (1.0 / 3.0))
-    return np.maximum(t * shrink[:, None], lo)
-
-
-def _neighbour_rms(x, resid, query, k, radius, exclude):
-    """RMS per axis of the ``k`` nearest ``resid`` rows around each query (Q, 3); inf if none."""
-    kk = min(k + 1, x.shape[0])
-    d, idx = cKDTree(x).query(query, kk, distance_upper_bound=radius)
-    d, idx = d.reshape(len(query), kk), idx.reshape(len(query), kk)
-    valid = np.isfinite(d) & (idx != exclude[:, None])
-    valid &= np.cumsum(valid, axis=1) <= k
-    r2 = np.where(valid[:, :, None], resid[np.where(valid, idx, 0)] ** 2, 0.0)
-    cnt = valid.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.sqrt(r2.sum(axis=1) / cnt[:, None])
-    out[cnt == 0] = np.inf
-    return out
-
-
-def _pair_keys(pairs, m):
-    return np.sort(pairs[:, 0] * m + pairs[:, 1])
-
-
-def _grow(
-    ref,
-    dfm,
-    pairs,
-    u_base,
-    refit_base,
-    settings,
-    spacing,
-    eps_fixed,
-    history,
-    start,
-    stop=None,
-    label="local",
-    grow=True,
-):
-    """Local matching grown from ``pairs`` until the match set is stable.
-
-    Each iteration (a) grows: passes that predict the unmatched reference particles with
-    at least three matched neighbours from those neighbours and add the unambiguous
-    matches to still free deformed particles (within ``growth_q`` of their tolerance);
-    (b) validates: predicts every particle leave-one-out, matches the whole clouds again and
-    removes outliers with the normalised median test (per-axis noise levels). It stops when
-    an iteration without growth changes nothing (or the set flips between two states).
-    """
-    ratio = settings.nn_ratio
-    m = dfm.shape[0]
-    noise = np.full(3, 0.05 * spacing)
-    last_pred = None
-    lo, hi = _tolerance_limits(settings, spacing)
-    calib = None  # (positions, leave-one-out residuals) of the last validated matches
-    k_cal = settings.local_neighbors
-    r_cal = settings.radii_um(spacing).local_radius_um
-    seen: list[np.ndarray] = [_pair_keys(pairs, m)]
-    stop = settings.max_iterations if stop is None else stop
-    settle = not grow  # an iteration without growth passes
-    tabu = np.zeros(ref.shape[0], dtype=bool)  # rejected by the last median test
-    for it in range(start, stop + 1):
-        ts = time.perf_counter()
-        grown = 0
-        for _ in range(0 if settle else settings.growth_passes):
-            free_ref = ~tabu
-            free_ref[pairs[:, 0]] = False
-            rows = np.flatnonzero(free_ref)
-            if rows.size == 0:
-                break
-            pred, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing, rows)
-            near = nnb >= 3
-            rows, pred, misfit = rows[near], pred[near], misfit[near]
-            if rows.size == 0:
-                break
-            sigma = misfit
-            if calib is not None:
-                none = np.full(rows.size, -1)
-                sigma = np.maximum(sigma, _neighbour_rms(*calib, ref[rows], k_cal, r_cal, none))
-            tol = _tolerance(sigma, noise, settings, spacing)
-            cand, q = match_predicted(ref[rows] + pred, dfm, tol, ratio)
-            taken = np.zeros(m, dtype=bool)
-            taken[pairs[:, 1]] = True
-            cand = cand[~taken[cand[:, 1]] & (q <= settings.growth_q)]
-            if cand.shape[0] == 0:
-                break
-            pairs = np.vstack([pairs, np.column_stack([rows[cand[:, 0]], cand[:, 1]])])
-            grown += cand.shape[0]
-        if refit_base:
-            aff = fit_affine(ref[pairs[:, 0]], dfm[pairs[:, 1]] - ref[pairs[:, 0]])
-            u_base = aff(ref)
-        pred, misfit, nnb = _predict(ref, dfm, pairs, u_base, settings, spacing)
-        resid = dfm[pairs[:, 1]] - ref[pairs[:, 0]] - pred[pairs[:, 0]]
-        noise = _loo_noise(resid, spacing)
-        # The local error scale: the polynomial's misfit, or the leave-one-out errors of the
-        # matched neighbours where larger (they show what the misfit misses: curvature,
-        # one-sided neighbourhoods at faces and fronts).
-        calib = (ref[pairs[:, 0]], resid)
-        slot = np.full(ref.shape[0], -1, dtype=np.int64)
-        slot[pairs[:, 0]] = np.arange(pairs.shape[0])
-        sigma = np.maximum(misfit, _neighbour_rms(*calib, ref, k_cal, r_cal, slot))
-        tol = _tolerance(sigma, noise, settings, spacing)
-        # Particles without matched neighbours rely on the global field alone: only once
-        # the growth has stopped, and where that field describes the matches well (a
-        # homogeneous field, sparse clouds).
-        lone = nnb < 3
-        if np.any(lone) and grown == 0:
-            x = ref[pairs[:, 0]]
-            spread = _loo_noise(dfm[pairs[:, 1]] - x - u_base[pairs[:, 0]], spacing)
-            t_base = settings.tolerance_sigmas * spread
-            if np.all(t_base <= hi):
-                pred[lone] = u_base[lone]
-                tol[lone] = np.maximum(t_base, lo)
-            else:
-                tol[lone] = 0.0
-        cand, q = match_predicted(ref + pred, dfm, np.maximum(tol, 1e-9 * spacing), ratio)
-        # While the front still moves, a particle matched for the first time must meet the
-        # growth criterion: the outer part of a tolerance ellipsoid is for re-validating
-        # matches and, once the growth has stopped, for the particles left among matched
-        # neighbours, not for guessing at the front.
-        was = np.zeros(ref.shape[0], dtype=bool)
-        was[pairs[:, 0]] = True
-        first_ok = (q <= settings.growth_q) | (grown == 0)
-        keep = (tol[cand[:, 0], 0] > 0) & (was[cand[:, 0]] | first_ok)
-        cand, q = cand[keep], q[keep]
-        eps = eps_fixed if eps_fixed is not None else np.maximum(noise, 0.02 * spacing)
-        # Where the local polynomial misses part of the field (steep fronts, interfaces), a
-        # right match deviates from its prediction by up to the local misfit: the median
-        # test allows for it.
-        eps = np.maximum(eps, np.where(np.isfinite(sigma), sigma, 0.0))[cand[:, 0]]
-        k = 2 * settings.n_neighbors_min
-        new = _clean(ref, dfm, cand, k, settings, eps, ref + pred)
-        # A match deep inside its ellipsoid (q ≤ growth_q / 2: an unrelated particle that
-        # close is improbable and the ratio test excludes a second one) stays: the median
-        # test couples neighbours and would flip a few right ones in and out.
-        sure = cand[q <= 0.5 * settings.growth_q]
-        if sure.shape[0]:
-            new = np.unique(np.vstack([new, sure]), axis=0)
-        # growth does not offer the median test's rejects again right away (it would
-        # flip between adding and removing them)
-        tabu[:] = False
-        tabu[cand[:, 0]] = True
-        tabu[new[:, 0]] = False
-        update = float("nan")
-        if last_pred is not None:
-            update = float(np.sqrt(np.mean(np.sum((pred - last_pred) ** 2, axis=1))))
-        last_pred = pred
-        history.append(
-            IterationRecord(
-                it,
-                label,
-                k,
-                int(cand.shape[0] + grown),
-                int(new.shape[0]),
-                int(cand.shape[0] - new.shape[0]),
-                update,
-                float(np.sqrt(np.sum(noise**2))),
-                time.perf_counter() - ts,
-            )
-        )
-        logger.debug("iteration %d: %s (grown %d)", it, history[-1], grown)
-        if new.shape[0] < 4:
-            return new  # nothing consistent is left: the caller reports it
-        keys = _pair_keys(new, m)
-        pairs = new
-        repeated = any(keys.shape == s.shape and np.array_equal(keys, s) for s in seen[-2:])
-        seen.append(keys)
-        if repeated:  # stable, or flipping between two sets
-            if grown == 0:
-                break
-            settle = True  # once more without growth: first matches may then use q ≤ 1
-        else:
-            settle = not grow
-    return pairs
-
-
 def bridge_tracks(
     ref_xyz, def_xyz, pairs, ref_rows, def_rows, settings=None, *, q_max: float = 1.0
 ) -> np.ndarray:
@@ -1125,6 +515,70 @@ def _grow_and_fit(ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, 
     return pairs, fld
 
 
+def _guess_pairs(ref, dfm, initial_guess, settings, spacing, eps_boot, n_min, history):
+    """The matches ``initial_guess`` predicts, median-tested (recorded in ``history``):
+    ``(pairs, displacements at ref (N, 3) µm, False)`` when they are numerous enough
+    (``guess_min_fraction``), else None."""
+    test = np.asarray(initial_guess(ref[:1]), dtype=float)
+    if test.shape != (1, 3) or not np.all(np.isfinite(test)):
+        raise InputError(
+            "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
+        )
+    ts = time.perf_counter()
+    u0 = np.asarray(initial_guess(ref), dtype=float)
+    if u0.shape != ref.shape or not np.all(np.isfinite(u0)):
+        raise InputError(
+            "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
+        )
+    tol = np.full(ref.shape, settings.radii_um(spacing).nn_max_distance_um)
+    cand, _ = match_predicted(ref + u0, dfm, tol, settings.nn_ratio)
+    guess_pairs = _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_boot, ref + u0)
+    history.append(
+        IterationRecord(
+            1,
+            "nearest",
+            settings.n_neighbors_max,
+            int(cand.shape[0]),
+            int(guess_pairs.shape[0]),
+            int(cand.shape[0] - guess_pairs.shape[0]),
+            float("nan"),
+            float("nan"),
+            time.perf_counter() - ts,
+        )
+    )
+    if guess_pairs.shape[0] >= max(4, settings.guess_min_fraction * n_min):
+        return guess_pairs, u0, False
+    else:
+        logger.info(
+            "initial_guess matched %d of %d particles; running the bootstrap instead",
+            guess_pairs.shape[0],
+            n_min,
+        )
+    return None
+
+
+def _confirm_guess(ref, dfm, guess, settings, spacing, eps_boot, eps_fixed, n_min, history):
+    """``((pairs, field), history)`` grown from the guessed matches ``guess`` (pairs,
+    starting field, refit), or from the global bootstrap where that links more particles and
+    the guess links fewer than ``guess_confirm_fraction`` of them."""
+    pairs, u_base, refit = guess
+    guessed = _grow_and_fit(ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history)
+    if guessed[0].shape[0] >= settings.guess_confirm_fraction * n_min:
+        return guessed, history
+    else:
+        logger.info(
+            "the matches grown from initial_guess link %d of %d particles; "
+            "running the bootstrap as well",
+            guessed[0].shape[0],
+            n_min,
+        )
+        boot_history = list(history)
+        booted = _bootstrap_and_fit(ref, dfm, settings, spacing, eps_boot, eps_fixed, boot_history)
+        if booted is not None and booted[0].shape[0] > guessed[0].shape[0]:
+            return booted, boot_history
+        return guessed, history
+
+
 def link_pair(
     ref_xyz,
     def_xyz,
@@ -1177,64 +631,13 @@ def link_pair(
     n_min = min(ref.shape[0], dfm.shape[0])
     history: list[IterationRecord] = []
 
-    pairs = None
+    guess = None
     if initial_guess is not None:
-        test = np.asarray(initial_guess(ref[:1]), dtype=float)
-        if test.shape != (1, 3) or not np.all(np.isfinite(test)):
-            raise InputError(
-                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
-            )
-        ts = time.perf_counter()
-        u0 = np.asarray(initial_guess(ref), dtype=float)
-        if u0.shape != ref.shape or not np.all(np.isfinite(u0)):
-            raise InputError(
-                "initial_guess must map (P, 3) µm points to finite (P, 3) µm displacements"
-            )
-        tol = np.full(ref.shape, settings.radii_um(spacing).nn_max_distance_um)
-        cand, _ = match_predicted(ref + u0, dfm, tol, settings.nn_ratio)
-        guess_pairs = _clean(ref, dfm, cand, settings.n_neighbors_max, settings, eps_boot, ref + u0)
-        history.append(
-            IterationRecord(
-                1,
-                "nearest",
-                settings.n_neighbors_max,
-                int(cand.shape[0]),
-                int(guess_pairs.shape[0]),
-                int(cand.shape[0] - guess_pairs.shape[0]),
-                float("nan"),
-                float("nan"),
-                time.perf_counter() - ts,
-            )
+        guess = _guess_pairs(ref, dfm, initial_guess, settings, spacing, eps_boot, n_min, history)
+    if guess is not None:
+        (pairs, fld), history = _confirm_guess(
+            ref, dfm, guess, settings, spacing, eps_boot, eps_fixed, n_min, history
         )
-        if guess_pairs.shape[0] >= max(4, settings.guess_min_fraction * n_min):
-            pairs, u_base, refit = guess_pairs, u0, False
-        else:
-            logger.info(
-                "initial_guess matched %d of %d particles; running the bootstrap instead",
-                guess_pairs.shape[0],
-                n_min,
-            )
-    if pairs is not None:
-        guessed = _grow_and_fit(
-            ref, dfm, pairs, u_base, refit, settings, spacing, eps_fixed, history
-        )
-        if guessed[0].shape[0] >= settings.guess_confirm_fraction * n_min:
-            pairs, fld = guessed
-        else:
-            logger.info(
-                "the matches grown from initial_guess link %d of %d particles; "
-                "running the bootstrap as well",
-                guessed[0].shape[0],
-                n_min,
-            )
-            boot_history = list(history)
-            booted = _bootstrap_and_fit(
-                ref, dfm, settings, spacing, eps_boot, eps_fixed, boot_history
-            )
-            if booted is not None and booted[0].shape[0] > guessed[0].shape[0]:
-                (pairs, fld), history = booted, boot_history
-            else:
-                pairs, fld = guessed
     else:
         booted = _bootstrap_and_fit(ref, dfm, settings, spacing, eps_boot, eps_fixed, history)
         if booted is None:
