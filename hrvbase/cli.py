@@ -4,6 +4,8 @@
   both to the main parser and to every sub-command, so they work before or after the command
   name, alike in ``lfsim``, ``recon``, ``track`` and ``hrvptm``; ``--version`` sits on the
   main parser.
+- :func:`tool_parser` builds the main parser of each of them: those options, ``--version``
+  and the sub-command parsers.
 - :class:`Parser` prints usage errors as one line ``PROG: error: ...`` (exit 2).
 - :func:`run_main` sets up logging (``PROG: level: message`` on stderr) and turns every error
   a user can cause (:class:`~hrvbase.errors.HrvError`, and operating-system errors such as a
@@ -64,6 +66,45 @@ def common_options(*, suppress: bool) -> argparse.ArgumentParser:
         help="only errors; no progress bars or summary (default: off)",
     )
     return p
+
+
+def tool_parser(
+    prog: str,
+    description: str,
+    version: str,
+    *,
+    common: Callable[..., argparse.ArgumentParser] = common_options,
+    **subparsers: Any,
+) -> tuple[Parser, Any, argparse.ArgumentParser]:
+    """The top parser of a command line, with its shared options and its commands.
+
+    Parameters
+    ----------
+    prog, description : str
+        The program's name and one-line description.
+    version : str
+        What ``--version`` prints.
+    common : callable, default :func:`common_options`
+        ``common(suppress=...)`` gives the options accepted before and after the command name.
+    **subparsers
+        More arguments of :meth:`argparse.ArgumentParser.add_subparsers` (``metavar``,
+        ``required``).
+
+    Returns
+    -------
+    parser : Parser
+        The top parser (``-v``/``-q``, ``--version`` and what ``common`` adds).
+    commands : argparse action
+        Its sub-parsers: ``commands.add_parser(name, parents=[shared], ...)``; the command's
+        name lands in ``args.command``.
+    shared : argparse.ArgumentParser
+        The parent parser of each command (``common(suppress=True)``: no defaults, so that an
+        option given before the command name is not reset).
+    """
+    p = Parser(prog=prog, description=description, parents=[common(suppress=False)])
+    p.add_argument("--version", action="version", version=version)
+    sub = p.add_subparsers(dest="command", parser_class=Parser, **subparsers)
+    return p, sub, common(suppress=True)
 
 
 def log_level(args: argparse.Namespace) -> int:

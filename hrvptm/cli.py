@@ -50,18 +50,13 @@ DEMO = Path(__file__).resolve().parent.parent / "scenes" / "experiments" / "demo
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``hrvptm`` argument parser."""
-    from hrvbase.cli import Parser, add_parallel_options, common_options
+    from hrvbase.cli import add_parallel_options, tool_parser
 
     from . import __version__
 
-    p = Parser(
-        prog="hrvptm",
-        description="Validation studies of the HR-VPTM toolkit.",
-        parents=[common_options(suppress=False)],
+    p, sub, shared = tool_parser(
+        "hrvptm", "Validation studies of the HR-VPTM toolkit.", f"hrvptm {__version__}"
     )
-    p.add_argument("--version", action="version", version=f"hrvptm {__version__}")
-    sub = p.add_subparsers(dest="command", parser_class=Parser)
-    shared = common_options(suppress=True)
 
     def common(
         q: argparse.ArgumentParser,

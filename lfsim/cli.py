@@ -362,7 +362,7 @@ def cmd_dataset(args) -> int:
 
 # -- parser -----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
-    from hrvbase.cli import Parser, add_parallel_options, common_options
+    from hrvbase.cli import add_parallel_options, tool_parser
 
     from . import __version__
     from .experiment import DEFAULT_NOISE, WhiteConfig
@@ -374,12 +374,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     from .tracer import RenderSettings
 
-    p = Parser(
-        prog="lfsim",
-        description="Physically based light-field microscope simulator (lengths in µm).",
-        parents=[common_options(suppress=False)],
+    p, sub, common = tool_parser(
+        "lfsim",
+        "Physically based light-field microscope simulator (lengths in µm).",
+        f"lfsim (hrvptm) {__version__}",
+        metavar="COMMAND",
+        required=True,
     )
-    p.add_argument("--version", action="version", version=f"lfsim (hrvptm) {__version__}")
     p.add_argument(
         "--threads",
         type=int,
@@ -392,8 +393,6 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="Dr.Jit backend (default: auto, CUDA if present, else LLVM)",
     )
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=Parser)
-    common = common_options(suppress=True)
 
     def value(q, flag: str, kind, default, text: str) -> None:
         q.add_argument(flag, type=kind, default=default, help=f"{text} (default {default:g})")

@@ -265,17 +265,16 @@ def choice_option(parser, flag: str, choices: tuple[str, ...], text: str) -> Non
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``recon`` argument parser (one sub-parser per command)."""
-    from hrvbase.cli import Parser
+    from hrvbase.cli import tool_parser
 
-    parser = Parser(
-        prog="recon",
-        description="Light-field microscopy reconstruction (hrvptm): lenslet calibration and "
+    parser, sub, common = tool_parser(
+        "recon",
+        "Light-field microscopy reconstruction (hrvptm): lenslet calibration and "
         "Richardson-Lucy volume reconstruction on Dr.Jit.",
-        parents=[_common_options(suppress=False)],
+        f"recon (hrvptm) {__version__}",
+        common=_common_options,
+        metavar="COMMAND",
     )
-    parser.add_argument("--version", action="version", version=f"recon (hrvptm) {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    common = _common_options(suppress=True)
 
     def command(name: str, text: str, description: str) -> argparse.ArgumentParser:
         return sub.add_parser(name, parents=[common], help=text, description=description)

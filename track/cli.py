@@ -70,17 +70,16 @@ from pathlib import Path
 import numpy as np
 
 from hrvbase.cli import (
-    Parser,
     SettingOption,
     add_parallel_options,
     add_setting_options,
-    common_options,
     int_in,
     number,
     parallel_from_args,
     run_main,
     settings_from_args,
     show_progress,
+    tool_parser,
 )
 
 from . import __version__
@@ -370,14 +369,9 @@ def _link_options(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``track`` argument parser."""
-    p = Parser(
-        prog="track",
-        description="Particle tracking and strain from volumes.",
-        parents=[common_options(suppress=False)],
+    p, sub, common = tool_parser(
+        "track", "Particle tracking and strain from volumes.", f"track (hrvptm) {__version__}"
     )
-    p.add_argument("--version", action="version", version=f"track (hrvptm) {__version__}")
-    sub = p.add_subparsers(dest="command", parser_class=Parser)
-    common = common_options(suppress=True)
     r = sub.add_parser(
         "run", parents=[common], help="detect → link → fields for a folder of volumes"
     )
