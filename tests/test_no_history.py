@@ -16,10 +16,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Folders (every text file under them) and files searched, relative to the repository root.
 SEARCHED = ("docs", "scenes", "hrvbase", "lfsim", "recon", "track", "hrvptm", "tests", "benchmarks")
+SEARCHED += ("examples",)
+#: Build outputs of the documentation site (docs/conf.py), not sources.
+BUILT = {"_build", "auto_examples", "generated"}
 SEARCHED_FILES = ("README.md",)
 
 #: Suffixes of the text files read (plots and other binaries are skipped).
 TEXT = {".md", ".py", ".toml", ".xml", ".json", ".csv", ".txt", ".cfg", ".ini", ".yaml", ".yml"}
+TEXT |= {".rst"}
 
 #: The word "session" or "issue" (any case, maybe plural) followed by a number, maybe after "#".
 HISTORY = re.compile(r"\b(?:session|issue)s?\s*#?\s*\d+", re.IGNORECASE)
@@ -29,7 +33,8 @@ def _files() -> list[Path]:
     out = [ROOT / f for f in SEARCHED_FILES if (ROOT / f).is_file()]
     for top in SEARCHED:
         for path in sorted((ROOT / top).rglob("*")):
-            if path.suffix in TEXT and path.is_file() and "__pycache__" not in path.parts:
+            built = {"__pycache__", *BUILT} & set(path.relative_to(ROOT).parts)
+            if path.suffix in TEXT and path.is_file() and not built:
                 out.append(path)
     return out
 
