@@ -33,7 +33,6 @@ NOT_SPLIT_YET = {
     "recon/pixel_size.py:_fit_axis",
     "recon/pixel_size.py:measure_pixel_size",
     "recon/pixel_size.py:_measure",
-    "track/segment.py:segment",
     "hrvptm/analysis.py:analyse_series",
 }
 

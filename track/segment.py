@@ -388,6 +388,46 @@ def segment(
     slices = ndimage.find_objects(labels)
 
     info = _blob_stats(vol, labels, n, thr, spacing)
+    _mark_edges(vol, labels, info, slices, thr, margin)
+    info = [
+        (r["label"], r["n_vox"], r["bbox"], r["cen"], r["peak"], r["cov"], r["edge"]) for r in info
+    ]
+
+    counts = {"components": len(info)}
+    inner = [x for x in info if not x[6]]
+    counts["edge"] = len(inner)
+    bmin, bmax = _size_bounds(inner, bmin, bmax, f_lo, f_hi)
+    sized = [x for x in inner if bmin <= x[1] <= bmax]
+    counts["size"] = len(sized)
+    ref_cov, whiten = _reference_shape(sized)
+    aspect_limit = _aspect_limit(sized, whiten, max_rel_aspect)
+    blobs, n_shape, n_clump = _classify(
+        info, vol, labels, thr, (bmin, bmax), whiten, aspect_limit, float(clump_prominence)
+    )
+    counts["shape"] = n_shape
+    counts["clump"] = n_clump
+    log.info(
+        "segment: threshold %.4g, %d components -> %d accepted (size %d..%d voxels)",
+        thr,
+        counts["components"],
+        n_clump,
+        bmin,
+        bmax,
+    )
+    return Segmentation(
+        labels=labels,
+        blobs=tuple(blobs),
+        threshold=float(thr),
+        size_bounds_vox=(int(bmin), int(bmax)),
+        reference_cov_um2=ref_cov,
+        counts=counts,
+        n_split=n_split,
+    )
+
+
+def _mark_edges(vol, labels, info, slices, thr, margin) -> None:
+    """Set every blob record's ``bbox`` and ``edge`` (True when the blob is cut by or too
+    close to a face, see :func:`segment`) in place."""
     edge_lo = np.maximum(np.asarray(margin), 1)
     shape = np.asarray(vol.shape)
     for rec, sl in zip(info, slices, strict=True):
@@ -403,49 +443,62 @@ def segment(
         hi = np.array([s.start + int(i.max()) + 1 for s, i in zip(sl, idx, strict=True)])
         cut = ((lo < edge_lo) | (hi > shape - edge_lo)) & (hi - lo < 0.5 * shape)
         rec["edge"] = bool(np.any(top < edge_lo) or np.any(top >= shape - edge_lo) or cut.any())
-    info = [
-        (r["label"], r["n_vox"], r["bbox"], r["cen"], r["peak"], r["cov"], r["edge"]) for r in info
-    ]
 
-    counts = {"components": len(info)}
-    inner = [x for x in info if not x[6]]
-    counts["edge"] = len(inner)
-    sizes = np.array([x[1] for x in inner], dtype=float)
+
+def _size_bounds(inner, bmin, bmax, f_lo, f_hi) -> tuple[int, int]:
+    """The blob size bounds (voxels): ``bmin``/``bmax`` where given, else ``f_lo``/``f_hi``
+    times the size-weighted median size of the blobs ``inner`` of at least
+    :data:`MIN_AUTO_VOX` voxels."""
     if bmin is None or bmax is None:
+        sizes = np.array([x[1] for x in inner], dtype=float)
         ref_pool = sizes[sizes >= MIN_AUTO_VOX]
         ref = _weighted_median(ref_pool, ref_pool) if ref_pool.size else float(MIN_AUTO_VOX)
         lo_auto = max(MIN_AUTO_VOX, int(np.floor(f_lo * ref)))
         hi_auto = max(lo_auto, int(np.ceil(f_hi * ref)))
         bmin = lo_auto if bmin is None else bmin
         bmax = hi_auto if bmax is None else bmax
-    sized = [x for x in inner if bmin <= x[1] <= bmax]
-    counts["size"] = len(sized)
-    if sized:
-        ref_cov = np.median(np.stack([x[5] for x in sized]), axis=0)
-        ref_cov = 0.5 * (ref_cov + ref_cov.T)
+    return bmin, bmax
+
+
+def _reference_shape(sized) -> tuple[np.ndarray, np.ndarray | None]:
+    """The median covariance (µm², 3 × 3) of the size-accepted blobs and its whitening
+    matrix (None and NaN without blobs)."""
+    if not sized:
+        return np.full((3, 3), np.nan), None
+    ref_cov = np.median(np.stack([x[5] for x in sized]), axis=0)
+    ref_cov = 0.5 * (ref_cov + ref_cov.T)
+    evals, evecs = np.linalg.eigh(ref_cov)
+    if not evals.min() > 0:  # fall back to the diagonal
+        ref_cov = np.diag(np.maximum(np.diag(ref_cov), 1e-12))
         evals, evecs = np.linalg.eigh(ref_cov)
-        if not evals.min() > 0:  # fall back to the diagonal
-            ref_cov = np.diag(np.maximum(np.diag(ref_cov), 1e-12))
-            evals, evecs = np.linalg.eigh(ref_cov)
-        whiten = evecs @ np.diag(evals**-0.5) @ evecs.T
-    else:
-        ref_cov = np.full((3, 3), np.nan)
-        whiten = None
+    return ref_cov, evecs @ np.diag(evals**-0.5) @ evecs.T
 
-    def rel_aspect(cov) -> float:
-        mu = np.linalg.eigvalsh(whiten @ cov @ whiten)
-        return float(np.sqrt(mu.max() / mu.min())) if mu.min() > 0 else float("inf")
 
-    # the aspect limit: max_rel_aspect, or the upper Tukey fence of the size-accepted blobs'
-    # log aspects where their own scatter is wider (sharp, noisy or sub-voxel images scatter
-    # more; streaks and merged pairs stay outliers)
+def _rel_aspect(whiten, cov) -> float:
+    """Aspect ratio of covariance ``cov`` relative to the reference shape (``whiten``)."""
+    mu = np.linalg.eigvalsh(whiten @ cov @ whiten)
+    return float(np.sqrt(mu.max() / mu.min())) if mu.min() > 0 else float("inf")
+
+
+def _aspect_limit(sized, whiten, max_rel_aspect) -> float:
+    """The aspect limit: ``max_rel_aspect``, or the upper Tukey fence of the size-accepted
+    blobs' log aspects where their own scatter is wider (sharp, noisy or sub-voxel images
+    scatter more; streaks and merged pairs stay outliers)."""
     aspect_limit = float(max_rel_aspect)
     if len(sized) >= 4:
-        logs = np.log([rel_aspect(x[5]) for x in sized])
+        logs = np.log([_rel_aspect(whiten, x[5]) for x in sized])
         logs = logs[np.isfinite(logs)]
         if logs.size >= 4:
             q1, q3 = np.percentile(logs, [25, 75])
             aspect_limit = max(aspect_limit, float(np.exp(q3 + 1.5 * (q3 - q1))))
+    return aspect_limit
+
+
+def _classify(info, vol, labels, thr, bounds, whiten, aspect_limit, clump_prominence) -> tuple:
+    """Every component as a :class:`Blob`, rejected (with its reason) by the edge, size
+    (``bounds``: min, max voxels), shape and clump filters in that order, or accepted.
+    Returns (blobs, number passing the shape filter, number accepted)."""
+    bmin, bmax = bounds
     blobs = []
     n_shape = n_clump = 0
     for lab, nv, bbox, cen, peak, cov, edge in info:
@@ -467,7 +520,7 @@ def segment(
         if nv > bmax:
             blobs.append(Blob(**common, reason=f"too large ({nv} > blob_max_vox {bmax})"))
             continue
-        rel = rel_aspect(cov)
+        rel = _rel_aspect(whiten, cov)
         if rel > aspect_limit:
             blobs.append(
                 Blob(
@@ -478,7 +531,7 @@ def segment(
             )
             continue
         n_shape += 1
-        n_max = _count_maxima(vol, labels, lab, bbox, thr, peak, float(clump_prominence))
+        n_max = _count_maxima(vol, labels, lab, bbox, thr, peak, clump_prominence)
         if n_max >= 2:
             blobs.append(
                 Blob(**common, rel_aspect=rel, n_maxima=n_max, reason=f"clump ({n_max} maxima)")
@@ -486,25 +539,7 @@ def segment(
             continue
         n_clump += 1
         blobs.append(Blob(**common, rel_aspect=rel, n_maxima=n_max))
-    counts["shape"] = n_shape
-    counts["clump"] = n_clump
-    log.info(
-        "segment: threshold %.4g, %d components -> %d accepted (size %d..%d voxels)",
-        thr,
-        counts["components"],
-        n_clump,
-        bmin,
-        bmax,
-    )
-    return Segmentation(
-        labels=labels,
-        blobs=tuple(blobs),
-        threshold=float(thr),
-        size_bounds_vox=(int(bmin), int(bmax)),
-        reference_cov_um2=ref_cov,
-        counts=counts,
-        n_split=n_split,
-    )
+    return blobs, n_shape, n_clump
 
 
 def _blob_stats(vol, labels, n, thr, spacing) -> list[dict]:
