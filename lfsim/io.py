@@ -10,8 +10,8 @@ replace a file without ``overwrite``.
 
 from __future__ import annotations
 
+import functools
 import os
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,15 +39,8 @@ from hrvbase.io import (
 from .errors import ConfigError
 
 
-def write_tiff(
-    path: str | os.PathLike,
-    array: np.ndarray,
-    *,
-    metadata: Mapping[str, Any],
-    pixel_size_um: float | tuple | None = None,
-    origin_xyz_um: tuple | None = None,
-    overwrite: bool = False,
-) -> Path:
+@functools.wraps(tiff_layout.write_tiff, assigned=(), updated=())  # its signature
+def write_tiff(*args: Any, **kwargs: Any) -> Path:
     """Write an image ``(y, x)`` or volume ``(z, y, x)`` as TIFF with its scale, atomically
     (:func:`hrvbase.formats.tiff_layout.write_tiff`, whose parameters it takes).
 
@@ -59,14 +52,7 @@ def write_tiff(
         Bad array, pixel size, origin or non-JSON metadata.
     """
     with raised_as(ConfigError):
-        return tiff_layout.write_tiff(
-            path,
-            array,
-            metadata=metadata,
-            pixel_size_um=pixel_size_um,
-            origin_xyz_um=origin_xyz_um,
-            overwrite=overwrite,
-        )
+        return tiff_layout.write_tiff(*args, **kwargs)
 
 
 def read_tiff(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
