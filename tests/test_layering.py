@@ -1,4 +1,4 @@
-"""Dependency direction (README "Architecture"): hrvbase imports none of the packages; track
+"""Dependency direction (docs/user_guide): hrvbase imports none of the packages; track
 imports neither lfsim nor recon (only hrvbase); recon may import lfsim; nothing below hrvptm
 imports hrvptm; hrvptm uses track through its library, never its command line."""
 
