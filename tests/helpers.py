@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 #: The particle box of most lfsim test experiments: (x, y, z) ranges in µm.
@@ -139,6 +142,27 @@ class LoopbackCluster:
 
         os.killpg(self.workers[i].pid, signal.SIGKILL)
         self.workers[i].wait()
+
+    @contextlib.contextmanager
+    def killing_worker_when(
+        self, ready: Callable[[], bool], timeout_s: float = 60.0, poll_s: float = 0.05
+    ) -> Iterator[None]:
+        """Within the block, kill worker 0 from a thread as soon as ``ready()`` is true (at
+        the latest after ``timeout_s``), polling every ``poll_s``; leaving the block waits for
+        that thread."""
+
+        def kill() -> None:
+            t0 = time.monotonic()
+            while not ready() and time.monotonic() - t0 < timeout_s:
+                time.sleep(poll_s)
+            self.kill_worker(0)
+
+        killer = threading.Thread(target=kill)
+        killer.start()
+        try:
+            yield
+        finally:
+            killer.join()
 
     def __exit__(self, *exc) -> None:
         import os

@@ -4,8 +4,6 @@ and a frame that fails on a worker fails the command."""
 
 from __future__ import annotations
 
-import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -13,7 +11,7 @@ import pytest
 from recon.cli import main
 
 from ..helpers import LoopbackCluster
-from .test_pipeline import EXPERIMENT, FAST, ROOT
+from .test_pipeline import FAST, ROOT, make_dataset, run
 
 ARGS = [*FAST, "--iterations", "3"]
 
@@ -21,22 +19,7 @@ ARGS = [*FAST, "--iterations", "3"]
 @pytest.fixture(scope="module")
 def dataset4(backend, tmp_path_factory):
     """The pipeline tests' dataset with 4 frames."""
-    from lfsim.dataset import generate_dataset
-    from lfsim.experiment import load_experiment
-
-    d = tmp_path_factory.mktemp("ds4")
-    toml = d / "exp.toml"
-    text = EXPERIMENT.replace("frames = 3", "frames = 4")
-    toml.write_text(text.format(scene=(ROOT / "scenes" / "small.xml").as_posix()))
-    out = d / "dataset"
-    generate_dataset(load_experiment(toml), out, progress=False)
-    return out
-
-
-def run(capsys, *args):
-    rc = main(["-q", *map(str, args)])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
+    return make_dataset(tmp_path_factory, frames=4)
 
 
 @pytest.fixture(scope="module")
@@ -83,17 +66,12 @@ def test_two_local_workers_give_the_serial_volumes(dataset4, serial, tmp_path, c
 def test_loopback_cluster_with_a_killed_worker(dataset4, serial, tmp_path, capsys):
     out = tmp_path / "vol"
     with LoopbackCluster(tmp_path) as cluster:
-
-        def kill_after_first_volume():
-            t0 = time.monotonic()
-            while not list(out.glob("[0-9]*.tif")) and time.monotonic() - t0 < 120:
-                time.sleep(0.02)
-            cluster.kill_worker(0)
-
-        killer = threading.Thread(target=kill_after_first_volume)
-        killer.start()
-        rc, _, err = run(capsys, "run", dataset4, *ARGS, "--scheduler", cluster.address, "-o", out)
-        killer.join()
+        with cluster.killing_worker_when(
+            lambda: any(out.glob("[0-9]*.tif")), timeout_s=120.0, poll_s=0.02
+        ):
+            rc, _, err = run(
+                capsys, "run", dataset4, *ARGS, "--scheduler", cluster.address, "-o", out
+            )
         assert cluster.workers[0].poll() is not None  # killed during the run
     assert rc == 0, err
     assert_same_run(serial, out)

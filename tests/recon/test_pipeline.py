@@ -32,20 +32,27 @@ EXPERIMENT = experiment_toml(
 FAST = ["--z-range", "-40:400", "--z-step", "20", "-s", "3", "--rays-per-pattern", "20000"]
 
 
-@pytest.fixture(scope="module")
-def dataset(backend, tmp_path_factory):
+def make_dataset(tmp_path_factory, frames: int = 3) -> Path:
+    """The lfsim dataset of :data:`EXPERIMENT` with ``frames`` frames, in a new folder."""
     from lfsim.dataset import generate_dataset
     from lfsim.experiment import load_experiment
 
-    d = tmp_path_factory.mktemp("ds")
+    d = tmp_path_factory.mktemp(f"ds{frames}")
     toml = d / "exp.toml"
-    toml.write_text(EXPERIMENT.format(scene=(ROOT / "scenes" / "small.xml").as_posix()))
+    text = EXPERIMENT.replace("frames = 3", f"frames = {frames}")
+    toml.write_text(text.format(scene=(ROOT / "scenes" / "small.xml").as_posix()))
     out = d / "dataset"
     generate_dataset(load_experiment(toml), out, progress=False)
     return out
 
 
+@pytest.fixture(scope="module")
+def dataset(backend, tmp_path_factory):
+    return make_dataset(tmp_path_factory)
+
+
 def run(capsys, *args):
+    """``recon -q ARGS``: the exit code, stdout and stderr."""
     rc = main(["-q", *map(str, args)])
     out = capsys.readouterr()
     return rc, out.out, out.err
