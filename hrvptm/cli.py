@@ -71,9 +71,14 @@ def build_parser() -> argparse.ArgumentParser:
         )
         add_parallel_options(q)
 
-    def command(name: str, text: str, description: str, func) -> argparse.ArgumentParser:
+    def command(
+        name: str, text: str, description: str, func, output: tuple[str, str]
+    ) -> argparse.ArgumentParser:
+        """Sub-command ``name`` running ``func``, with its required ``-o`` (metavar, help)."""
         q = sub.add_parser(name, parents=[shared], help=text, description=description)
         q.set_defaults(func=func)
+        metavar, what = output
+        q.add_argument("-o", "--output", required=True, type=Path, metavar=metavar, help=what)
         return q
 
     st = command(
@@ -82,12 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
         "Simulate → reconstruct → track → compare with the truth; writes CSV tables, plots, "
         "summary.md and summary.json into REPORT. A rerun resumes.",
         cmd_study,
+        ("REPORT", "report folder"),
     )
     st.add_argument(
         "experiment", type=Path, metavar="EXPERIMENT.toml", help="study file (experiment TOML)"
-    )
-    st.add_argument(
-        "-o", "--output", required=True, type=Path, metavar="REPORT", help="report folder"
     )
     st.add_argument(
         "--until",
@@ -102,8 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
         "the built-in small study (simple shear, test size)",
         f"Run {DEMO.name} end to end and print its summary.",
         cmd_demo,
+        ("DIR", "report folder"),
     )
-    de.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="report folder")
     common(de)
 
     co = command(
@@ -111,11 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
         "gather study reports into one Markdown page",
         "Gather the summary.md of finished reports into one page with their plots.",
         cmd_collect,
+        ("PAGE.md", "Markdown page"),
     )
     co.add_argument("reports", type=Path, nargs="+", metavar="REPORT", help="finished reports")
-    co.add_argument(
-        "-o", "--output", required=True, type=Path, metavar="PAGE.md", help="Markdown page"
-    )
     co.add_argument(
         "--preamble",
         type=Path,
@@ -138,12 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
         "the microscope model of VOLDIR/recon.json, reconstruct them as the volumes were, "
         "subtract each sphere's offset, then link and grid (RESULTS/track).",
         cmd_axial,
+        ("RESULTS", "results folder"),
     )
     ax.add_argument(
         "voldir", type=Path, metavar="VOLDIR", help="volumes of `recon run` (folder or .zarr)"
-    )
-    ax.add_argument(
-        "-o", "--output", required=True, type=Path, metavar="RESULTS", help="results folder"
     )
     ax.add_argument(
         "--track-config",
