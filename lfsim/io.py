@@ -42,15 +42,8 @@ from .errors import ConfigError
 @functools.wraps(tiff_layout.write_tiff, assigned=(), updated=())  # its signature
 def write_tiff(*args: Any, **kwargs: Any) -> Path:
     """Write an image ``(y, x)`` or volume ``(z, y, x)`` as TIFF with its scale, atomically
-    (:func:`hrvbase.formats.tiff_layout.write_tiff`, whose parameters it takes).
-
-    Raises
-    ------
-    OutputError
-        ``path`` exists and ``overwrite`` is false, or it cannot be written (names ``path``).
-    ConfigError
-        Bad array, pixel size, origin or non-JSON metadata.
-    """
+    (:func:`hrvbase.formats.tiff_layout.write_tiff`, whose parameters it takes and whose
+    errors it raises, a bad array, pixel size, origin or metadata as :class:`ConfigError`)."""
     with raised_as(ConfigError):
         return tiff_layout.write_tiff(*args, **kwargs)
 

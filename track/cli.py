@@ -372,43 +372,59 @@ def build_parser() -> argparse.ArgumentParser:
     p, sub, common = tool_parser(
         "track", "Particle tracking and strain from volumes.", f"track (hrvptm) {__version__}"
     )
-    r = sub.add_parser(
-        "run", parents=[common], help="detect → link → fields for a folder of volumes"
+
+    def command(name: str, text: str, func, inputs, options, parallel: str) -> None:
+        """Sub-command ``name`` running ``func``: its ``inputs`` argument, the options every
+        command takes, its own ``options`` and the parallel options titled ``parallel``."""
+        q = sub.add_parser(name, parents=[common], help=text)
+        inputs(q)
+        _common(q)
+        for add in options:
+            add(q)
+        add_parallel_options(q.add_argument_group(parallel))
+        q.set_defaults(func=func)
+
+    def volumes(q: argparse.ArgumentParser) -> None:
+        q.add_argument(
+            "voldir",
+            type=Path,
+            metavar="VOLDIR",
+            help="folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)",
+        )
+
+    def clouds(q: argparse.ArgumentParser) -> None:
+        q.add_argument(
+            "clouds",
+            type=Path,
+            nargs="+",
+            metavar="CSV",
+            help="point clouds with columns x_um,y_um,z_um, frame 0 first",
+        )
+
+    command(
+        "run",
+        "detect → link → fields for a folder of volumes",
+        cmd_run,
+        volumes,
+        (_detect_options, _link_options),
+        "frames in parallel (detection and fields)",
     )
-    r.add_argument(
-        "voldir",
-        type=Path,
-        metavar="VOLDIR",
-        help="folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)",
+    command(
+        "detect",
+        "detect particles in a folder of volumes",
+        cmd_detect,
+        volumes,
+        (_detect_options,),
+        "frames in parallel",
     )
-    _common(r)
-    _detect_options(r)
-    _link_options(r)
-    add_parallel_options(r.add_argument_group("frames in parallel (detection and fields)"))
-    r.set_defaults(func=cmd_run)
-    d = sub.add_parser("detect", parents=[common], help="detect particles in a folder of volumes")
-    d.add_argument(
-        "voldir",
-        type=Path,
-        metavar="VOLDIR",
-        help="folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)",
+    command(
+        "link",
+        "link point clouds (CSV) and compute fields",
+        cmd_link,
+        clouds,
+        (_link_options,),
+        "increments in parallel (fields)",
     )
-    _common(d)
-    _detect_options(d)
-    add_parallel_options(d.add_argument_group("frames in parallel"))
-    d.set_defaults(func=cmd_detect)
-    k = sub.add_parser("link", parents=[common], help="link point clouds (CSV) and compute fields")
-    k.add_argument(
-        "clouds",
-        type=Path,
-        nargs="+",
-        metavar="CSV",
-        help="point clouds with columns x_um,y_um,z_um, frame 0 first",
-    )
-    _common(k)
-    _link_options(k)
-    add_parallel_options(k.add_argument_group("increments in parallel (fields)"))
-    k.set_defaults(func=cmd_link)
     return p
 
 

@@ -561,17 +561,9 @@ def test_loopback_cluster_killed_worker_frames_redone(tmp_path):
         ctx = WorkerContext(_slow_ctx, (str(tmp_path),))
         par = Parallel(scheduler=cluster.address)
 
-        def kill_after_first():
-            t0 = time.monotonic()
-            while not list(tmp_path.glob("done_*")) and time.monotonic() - t0 < 60:
-                time.sleep(0.05)
-            cluster.kill_worker(0)
-
-        killer = threading.Thread(target=kill_after_first)
-        killer.start()
-        with frame_map(_slow_frame, range(n), parallel=par, context=ctx) as fm:
-            got = dict(fm)
-        killer.join()
+        with cluster.killing_worker_when(lambda: any(tmp_path.glob("done_*"))):
+            with frame_map(_slow_frame, range(n), parallel=par, context=ctx) as fm:
+                got = dict(fm)
         assert cluster.workers[0].poll() is not None  # it was killed during the run
     assert got == {k: k * k for k in range(n)}
     assert len(fm.peak_memory_bytes) == 1  # the surviving worker
@@ -602,6 +594,14 @@ def test_loopback_cluster_results_lost_with_their_worker_are_redone(tmp_path):
     assert got == {k: k * k for k in range(n)}
 
 
+def _map_on_two_workers(tmp_path, n: int, retries: int) -> dict:
+    """``{frame: (value, pid)}`` of ``n`` frames of :func:`_frame` on two local workers."""
+    ctx = WorkerContext(_build, (1.0, str(tmp_path)))
+    par = Parallel(workers=2, threads=1, retries=retries)
+    with frame_map(_frame, range(n), parallel=par, context=ctx) as fm:
+        return dict(fm)
+
+
 def test_a_result_cancelled_by_the_scheduler_is_run_again(monkeypatch, caplog, tmp_path):
     """The scheduler may cancel a finished frame whose worker died while its result was being
     fetched ("Couldn't gather ... rescheduling", then FutureCancelledError): the map runs that
@@ -622,20 +622,15 @@ def test_a_result_cancelled_by_the_scheduler_is_run_again(monkeypatch, caplog, t
 
     monkeypatch.setattr(Future, "result", result)
     caplog.set_level(logging.WARNING, logger="hrvbase")
-    ctx = WorkerContext(_build, (1.0, str(tmp_path)))
-    par = Parallel(workers=2, threads=1, retries=2)
-    with frame_map(_frame, range(4), parallel=par, context=ctx) as fm:
-        got = dict(fm)
+    got = _map_on_two_workers(tmp_path, 4, retries=2)
     assert sorted(got) == [0, 1, 2, 3]
     assert [v for v, _ in (got[k] for k in range(4))] == _expected(4, 1.0)
     assert len(set(lost)) == 2  # a new key each time
     assert sum("running it again" in r.getMessage() for r in caplog.records) == 2
     # Beyond the retries: the map fails with the cancellation.
     lost.clear()
-    par = Parallel(workers=2, threads=1, retries=1)
     with pytest.raises(FutureCancelledError):
-        with frame_map(_frame, range(4), parallel=par, context=ctx) as fm:
-            dict(fm)
+        _map_on_two_workers(tmp_path, 4, retries=1)
 
 
 def test_a_shared_context_lost_with_its_workers_is_sent_again(monkeypatch, caplog, tmp_path):
@@ -662,10 +657,7 @@ def test_a_shared_context_lost_with_its_workers_is_sent_again(monkeypatch, caplo
 
     monkeypatch.setattr(Future, "result", result)
     caplog.set_level(logging.WARNING, logger="hrvbase")
-    ctx = WorkerContext(_build, (1.0, str(tmp_path)))
-    par = Parallel(workers=2, threads=1, retries=1)
-    with frame_map(_frame, range(6), parallel=par, context=ctx) as fm:
-        got = dict(fm)
+    got = _map_on_two_workers(tmp_path, 6, retries=1)
     assert [got[k][0] for k in range(6)] == _expected(6, 1.0)
     assert lost
     messages = [r.getMessage() for r in caplog.records]
