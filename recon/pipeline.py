@@ -19,7 +19,6 @@ the volumes and records are the same as in process.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
@@ -37,12 +36,22 @@ from .geometry import ReconGrid
 from .preprocess import Preprocess, check_dark, prepare_image, read_frame
 from .projector import make_projector
 from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
+from .run_record import (
+    RECON_JSON,
+    RESULT_KEYS,
+    SOURCE_KEYS,
+    check_output,
+    clean_up_failed_start,
+    frame_entry,
+)
 from .settings import ReconSettings, default_z_step_um
-from .volume_store import OutputExistsError, VolumeGeometry, make_writer
+from .volume_store import (  # noqa: F401 (OutputExistsError importable from here)
+    OutputExistsError,
+    VolumeGeometry,
+    make_writer,
+)
 
 log = logging.getLogger(__name__)
-
-RECON_JSON = "recon.json"
 
 
 #: Largest radius (lenslets) of a point's light pattern the PSF bank stores (its memory grows
@@ -235,22 +244,76 @@ def reconstruct_series(
         (without ``overwrite``). Nothing is written then.
     """
     from hrvbase.io import write_json
-    from hrvbase.parallel import Parallel, WorkerContext, frame_map
+    from hrvbase.parallel import Parallel
 
-    from .frames import FrameRef, check_frames, frame_checksums
-    from .rectify import rectify
+    from .frames import frame_checksums
 
     par = Parallel() if parallel is None else parallel
     st = (settings or ReconSettings()).resolved(optics)
     pp = preprocess or Preprocess()
     scene_mla_kind = optics.mla_kind
     optics = model_optics(optics)
+    refs = _frame_refs(frames)
+    out = Path(out_dir)
+    writer = make_writer(volume_format, out, zarr_chunk_z=zarr_chunk_z)
+    n, ropt = _rectified(optics, grid)
+    depths = st.depths_um
+
+    first, geom = _first_frame(refs[0], grid, pp, n, st.roi_px)
+    nx, ny = geom.n_lenslets
+    check_depths_resolvable(optics, depths, (nx, ny))
+
+    key = bank_key(ropt, depths, st.s, st.rays_per_pattern, 0, 1e-3)
+    identity = _identity(st, pp, optics, grid, key, solver)
+    dark_sum = identity["preprocess"]["dark_sha256"]
+    fp = _fingerprint(identity)
+    checksums = frame_checksums(refs)
+    meta_path = out / RECON_JSON
+    fps = (provenance or {}).get("fps")
+    previous = check_output(writer, fp, refs, checksums, overwrite, fps=fps, identity=identity)
+    created = not out.exists()
+    done, skipped, secs = [], [], {}
+    try:
+        o_x, o_y = _object_origin(grid, geom, optics)
+        rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
+        _prepare_writer(writer, refs, rgrid, overwrite)
+        meta = _series_record(
+            fp, optics, grid, st, pp, dark_sum, rgrid, key, scene_mla_kind, writer, par
+        )
+        meta.update(provenance or {})
+        frame_entries, todo = _plan_frames(refs, checksums, previous, writer, pp, skipped)
+        meta["frames"] = frame_entries
+        write_json(meta_path, meta, overwrite=True)
+        if skipped:
+            log.info("%s: %d frame(s) already reconstructed, skipped", out, len(skipped))
+        if todo:
+            run = (refs, todo, frame_entries, meta, meta_path, first.shape, (o_x, o_y))
+            _run_frames(
+                run, st, pp, grid, optics, ropt, rgrid, writer, par, solver, progress, done, secs
+            )
+    except BaseException:
+        clean_up_failed_start(writer, created, done)
+        raise
+    meta["status"] = "complete"
+    write_json(meta_path, meta, overwrite=True)
+    return SeriesResult(out, done, skipped, secs)
+
+
+def _frame_refs(frames) -> list:
+    """The frames as :class:`recon.frames.FrameRef`, checked (same size, pixel type and
+    bit depth)."""
+    from .frames import FrameRef, check_frames
+
     refs = [FrameRef.of(f) for f in frames]
     if not refs:
         raise InputError("no frames to reconstruct")
     check_frames(refs)
-    out = Path(out_dir)
-    writer = make_writer(volume_format, out, zarr_chunk_z=zarr_chunk_z)
+    return refs
+
+
+def _rectified(optics, grid) -> tuple:
+    """The pixels per rectified lenslet and the optics of the rectified image (a warning
+    where the calibrated pitch differs from the scene's by more than 5 %)."""
     n = round(optics.px_per_lenslet)
     if abs(grid.pitch_px - optics.px_per_lenslet) > 0.05 * optics.px_per_lenslet:
         log.warning(
@@ -258,23 +321,21 @@ def reconstruct_series(
             grid.pitch_px,
             optics.px_per_lenslet,
         )
-    ropt = rectified_optics(optics, n)
-    depths = st.depths_um
+    return n, rectified_optics(optics, n)
 
-    # Rectification geometry from the first frame (all frames share the camera).
-    first = read_frame(refs[0].path, page=refs[0].page)
-    if tuple(first.shape) != tuple(grid.image_shape):
-        raise InputError(
-            f"frame {refs[0].label!r} is {first.shape[1]} × {first.shape[0]} px but the "
-            f"calibration was made on {grid.image_shape[1]} × {grid.image_shape[0]} px images"
-        )
-    if pp.dark is not None:
-        check_dark(first, pp.dark, frame=f"frame {refs[0].label!r}", dark_name=pp.dark_name)
-    _, geom = _rectify_roi(rectify, first, grid, n, st.roi_px)
-    nx, ny = geom.n_lenslets
-    check_depths_resolvable(optics, depths, (nx, ny))
 
-    key = bank_key(ropt, depths, st.s, st.rays_per_pattern, 0, 1e-3)
+def _prepare_writer(writer, refs, rgrid, overwrite: bool) -> None:
+    """Prepare ``writer`` for the volumes of ``refs`` on reconstruction grid ``rgrid``."""
+    origin_xyz = (rgrid.x_um()[0], rgrid.y_um()[0], rgrid.depths_um[0])
+    geometry = VolumeGeometry(tuple(rgrid.shape), tuple(rgrid.voxel_size_um), origin_xyz)
+    writer.prepare(
+        len(refs), geometry, [r.time_s for r in refs], overwrite, [r.number for r in refs]
+    )
+
+
+def _identity(st, pp, optics, grid, key, solver) -> dict:
+    """What the fingerprint of a series is made of: the settings, the preparation (with the
+    dark frame's checksum), the optics, the calibration, the PSF bank and the solver."""
     dark_sum = None if pp.dark is None else hashlib.sha256(pp.dark.tobytes()).hexdigest()
     identity = {
         "settings": st.result_dict(),  # not the threads: same volumes for any count
@@ -290,129 +351,147 @@ def reconstruct_series(
     }
     if solver is not None:
         identity["solver"] = f"{solver.__module__}.{solver.__qualname__}"
-    fp = _fingerprint(identity)
-    checksums = frame_checksums(refs)
-    meta_path = out / RECON_JSON
-    fps = (provenance or {}).get("fps")
-    previous = _check_output(writer, fp, refs, checksums, overwrite, fps=fps, identity=identity)
-    created = not out.exists()
-    done, skipped, secs = [], [], {}
-    try:
-        prev_frames = {e.get("index"): e for e in (previous or {}).get("frames", [])}
-        o_x, o_y = _object_origin(grid, geom, optics)
-        rgrid = ReconGrid(optics.lenslet_object_um, tuple(depths), st.s, (nx, ny), (o_x, o_y))
-        origin_xyz = (rgrid.x_um()[0], rgrid.y_um()[0], rgrid.depths_um[0])
-        geometry = VolumeGeometry(tuple(rgrid.shape), tuple(rgrid.voxel_size_um), origin_xyz)
-        writer.prepare(
-            len(refs), geometry, [r.time_s for r in refs], overwrite, [r.number for r in refs]
+    return identity
+
+
+def _first_frame(ref, grid, pp, n, roi_px):
+    """The first frame (checked against the calibration's image size and the dark frame) and
+    its rectification geometry, which every frame of the series shares."""
+    from .rectify import rectify
+
+    first = read_frame(ref.path, page=ref.page)
+    if tuple(first.shape) != tuple(grid.image_shape):
+        raise InputError(
+            f"frame {ref.label!r} is {first.shape[1]} × {first.shape[0]} px but the "
+            f"calibration was made on {grid.image_shape[1]} × {grid.image_shape[0]} px images"
         )
-        meta = {
-            "tool": "recon",
-            "version": _version(),
-            "fingerprint": fp,
-            "status": "incomplete",
-            "optics": optics.to_dict(),
-            "calibration": grid.to_dict(),
-            "settings": st.to_dict(),
-            "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
-            "grid": rgrid.to_dict(),
-            "voxel_size_um": list(rgrid.voxel_size_um),
-            "volume_shape": list(rgrid.shape),
-            "psf_bank": key,
-            "scene_mla_kind": scene_mla_kind,
-            "format": writer.format,
-            **writer.record_extra(),
-            "frames": [],
-            "parallel": {"mode": par.describe()},
-            **(provenance or {}),
-        }
-        frame_entries = []
-        todo = []
-        for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
-            entry = _frame_entry(k, ref, sha)
-            e = prev_frames.get(k)
-            if e and e.get("input_sha256") == sha and writer.verify(k, e.get("output")):
-                entry.update({name: e[name] for name in _RESULT_KEYS if name in e})
-                kept_gain = ((previous or {}).get("preprocess") or {}).get("gain_dn_per_e", 0.0)
-                if "snr" not in (entry.get("preprocess") or {}) or kept_gain != pp.gain_dn_per_e:
-                    # kept from a run before the SNR was measured, or with another camera
-                    # gain: measure it now (the frame read again, not reconstructed)
-                    img = read_frame(ref.path, page=ref.page)
-                    entry["preprocess"] = {**(entry.get("preprocess") or {})}
-                    entry["preprocess"].update(prepare_image(img, pp)[1])
-                skipped.append(k)
-            else:
-                if e and e.get("input_sha256") == sha and writer.exists(k):
-                    log.warning(
-                        "%s: volume %s changed on disk since it was written (truncated or "
-                        "corrupt); reconstructing it again",
-                        out,
-                        writer.label(k),
-                    )
-                todo.append(k)
-            frame_entries.append(entry)
-        meta["frames"] = frame_entries
-        write_json(meta_path, meta, overwrite=True)
-        if skipped:
-            log.info("%s: %d frame(s) already reconstructed, skipped", out, len(skipped))
-        if todo:
-            t0 = time.perf_counter()
-            bank = compute_psf_bank(
-                ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
-            )
-            meta["psf_seconds"] = time.perf_counter() - t0
-            meta["macs_per_projection"] = int(bank.nnz) * nx * ny
-            # The projector and filter are built from the bank once per process (in each
-            # worker, from the one copy of the bank sent to it); each frame is computed and
-            # written by reconstruct_frame, wherever it runs.
-            model = WorkerContext(
-                _frame_model,
-                (
-                    bank,
-                    (nx, ny),
-                    st,
-                    pp,
-                    grid,
-                    ropt,
-                    rgrid,
-                    (o_x, o_y),
-                    tuple(first.shape),
-                    replace(writer, out=writer.out.resolve()),  # workers may run elsewhere
-                    _backend_device(),
-                    solver,
-                ),
-            )
-            jobs = [
-                (
-                    k,
-                    replace(refs[k], path=Path(refs[k].path).resolve()),
-                    {k2: v for k2, v in frame_entries[k].items() if k2 in _SOURCE_KEYS},
+    if pp.dark is not None:
+        check_dark(first, pp.dark, frame=f"frame {ref.label!r}", dark_name=pp.dark_name)
+    _, geom = _rectify_roi(rectify, first, grid, n, roi_px)
+    return first, geom
+
+
+def _series_record(
+    fp, optics, grid, st, pp, dark_sum, rgrid, key, scene_mla_kind, writer, par
+) -> dict:
+    """The ``recon.json`` record of a series before its frames (status "incomplete")."""
+    return {
+        "tool": "recon",
+        "version": _version(),
+        "fingerprint": fp,
+        "status": "incomplete",
+        "optics": optics.to_dict(),
+        "calibration": grid.to_dict(),
+        "settings": st.to_dict(),
+        "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
+        "grid": rgrid.to_dict(),
+        "voxel_size_um": list(rgrid.voxel_size_um),
+        "volume_shape": list(rgrid.shape),
+        "psf_bank": key,
+        "scene_mla_kind": scene_mla_kind,
+        "format": writer.format,
+        **writer.record_extra(),
+        "frames": [],
+        "parallel": {"mode": par.describe()},
+    }
+
+
+def _plan_frames(refs, checksums, previous, writer, pp, skipped) -> tuple[list, list]:
+    """Every frame's ``recon.json`` entry and the indices still to reconstruct: a frame whose
+    volume a previous run (``previous``, its record) made from the same input and that is
+    intact on disk keeps its results (its SNR measured again where the record lacks it or
+    the camera gain changed) and is appended to ``skipped``."""
+    out = writer.out
+    prev_frames = {e.get("index"): e for e in (previous or {}).get("frames", [])}
+    frame_entries = []
+    todo = []
+    for k, (ref, sha) in enumerate(zip(refs, checksums, strict=True)):
+        entry = frame_entry(k, ref, sha)
+        e = prev_frames.get(k)
+        if e and e.get("input_sha256") == sha and writer.verify(k, e.get("output")):
+            entry.update({name: e[name] for name in RESULT_KEYS if name in e})
+            kept_gain = ((previous or {}).get("preprocess") or {}).get("gain_dn_per_e", 0.0)
+            if "snr" not in (entry.get("preprocess") or {}) or kept_gain != pp.gain_dn_per_e:
+                # kept from a run before the SNR was measured, or with another camera
+                # gain: measure it now (the frame read again, not reconstructed)
+                img = read_frame(ref.path, page=ref.page)
+                entry["preprocess"] = {**(entry.get("preprocess") or {})}
+                entry["preprocess"].update(prepare_image(img, pp)[1])
+            skipped.append(k)
+        else:
+            if e and e.get("input_sha256") == sha and writer.exists(k):
+                log.warning(
+                    "%s: volume %s changed on disk since it was written (truncated or "
+                    "corrupt); reconstructing it again",
+                    out,
+                    writer.label(k),
                 )
-                for k in todo
-            ]
-            fmap = frame_map(
-                reconstruct_frame,
-                jobs,
-                parallel=par,
-                context=model,
-                progress=progress,
-                desc="recon",
-            )
-            with fmap:
-                for (k, _, _), record in fmap:
-                    # Threads of the projector that made it (the same for every frame).
-                    meta["projector_threads"] = record.pop("projector_threads")
-                    secs[k] = record["seconds"]
-                    frame_entries[k].update(record)
-                    write_json(meta_path, meta, overwrite=True)
-                    done.append(k)
-            meta["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
-    except BaseException:
-        _clean_up_failed_start(writer, created, done)
-        raise
-    meta["status"] = "complete"
-    write_json(meta_path, meta, overwrite=True)
-    return SeriesResult(out, done, skipped, secs)
+            todo.append(k)
+        frame_entries.append(entry)
+    return frame_entries, todo
+
+
+def _run_frames(run, st, pp, grid, optics, ropt, rgrid, writer, par, solver, progress, done, secs):
+    """Compute the PSF bank and reconstruct the frames ``todo`` (wherever ``par`` runs them,
+    :func:`reconstruct_frame`), recording each in ``meta`` and ``recon.json`` as it
+    arrives; appends to ``done`` and ``secs``."""
+    from hrvbase.io import write_json
+    from hrvbase.parallel import WorkerContext, frame_map
+
+    refs, todo, frame_entries, meta, meta_path, first_shape, (o_x, o_y) = run
+    nx, ny = rgrid.n_lenslets
+    depths = st.depths_um
+    t0 = time.perf_counter()
+    bank = compute_psf_bank(
+        ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
+    )
+    meta["psf_seconds"] = time.perf_counter() - t0
+    meta["macs_per_projection"] = int(bank.nnz) * nx * ny
+    # The projector and filter are built from the bank once per process (in each
+    # worker, from the one copy of the bank sent to it); each frame is computed and
+    # written by reconstruct_frame, wherever it runs.
+    model = WorkerContext(
+        _frame_model,
+        (
+            bank,
+            (nx, ny),
+            st,
+            pp,
+            grid,
+            ropt,
+            rgrid,
+            (o_x, o_y),
+            tuple(first_shape),
+            replace(writer, out=writer.out.resolve()),  # workers may run elsewhere
+            _backend_device(),
+            solver,
+        ),
+    )
+    jobs = [
+        (
+            k,
+            replace(refs[k], path=Path(refs[k].path).resolve()),
+            {k2: v for k2, v in frame_entries[k].items() if k2 in SOURCE_KEYS},
+        )
+        for k in todo
+    ]
+    fmap = frame_map(
+        reconstruct_frame,
+        jobs,
+        parallel=par,
+        context=model,
+        progress=progress,
+        desc="recon",
+    )
+    with fmap:
+        for (k, _, _), record in fmap:
+            # Threads of the projector that made it (the same for every frame).
+            meta["projector_threads"] = record.pop("projector_threads")
+            secs[k] = record["seconds"]
+            frame_entries[k].update(record)
+            write_json(meta_path, meta, overwrite=True)
+            done.append(k)
+    meta["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
 
 
 @dataclass
@@ -566,232 +645,6 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
         "projector_threads": getattr(model.projector, "threads", None),
         "output": record,
     }
-
-
-#: Per-frame entries of ``recon.json`` naming the frame's source.
-_SOURCE_KEYS = ("input", "page", "number", "time_s")
-#: Per-frame entries of ``recon.json`` that a reconstruction adds (kept when resuming).
-_RESULT_KEYS = ("seconds", "iterations", "preprocess", "rel_change", "output")
-
-
-def _frame_entry(k: int, ref, sha: str) -> dict:
-    """The ``recon.json`` record of frame ``k``: index, source, checksum (of the file, or of a
-    stack page's pixels), and the file's size (bytes) and modification time (UTC), which say
-    what changed when a resumed run finds another input."""
-    from datetime import UTC, datetime
-
-    st = os.stat(ref.path)
-    mtime = datetime.fromtimestamp(st.st_mtime, UTC).isoformat(timespec="seconds")
-    return {
-        "index": k,
-        "input": str(ref.path),
-        "page": ref.page,
-        "number": ref.number,
-        "time_s": ref.time_s,
-        "input_sha256": sha,
-        "input_bytes": st.st_size,
-        "input_mtime": mtime.replace("+00:00", "Z"),
-    }
-
-
-def _input_change(was: dict, now: dict) -> str:
-    """What differs between the input a volume was made from (its ``recon.json`` entry) and
-    this run's frame of the same index (:func:`_frame_entry`), as text for a message."""
-
-    def label(e: dict) -> str:
-        return e.get("input", "an unknown frame") + (
-            f" [page {e['page']}]" if e.get("page") is not None else ""
-        )
-
-    parts = [f"SHA-256 {str(was.get('input_sha256'))[:12]}… then, {now['input_sha256'][:12]}… now"]
-    if was.get("input_bytes") is not None:
-        if was["input_bytes"] == now["input_bytes"]:
-            parts.append(f"same size ({now['input_bytes']} bytes)")
-        else:
-            parts.append(f"{was['input_bytes']} bytes then, {now['input_bytes']} now")
-    if was.get("input_mtime") is not None and was["input_mtime"] != now["input_mtime"]:
-        parts.append(f"modified {was['input_mtime']} then, {now['input_mtime']} now")
-    if label(was) == label(now):
-        return f"was made from {label(was)!r}, which has changed since: {'; '.join(parts)}"
-    return f"was made from {label(was)!r}, now {label(now)!r}: {'; '.join(parts)}"
-
-
-def _clean_up_failed_start(writer, created: bool, done: list) -> None:
-    """After a failure: a run that wrote no volume leaves no trace (its ``recon.json``, an
-    empty Zarr array and, if it made it, the empty folder go), so that the corrected command
-    runs as if for the first time. A folder with volumes keeps its record, to be resumed."""
-    out = writer.out
-    if done or writer.indices():
-        return
-    writer.discard()
-    (out / RECON_JSON).unlink(missing_ok=True)
-    if created:
-        with contextlib.suppress(OSError):
-            out.rmdir()
-
-
-def _time_text(t) -> str:
-    return "unknown" if t is None else f"{t:g} s"
-
-
-def _source_change(entry: dict, ref, fps_then, fps_now) -> str | None:
-    """How the frame number or time of a kept volume's frame differs from this run's (its
-    ``recon.json`` entry and the volume's own metadata record them), or ``None``."""
-    changes = []
-    if "number" in entry and entry["number"] != ref.number:
-        changes.append(f"frame number {entry['number']}, this run {ref.number}")
-    if "time_s" in entry and entry["time_s"] != ref.time_s:
-        text = f"time {_time_text(entry['time_s'])}, this run {_time_text(ref.time_s)}"
-        if fps_then != fps_now:
-            then = "none" if fps_then is None else f"{fps_then:g}"
-            now = "none" if fps_now is None else f"{fps_now:g}"
-            text += f" (--fps {then} then, {now} now)"
-        changes.append(text)
-    return "; ".join(changes) or None
-
-
-def _plain(value):
-    """``value`` as JSON would give it back (tuples as lists)."""
-    from hrvbase.io import to_json
-
-    return json.loads(to_json(value))
-
-
-def _value_text(value) -> str:
-    if isinstance(value, float):
-        return f"{value:g}"
-    return "none" if value is None else str(value)
-
-
-#: Most differences named in the message of a folder made with other settings.
-_CHANGES_SHOWN = 4
-
-
-def _setting_changes(previous: dict, identity: dict) -> str:
-    """What differs between the settings recorded in a folder's ``recon.json`` and this run's
-    (``identity``: what the fingerprint is made of), as text for a message; empty when the
-    record does not say."""
-    changes = []
-    was_pre, now_pre = previous.get("preprocess") or {}, identity["preprocess"]
-    was_dark, now_dark = bool(was_pre.get("dark")), now_pre["dark_sha256"] is not None
-    if was_dark != now_dark:
-        changes.append(
-            f"dark frame {'given' if was_dark else 'none'} then, "
-            f"{'given' if now_dark else 'none'} now"
-        )
-    elif now_dark and was_pre.get("dark_sha256") not in (None, now_pre["dark_sha256"]):
-        changes.append(
-            f"another dark frame (SHA-256 {was_pre['dark_sha256'][:12]}… then, "
-            f"{now_pre['dark_sha256'][:12]}… now)"
-        )
-    sections = (
-        ("settings", "settings", ""),
-        ("preprocess", "preprocess", ""),
-        ("optics", "optics", "optics "),
-        ("calibration", "grid", "calibration "),
-    )
-    for recorded, section, label in sections:
-        was = previous.get(recorded)
-        if not isinstance(was, dict):
-            continue
-        for key, now in _plain(identity[section]).items():
-            if key in ("dark", "dark_sha256") or key not in was or was[key] == now:
-                continue
-            changes.append(f"{label}{key} {_value_text(was[key])} then, {_value_text(now)} now")
-    if not changes and previous.get("psf_bank") not in (None, identity["bank"]):
-        changes.append("another PSF bank (another recon version or PSF model)")
-    text = "; ".join(changes[:_CHANGES_SHOWN])
-    return text + ("; …" if len(changes) > _CHANGES_SHOWN else "")
-
-
-def _check_output(
-    writer, fp: str, refs, checksums, overwrite: bool, fps=None, identity=None
-) -> dict | None:
-    """Check the output folder before anything is written; the previous record to resume.
-
-    A folder that is not empty must hold a ``recon.json``. Its volumes must come from the
-    same settings (fingerprint; ``identity``, what it is made of, names what differs) and from
-    the same inputs as this run's frames of the same
-    index (checksums; a run may extend a shorter one), with the same frame numbers and times
-    (``fps``: this run's frame rate, for the message), which the volumes record; otherwise it
-    is refused, or with ``overwrite`` the volumes that do not belong to this run are deleted
-    (and reconstructed). A record of another format (TIFF volumes, a Zarr image) is refused,
-    even with ``overwrite``.
-    """
-    from hrvbase.io import read_json
-
-    out = writer.out
-    if out.exists() and not out.is_dir():
-        raise OutputExistsError(
-            f"output {str(out)!r} is a file, not a folder (nothing was written)"
-        )
-    if not (out.exists() and any(out.iterdir())):
-        return None
-    meta_path = out / RECON_JSON
-    if not meta_path.is_file():
-        raise OutputExistsError(
-            f"output folder {str(out)!r} is not empty and holds no {RECON_JSON}; "
-            "choose a new folder (nothing was written)"
-        )
-    previous = read_json(meta_path)
-    made = previous.get("format", "tiff") if isinstance(previous, dict) else None
-    if made != writer.format:
-        raise OutputExistsError(
-            f"output {str(out)!r} holds a {RECON_JSON} of {made or 'unknown'} volumes, this run "
-            f"writes {writer.format}; choose a new output (nothing was written)"
-        )
-    volumes = writer.indices()
-    if previous.get("fingerprint") != fp:
-        if not volumes:
-            log.info("%s: replacing the record of a run that wrote no volume", out)
-        elif not overwrite:
-            changes = _setting_changes(previous, identity) if identity else ""
-            raise OutputExistsError(
-                f"output folder {str(out)!r} holds volumes made from other inputs or "
-                f"settings{f' ({changes})' if changes else ''}; use a new folder or --overwrite "
-                "(nothing was written)"
-            )
-        writer.clear()
-        meta_path.unlink()
-        return None
-    prev_frames = {e.get("index"): e for e in previous.get("frames", [])}
-    stale = [
-        k
-        for k in volumes
-        if k >= len(refs) or prev_frames.get(k, {}).get("input_sha256") != checksums[k]
-    ]
-    retimed = {
-        k: change
-        for k in volumes
-        if k not in stale
-        and (change := _source_change(prev_frames[k], refs[k], previous.get("fps"), fps))
-    }
-    if retimed and not stale and not overwrite:
-        k, change = next(iter(retimed.items()))
-        raise OutputExistsError(
-            f"output {str(out)!r} holds volumes of other frame numbers or times than this "
-            f"run's (volume {writer.label(k)}, {refs[k].label!r}: {change}); run with the "
-            "same --fps, use a new folder, or --overwrite to reconstruct them (nothing was "
-            "written)"
-        )
-    if stale and not overwrite:
-        k = stale[0]
-        was = prev_frames.get(k, {})
-        if k < len(refs):
-            what = _input_change(was, _frame_entry(k, refs[k], checksums[k]))
-        else:
-            was_label = was.get("input", "an unknown frame")
-            if was.get("page") is not None:
-                was_label += f" [page {was['page']}]"
-            what = f"was made from {was_label!r}, this run has {len(refs)} frame(s)"
-        raise OutputExistsError(
-            f"output folder {str(out)!r} holds volumes made from other inputs or settings "
-            f"(volume {writer.label(k)} {what}); use a new folder or --overwrite (nothing was "
-            "written)"
-        )
-    for k in sorted({*stale, *retimed}):
-        writer.remove(k)
-    return previous
 
 
 def _rectify_roi(rectify, image, grid, n, roi):
