@@ -374,32 +374,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     def command(name: str, text: str, func, inputs, options, parallel: str) -> None:
-        """Sub-command ``name`` running ``func``: its ``inputs`` argument, the options every
-        command takes, its own ``options`` and the parallel options titled ``parallel``."""
+        """Sub-command ``name`` running ``func``: its ``inputs`` argument (name and keywords
+        of ``add_argument``), the options every command takes, its own ``options`` and the
+        parallel options titled ``parallel``."""
         q = sub.add_parser(name, parents=[common], help=text)
-        inputs(q)
+        q.add_argument(inputs[0], type=Path, **inputs[1])
         _common(q)
         for add in options:
             add(q)
         add_parallel_options(q.add_argument_group(parallel))
         q.set_defaults(func=func)
 
-    def volumes(q: argparse.ArgumentParser) -> None:
-        q.add_argument(
-            "voldir",
-            type=Path,
-            metavar="VOLDIR",
-            help="folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)",
-        )
-
-    def clouds(q: argparse.ArgumentParser) -> None:
-        q.add_argument(
-            "clouds",
-            type=Path,
-            nargs="+",
-            metavar="CSV",
-            help="point clouds with columns x_um,y_um,z_um, frame 0 first",
-        )
+    volumes = (
+        "voldir",
+        {"metavar": "VOLDIR", "help": "folder of NNNNNN.tif volumes, or an OME-Zarr image (.zarr)"},
+    )
+    clouds = (
+        "clouds",
+        {
+            "nargs": "+",
+            "metavar": "CSV",
+            "help": "point clouds with columns x_um,y_um,z_um, frame 0 first",
+        },
+    )
 
     command(
         "run",
