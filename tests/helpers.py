@@ -52,6 +52,19 @@ def experiment_toml(**sections: Mapping[str, object]) -> str:
     return "\n".join(blocks)
 
 
+def assert_bad_file_named(
+    path: Path, text: str, read: Callable[[Path], object], error: type[Exception], match: str
+) -> None:
+    """Write ``text`` to ``path``: ``read(path)`` raises ``error`` matching ``match`` and
+    naming the file."""
+    import pytest
+
+    path.write_text(text)
+    with pytest.raises(error, match=match) as info:
+        read(path)
+    assert str(path) in str(info.value)
+
+
 class LoopbackCluster:
     """A real Dask cluster on 127.0.0.1 for a test: ``dask scheduler`` and ``workers`` ×
     ``dask worker --nworkers 1 --nthreads 1`` as subprocesses (the ``dask`` next to the test's

@@ -8,6 +8,8 @@ import pytest
 from lfsim.errors import ConfigError
 from lfsim.particles import Particles
 
+from ..helpers import assert_bad_file_named
+
 
 def _random_particles(n=50, seed=0):
     rng = np.random.default_rng(seed)
@@ -145,11 +147,7 @@ def test_csv_optional_columns_any_order(tmp_path):
     ],
 )
 def test_bad_csv_names_file(tmp_path, text, match):
-    path = tmp_path / "bad_table.csv"
-    path.write_text(text)
-    with pytest.raises(ConfigError, match=match) as info:
-        Particles.from_csv(path)
-    assert str(path) in str(info.value)
+    assert_bad_file_named(tmp_path / "bad_table.csv", text, Particles.from_csv, ConfigError, match)
 
 
 def test_missing_csv_names_file(tmp_path):

@@ -16,6 +16,8 @@ from track import field_files, tables, volumes
 from track.fields import GridSettings, gridded_field
 from track.series import link_tracks
 
+from ..helpers import assert_bad_file_named
+
 _A = np.array([[0.0, 0.0, 0.1], [0.0, 0.02, 0.0], [0.0, 0.0, -0.01]])  # u = A x (µm)
 
 
@@ -51,11 +53,7 @@ def test_points_csv_round_trip_and_extra_columns(tmp_path):
     ],
 )
 def test_bad_point_csv_names_file_and_line(tmp_path, text, match):
-    p = tmp_path / "bad.csv"
-    p.write_text(text)
-    with pytest.raises(InputError, match=match) as info:
-        tables.read_points_csv(p)
-    assert str(p) in str(info.value)
+    assert_bad_file_named(tmp_path / "bad.csv", text, tables.read_points_csv, InputError, match)
 
 
 def test_missing_csv(tmp_path):
