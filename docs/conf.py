@@ -35,6 +35,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
+templates_path = ["_templates"]  # autosummary: a class page is its docstring and members
 exclude_patterns = [
     "_build",
     # Inputs of ``hrvptm collect`` (the text above the generated tables), not pages.
