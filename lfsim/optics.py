@@ -253,6 +253,20 @@ class Optics:
             caps.append(self.coverslip_ior)
         return math.asin(min(caps) / self.medium_ior)
 
+    @property
+    def is_immersion(self) -> bool:
+        """Whether the objective is designed for an immersion medium (``immersion_ior`` ≠ 1).
+
+        An immersion objective is modelled as aplanatic: a ray of direction sine ``sin θ`` in
+        the immersion medium crosses the back focal plane at ``f_obj · n_imm · sin θ`` (the
+        sine condition), and a depth ``z`` in the immersion medium is imaged ``M² z / n_imm``
+        from the image plane (the longitudinal magnification of an objective with its image
+        in air). Both tracers carry each ray to its air-equivalent ray, the ray through its
+        intercept with the nominal focal plane of slope ``n_imm · sin θ``, and image that with
+        the thin lenses (:func:`lfsim.tracer.objective_rays`). A dry objective is the thin
+        lens itself (stop at ``f_obj · tan θmax``)."""
+        return self.immersion_ior != 1.0
+
     # -- the specimen ---------------------------------------------------------------------
     @property
     def has_interfaces(self) -> bool:
@@ -354,7 +368,11 @@ class Optics:
 
     @property
     def stop_radius_um(self) -> float:
-        """Aperture-stop radius in the objective's back focal plane, ``f_obj · tan θmax``."""
+        """Aperture-stop radius in the objective's back focal plane: ``f_obj · tan θmax``
+        for a dry objective, ``f_obj · NA`` (the sine condition) for an immersion objective
+        (:attr:`is_immersion`)."""
+        if self.is_immersion:
+            return self.f_objective_um * self.na
         return self.f_objective_um * math.tan(self.theta_max)
 
     @property

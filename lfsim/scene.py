@@ -272,8 +272,11 @@ CORRECTION_GAP_MM = 1e-2
 
 
 def _write_specimen(root, optics: Optics, lay: Layout, half: float) -> None:
-    """The specimen's interfaces (rectangles normal to z, interior on the specimen's side)."""
-    if not optics.has_interfaces:
+    """The specimen's interfaces (rectangles normal to z, interior on the specimen's side).
+
+    None for an immersion objective: its tracers carry the rays through the interfaces to
+    their air-equivalent rays before the objective (:func:`lfsim.tracer.objective_rays`)."""
+    if not optics.has_interfaces or optics.is_immersion:
         return
     n_m, n_i = optics.medium_ior, optics.immersion_ior
     if optics.coverslip_thickness_um > 0:
@@ -440,7 +443,7 @@ def _check_specimen(path: Path, root: ET.Element, optics: Optics, lay: Layout) -
     """The specimen's planes are where the optics block puts them, with its indices."""
     ids = {s.get("id") for s in root.findall("shape")}
     want: list[tuple[str, float, float | None, float | None]] = []
-    if optics.has_interfaces:
+    if optics.has_interfaces and not optics.is_immersion:
         n_m, n_i = optics.medium_ior, optics.immersion_ior
         if optics.coverslip_thickness_um > 0:
             want += [
@@ -540,10 +543,18 @@ def load_scene(path: str | os.PathLike) -> LightFieldScene:
     )
 
 
+#: Version of the scene layout :func:`write_scene` writes (in the cache key of
+#: :func:`scene_from_optics`).
+SCENE_LAYOUT = 2
+
+
 def scene_from_optics(optics: Optics, cache_dir: str | os.PathLike | None = None):
     """Write ``optics`` to a scene file in a cache folder and load it."""
     d = Path(cache_dir) if cache_dir else Path(tempfile.gettempdir()) / "lfsim_scenes"
-    key = hashlib.sha1(repr(sorted(optics.to_dict().items())).encode()).hexdigest()[:12]
+    # the layout's version in the key: a scene cached by an earlier layout is not reused
+    key = hashlib.sha1(repr((SCENE_LAYOUT, sorted(optics.to_dict().items()))).encode()).hexdigest()[
+        :12
+    ]
     path = d / f"scene_{key}.xml"
     if not path.is_file():
         write_scene(optics, path)

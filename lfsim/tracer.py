@@ -314,6 +314,31 @@ def to_immersion(optics, o, d, dr, mi):
     return x, y, z, dx / dz, dy / dz, trans
 
 
+def objective_rays(optics, o, d, dr, mi):
+    """The rays the objective images: :func:`to_immersion`'s, and for an immersion objective
+    (``Optics.is_immersion``) each one's air-equivalent ray.
+
+    The air-equivalent ray passes through the ray's intercept with the nominal focal plane
+    with slopes ``n_imm · (α, β)``, the direction sines of the ray in the immersion medium
+    times its index: imaged by the objective's thin lens it crosses the back focal plane at
+    ``f_obj · n_imm · sin θ`` (the sine condition) and leaves with the slope its intercept
+    gives, so that the objective is aplanatic and a depth ``z`` in the immersion medium is
+    imaged as ``z / n_imm`` would be in air (longitudinal magnification ``M² / n_imm``).
+
+    Returns
+    -------
+    x, y, z, u, v, transmittance
+        As :func:`to_immersion`; for an immersion objective the point is the intercept with
+        the nominal focal plane (``z = 0``).
+    """
+    x, y, z, u, v, trans = to_immersion(optics, o, d, dr, mi)
+    if not optics.is_immersion:
+        return x, y, z, u, v, trans
+    n = optics.immersion_ior
+    scale = n * dr.rsqrt(1.0 + u * u + v * v)  # n / sec θ: slopes to n sin θ
+    return x + u * z, y + v * z, dr.zeros(mi.Float, dr.width(x)), u * scale, v * scale, trans
+
+
 class _Film:
     """Bins sensor positions (µm, sensor plane, scene axes) into pixels.
 
@@ -364,8 +389,9 @@ def _batches(total: int, settings: RenderSettings, what: str):
     return starts
 
 
-def _propagate(scene, film, ray, rng, w, sensor_blur, blur_mla, max_bounces) -> None:
-    """Symbolic loop: intersect, bin sensor hits, blur at the array, sample the BSDF."""
+def _propagate(scene, film, ray, rng, w, sensor_blur, blur_mla, max_bounces, alive=None) -> None:
+    """Symbolic loop: intersect, bin sensor hits, blur at the array, sample the BSDF
+    (``alive``: the rays that start, default all)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -421,7 +447,7 @@ def _propagate(scene, film, ray, rng, w, sensor_blur, blur_mla, max_bounces) -> 
         return ray, active, depth, rng
 
     dr.while_loop(
-        (ray, mi.Bool(True), mi.UInt32(0), rng),
+        (ray, mi.Bool(True) if alive is None else alive, mi.UInt32(0), rng),
         cond,
         body,
         labels=("ray", "active", "depth", "rng"),
@@ -452,8 +478,16 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
         rng, o, d, w, _src = emitter.batch(start, n)
-        origin = mi.Point3f(o.x / UM_PER_MM, o.y / UM_PER_MM, lay.object_z - o.z / UM_PER_MM)
-        ray = mi.Ray3f(origin, mi.Vector3f(d.x, d.y, d.z))
+        if optics.is_immersion:
+            # The air-equivalent rays (objective_rays), from the nominal focal plane; the
+            # specimen's interfaces are not in the scene (lfsim.scene.write_scene).
+            x, y, _z, u, v, trans = objective_rays(optics, o, d, dr, mi)
+            nominal_z = lay.object_z + optics.focal_shift_um / UM_PER_MM
+            origin = mi.Point3f(x / UM_PER_MM, y / UM_PER_MM, nominal_z)
+            ray = mi.Ray3f(origin, dr.normalize(mi.Vector3f(u, v, 1.0)))
+        else:
+            origin = mi.Point3f(o.x / UM_PER_MM, o.y / UM_PER_MM, lay.object_z - o.z / UM_PER_MM)
+            ray = mi.Ray3f(origin, mi.Vector3f(d.x, d.y, d.z))
         # Diffraction offsets drawn up front, in the same order as trace_paraxial.
         if settings.diffraction:
             gx, gy = _gauss2(rng, dr, mi)
@@ -462,8 +496,16 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
         else:
             gx = gy = mi.Float(0.0)
             blur_mla = mi.Vector3f(0.0)
+        alive = None
+        if optics.is_immersion and optics.has_interfaces:
+            # Fresnel losses of the interfaces objective_rays crossed, drawn where
+            # trace_paraxial draws them: a weight, or a photon's survival
+            if settings.mode == "expected":
+                w = w * trans
+            else:
+                alive = rng.next_float32() < trans
 
-        _propagate(scene, film, ray, rng, w, (gx, gy, s_sen), blur_mla, max_bounces)
+        _propagate(scene, film, ray, rng, w, (gx, gy, s_sen), blur_mla, max_bounces, alive)
         dr.eval(film.data)
     return film.numpy()
 
@@ -509,7 +551,7 @@ def trace_paraxial(
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
         rng, o, d, w, src = emitter.batch(start, n)
-        x, y, z, u, v, trans = to_immersion(optics, o, d, dr, mi)
+        x, y, z, u, v, trans = objective_rays(optics, o, d, dr, mi)
         # Object point -> objective (distance f_obj + z: z grows away from the objective).
         t = fo + z
         x, y = x + u * t, y + v * t

@@ -311,3 +311,42 @@ def test_lfsim_micrometer_in_a_specimen_scene_lies_on_the_cover_glass(tmp_path, 
     err = capsys.readouterr().err.strip()
     assert rc != 0 and not out.exists()
     assert len(err.splitlines()) == 1 and "--z-um" in err and "cover glass" in err
+
+
+# -- an immersion objective is aplanatic ----------------------------------------------------
+def test_an_immersion_objective_obeys_the_sine_condition_and_images_depth_over_n(backend):
+    """A water objective (NA 0.8) into water: every ray crosses the back focal plane at
+    ``f · n sin θ`` (the stop, ``f · NA``, passes exactly the cone of NA 0.8), and a point at
+    depth z is imaged where a point at z / n would be in air: the air-equivalent rays of the
+    paraxial cone converge z / (n cos θ) from the nominal plane (Abbe: M² / n)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from lfsim.tracer import objective_rays
+
+    o = small_optics(na=0.8, immersion_ior=1.333, medium_ior=1.333)
+    assert o.is_immersion and not o.has_interfaces
+    assert o.stop_radius_um == pytest.approx(o.f_objective_um * 0.8)
+    z = 60.0
+    origin, direction, d = _rays(4000, o.emission_half_angle, z)
+    x, y, z0, u, v, _t = objective_rays(o, origin, direction, dr, mi)
+    x, y, z0, u, v = (np.asarray(a.numpy(), np.float64) for a in (x, y, z0, u, v))
+    o_np = np.c_[origin.x.numpy(), origin.y.numpy()]
+    sin = np.hypot(d[:, 0], d[:, 1])
+    cos = d[:, 2]
+    np.testing.assert_allclose(np.hypot(u, v), o.immersion_ior * sin, atol=1e-5)
+    assert np.hypot(u, v).max() <= o.na + 1e-5  # the stop at f · NA passes every ray
+    np.testing.assert_allclose(z0, 0.0)
+    # The intercept with the nominal plane: the straight ray in water.
+    np.testing.assert_allclose(x, o_np[:, 0] + d[:, 0] / cos * z, atol=1e-3)
+    # Each air-equivalent ray crosses the line through its source point parallel to the axis
+    # at Z = −z / (n cos θ): paraxially the point images as z / n in air.
+    off = np.abs(u) > 0.05  # single precision: rays near the axis cross anywhere
+    crossing = -(x - o_np[:, 0])[off] / u[off]
+    np.testing.assert_allclose(crossing, -z / (o.immersion_ior * cos[off]), rtol=1e-4)
+    # A dry objective is the thin lens itself: objective_rays is to_immersion.
+    dry = small_optics()
+    a = objective_rays(dry, origin, direction, dr, mi)
+    b = to_immersion(dry, origin, direction, dr, mi)
+    for p, q in zip(a, b, strict=True):
+        np.testing.assert_array_equal(np.asarray(p.numpy()), np.asarray(q.numpy()))
