@@ -200,12 +200,8 @@ def seed_layer(
         ``((x0, x1), (y0, y1))`` in µm.
     z_um : float
         Depth of the layer in µm.
-    min_spacing_um : float
-        Minimum centre-to-centre distance in µm (>= 0).
-    rng : numpy.random.Generator
-        Source of randomness.
-    max_tries : int, optional
-        Maximum number of random candidates drawn; default ``max(100 000, 50 n)``.
+    min_spacing_um, rng, max_tries
+        As :func:`seed_box`.
 
     Returns
     -------
