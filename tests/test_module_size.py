@@ -27,10 +27,6 @@ NOT_SPLIT_YET = {
     "lfsim/dataset.py:generate_dataset",
     "lfsim/experiment.py:from_dict",
     "recon/calibration.py:calibrate_white",
-    "recon/pixel_size.py",
-    "recon/pixel_size.py:_fit_axis",
-    "recon/pixel_size.py:measure_pixel_size",
-    "recon/pixel_size.py:_measure",
     "hrvptm/analysis.py:analyse_series",
 }
 
