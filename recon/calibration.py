@@ -70,32 +70,9 @@ def _suppress_outlier_pixels(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> LensletGrid:
-    """Fit the lenslet grid of a white image.
-
-    Parameters
-    ----------
-    image : array_like, shape (height, width)
-        White image (any integer or real dtype, finite), e.g. of a uniformly fluorescent
-        slide. Vignetting, a dark offset, noise, hot pixels and dark lenslets are tolerated.
-    expected_pitch_px : float, optional
-        Approximate lenslet pitch in pixels (e.g. ``Optics.px_per_lenslet``). The grid is then
-        searched for only within −20 % … +25 % of it; the fitted pitch is not forced to it.
-
-    Returns
-    -------
-    LensletGrid
-        With ``origin_px`` at the lenslet nearest the image centre and the fit diagnostics.
-
-    Raises
-    ------
-    InputError
-        ``image`` is not a finite 2-D numeric array, or smaller than ``MIN_LENSLETS`` lenslets
-        (or 16 pixels) across; ``expected_pitch_px`` is not a number >= ``MIN_PITCH_PX``.
-    CalibrationError
-        No lenslet grid in the image (noise, constant or natural image), or the lenslet
-        centres do not fit a regular grid.
-    """
+def _check_white(image: Any, expected_pitch_px: float | None) -> tuple[np.ndarray, float | None]:
+    """The white image as a float array and the validated ``expected_pitch_px`` of
+    :func:`calibrate_white`; refuses an image too small or constant."""
     img = as_image(image, "image")
     h, w = img.shape
     if expected_pitch_px is not None:
@@ -114,8 +91,13 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
     lo, hi = float(img.min()), float(img.max())
     if hi - lo <= 1e-12 * max(abs(hi), 1.0):
         raise CalibrationError(f"the image is constant (every pixel is {hi:g}): no lenslet grid")
+    return img, expected_pitch_px
 
-    img = _suppress_outlier_pixels(img)
+
+def _initial_grid(img: np.ndarray, expected_pitch_px: float | None):
+    """The lenslet grid of the image's spectrum (pitch, rotation and phase), centred on the
+    lenslets rather than on their corners."""
+    h, w = img.shape
     spec = Spectrum(img)
     lat = spectral_lattice(spec, expected_pitch_px)
     origin = spectral_origin(spec, lat.pitch_px, lat.theta_rad)
@@ -136,7 +118,13 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
                 (h, w),
             )
         )
+    return grid
 
+
+def _refine_grid(img: np.ndarray, grid) -> tuple:
+    """The grid refined by fits to measured lenslet centres, first the central ones, then
+    all with a shrinking drift; returns (grid, last measurement, inliers, distances)."""
+    h, w = img.shape
     p = grid.pitch_px
     passes = (("central", 8.0, 0.3 * p), ("all", None, 0.2 * p), ("all", None, 0.1 * p))
     for name, max_index, drift in passes:
@@ -170,7 +158,12 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
             grid.pitch_px,
             grid.rotation_deg,
         )
+    return grid, meas, inlier, dist
 
+
+def _check_fit(meas, inlier, dist, grid) -> tuple[int, int, int, float]:
+    """The numbers of lenslets measured, dark and used and the RMS residual (px) of the
+    fit; :class:`CalibrationError` where they do not look like a white image's."""
     n_measured = len(meas.uv)
     n_dark = int(meas.dark.sum())
     n_used = int(inlier.sum())
@@ -189,6 +182,41 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
             f"lenslet centres scatter by {rms:.3g} px RMS around the fitted grid (pitch "
             f"{grid.pitch_px:.4g} px): the image does not look like a white image"
         )
+    return n_measured, n_dark, n_used, rms
+
+
+def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> LensletGrid:
+    """Fit the lenslet grid of a white image.
+
+    Parameters
+    ----------
+    image : array_like, shape (height, width)
+        White image (any integer or real dtype, finite), e.g. of a uniformly fluorescent
+        slide. Vignetting, a dark offset, noise, hot pixels and dark lenslets are tolerated.
+    expected_pitch_px : float, optional
+        Approximate lenslet pitch in pixels (e.g. ``Optics.px_per_lenslet``). The grid is then
+        searched for only within −20 % … +25 % of it; the fitted pitch is not forced to it.
+
+    Returns
+    -------
+    LensletGrid
+        With ``origin_px`` at the lenslet nearest the image centre and the fit diagnostics.
+
+    Raises
+    ------
+    InputError
+        ``image`` is not a finite 2-D numeric array, or smaller than ``MIN_LENSLETS`` lenslets
+        (or 16 pixels) across; ``expected_pitch_px`` is not a number >= ``MIN_PITCH_PX``.
+    CalibrationError
+        No lenslet grid in the image (noise, constant or natural image), or the lenslet
+        centres do not fit a regular grid.
+    """
+    img, expected_pitch_px = _check_white(image, expected_pitch_px)
+    h, w = img.shape
+    img = _suppress_outlier_pixels(img)
+    grid = _initial_grid(img, expected_pitch_px)
+    grid, meas, inlier, dist = _refine_grid(img, grid)
+    n_measured, n_dark, n_used, rms = _check_fit(meas, inlier, dist, grid)
     result = LensletGrid(
         pitch_px=grid.pitch_px,
         rotation_deg=grid.rotation_deg,

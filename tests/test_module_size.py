@@ -26,7 +26,6 @@ NOT_SPLIT_YET = {
     "lfsim/motion.py",
     "lfsim/dataset.py:generate_dataset",
     "lfsim/experiment.py:from_dict",
-    "recon/calibration.py:calibrate_white",
     "hrvptm/analysis.py:analyse_series",
 }
 
