@@ -43,18 +43,13 @@ Their deformation gradient varies in space: ``deformation_gradient_at(X_um, fram
 
 from __future__ import annotations
 
-import hashlib
-import importlib
-import importlib.util
 import logging
 import math
-import numbers
 import os
-import sys
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -66,6 +61,17 @@ from hrvbase.known_fields import (
 )
 
 from .errors import ConfigError, LfsimError
+from .motion_base import (
+    Motion,
+    _check_frame,
+    _check_points,
+    _finite,
+    _positive,
+    _Scheduled,
+    _vec3,
+    rotation_matrix,
+)
+from .user_motion import UserField, _is_path
 
 log = logging.getLogger(__name__)
 
@@ -73,195 +79,9 @@ _AXES = {"x": 0, "y": 1, "z": 2}
 
 
 # -- helpers ----------------------------------------------------------------------------------
-def _vec3(name: str, value) -> tuple[float, float, float]:
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{name} must be three numbers (x, y, z), got {value!r}") from exc
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ConfigError(f"{name} must be three finite numbers (x, y, z), got {value!r}")
-    return (float(a[0]), float(a[1]), float(a[2]))
-
-
-def _check_points(X) -> np.ndarray:
-    try:
-        a = np.asarray(X, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(
-            f"reference positions X_um must be a numeric (N, 3) array: {exc}"
-        ) from exc
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ConfigError(f"reference positions X_um must have shape (N, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ConfigError("reference positions X_um must be finite")
-    return a
-
-
-def _check_frame(frame) -> float | int:
-    if isinstance(frame, bool) or not isinstance(frame, numbers.Real):
-        raise ConfigError(f"frame must be a number, got {frame!r}")
-    if not math.isfinite(frame):
-        raise ConfigError(f"frame must be finite, got {frame!r}")
-    return frame
-
-
-def _cos_sin_deg(angle_deg: float) -> tuple[float, float]:
-    """cos and sin of an angle in degrees, exact at multiples of 90°."""
-    r = math.fmod(angle_deg, 360.0)
-    if r % 90.0 == 0.0:
-        return ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))[int(r // 90.0) % 4]
-    a = math.radians(angle_deg)
-    return math.cos(a), math.sin(a)
-
-
-def rotation_matrix(axis, angle_deg: float) -> np.ndarray:
-    """Right-handed rotation by ``angle_deg`` about ``axis`` (Rodrigues' formula).
-
-    Parameters
-    ----------
-    axis : array_like, shape (3,)
-        Rotation axis (any non-zero length).
-    angle_deg : float
-        Angle in degrees; positive is counter-clockwise looking down the axis towards the
-        origin (e.g. +90° about z maps x̂ to ŷ).
-
-    Returns
-    -------
-    numpy.ndarray, shape (3, 3)
-        ``R = I + sin θ K + (1 − cos θ) K²`` with ``K`` the cross-product matrix of the unit
-        axis.
-    """
-    k = np.asarray(_vec3("axis", axis))
-    norm = float(np.linalg.norm(k))
-    if norm == 0.0:
-        raise ConfigError("axis must be a non-zero vector")
-    k = k / norm
-    c, s = _cos_sin_deg(float(angle_deg))
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
 
 
 # -- base classes -----------------------------------------------------------------------------
-class Motion:
-    """A prescribed motion: reference positions ``X`` (N, 3) µm and a frame → positions."""
-
-    type_name: ClassVar[str] = ""
-    homogeneous: ClassVar[bool] = False
-
-    def displacement(self, X_um, frame) -> np.ndarray:
-        """Displacement ``u = x − X`` at a frame.
-
-        Parameters
-        ----------
-        X_um : array_like, shape (N, 3)
-            Reference positions in µm.
-        frame : int
-            Frame index (0 = reference).
-
-        Returns
-        -------
-        numpy.ndarray, shape (N, 3)
-            Displacements in µm.
-        """
-        X = _check_points(X_um)
-        return self.positions(X, frame) - X
-
-    def positions(self, X_um, frame) -> np.ndarray:  # pragma: no cover - abstract
-        """Current positions ``x`` (N, 3) µm of reference positions ``X_um`` at a frame."""
-        raise NotImplementedError
-
-    def __call__(self, X_um, frame) -> np.ndarray:
-        """Same as :meth:`positions`."""
-        return self.positions(X_um, frame)
-
-    def deformation_gradient(self, frame) -> np.ndarray:  # pragma: no cover - abstract
-        """Deformation gradient ``F`` (3, 3) at a frame (homogeneous motions only)."""
-        raise NotImplementedError
-
-    def to_dict(self) -> dict:
-        """Plain-JSON representation, the inverse of :func:`motion_from_dict`."""
-        out: dict[str, Any] = {"type": self.type_name}
-        for f in fields(self):  # type: ignore[arg-type]
-            v = getattr(self, f.name)
-            if v is None:
-                continue
-            if isinstance(v, tuple):
-                v = [list(e) if isinstance(e, tuple) else e for e in v]
-            elif isinstance(v, Mapping):
-                v = dict(v)
-            out[f.name] = v
-        return out
-
-
-@dataclass(frozen=True)
-class _Scheduled(Motion):
-    """A motion scaled by one amplitude per frame: ``k · step`` or ``values[k]``.
-
-    Subclasses name their step field in ``_step_name``; exactly one of it and ``values`` must
-    be given.
-    """
-
-    values: tuple | None = field(default=None, kw_only=True)
-
-    _step_name: ClassVar[str] = ""
-    _vector_amplitude: ClassVar[bool] = False
-
-    def __post_init__(self) -> None:
-        step = getattr(self, self._step_name)
-        if (step is None) == (self.values is None):
-            raise ConfigError(
-                f"{self.type_name} needs exactly one of '{self._step_name}' (amplitude per frame) "
-                "and 'values' (explicit amplitude of every frame)"
-            )
-        if step is not None:
-            object.__setattr__(self, self._step_name, self._amplitude_value(self._step_name, step))
-        else:
-            vals = self.values
-            if isinstance(vals, str | bytes) or not hasattr(vals, "__len__") or len(vals) == 0:
-                raise ConfigError(
-                    f"{self.type_name} 'values' must be a non-empty list of per-frame amplitudes, "
-                    f"got {vals!r}"
-                )
-            checked = tuple(
-                self._amplitude_value(f"values[{i}]", v) for i, v in enumerate(list(vals))
-            )
-            object.__setattr__(self, "values", checked)
-
-    def _amplitude_value(self, name: str, v):
-        if self._vector_amplitude:
-            return _vec3(f"{self.type_name} {name}", v)
-        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-            raise ConfigError(f"{self.type_name} {name} must be a finite number, got {v!r}")
-        return float(v)
-
-    @property
-    def n_frames(self) -> int | None:
-        """Number of frames of an explicit schedule (``None`` for a linear one)."""
-        return None if self.values is None else len(self.values)
-
-    def amplitude(self, frame):
-        """Amplitude at a frame: ``frame · step``, or ``values[frame]`` for a schedule.
-
-        Parameters
-        ----------
-        frame : int (or float for a linear schedule)
-            Frame index.
-
-        Returns
-        -------
-        float, or numpy.ndarray of shape (3,) for :class:`Translation`
-        """
-        frame = _check_frame(frame)
-        if self.values is None:
-            step = getattr(self, self._step_name)
-            return frame * np.asarray(step) if self._vector_amplitude else frame * step
-        if frame != int(frame) or not (0 <= frame < len(self.values)):
-            raise ConfigError(
-                f"{self.type_name}: frame {frame!r} is outside its 'values' schedule of "
-                f"{len(self.values)} frames (0 .. {len(self.values) - 1})"
-            )
-        a = self.values[int(frame)]
-        return np.asarray(a) if self._vector_amplitude else a
 
 
 @dataclass(frozen=True)
@@ -469,18 +289,6 @@ class SimpleShear(_Homogeneous):
 
 
 # -- heterogeneous motions ------------------------------------------------------------------
-def _positive(where: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-        raise ConfigError(f"{where} must be a finite number, got {value!r}")
-    if not value > 0:
-        raise ConfigError(f"{where} must be > 0, got {value!r}")
-    return float(value)
-
-
-def _finite(where: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-        raise ConfigError(f"{where} must be a finite number, got {value!r}")
-    return float(value)
 
 
 @dataclass(frozen=True)
@@ -656,139 +464,6 @@ class StiffInclusion(_Heterogeneous):
 
 
 # -- user-defined fields ----------------------------------------------------------------------
-def _split_spec(spec: str) -> tuple[str, str]:
-    if not isinstance(spec, str) or ":" not in spec:
-        raise ConfigError(
-            f"user_field function must be 'module:function' or 'path/to/file.py:function', "
-            f"got {spec!r}"
-        )
-    module, _, name = spec.rpartition(":")
-    if not module or not name.isidentifier():
-        raise ConfigError(
-            f"user_field function must be 'module:function' or 'path/to/file.py:function', "
-            f"got {spec!r}"
-        )
-    return module, name
-
-
-def _is_path(module: str) -> bool:
-    return module.endswith(".py") or "/" in module or os.sep in module
-
-
-def _load_function(spec: str) -> Callable:
-    module, name = _split_spec(spec)
-    if _is_path(module):
-        path = Path(module)
-        if not path.is_file():
-            raise ConfigError(f"user_field {spec!r}: the file {path} does not exist")
-        digest = hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
-        mod_name = f"_lfsim_user_field_{path.stem}_{digest}"
-        mspec = importlib.util.spec_from_file_location(mod_name, path)
-        if mspec is None or mspec.loader is None:
-            raise ConfigError(f"user_field {spec!r}: cannot import {path} as a Python module")
-        mod = importlib.util.module_from_spec(mspec)
-        sys.modules[mod_name] = mod
-        try:
-            mspec.loader.exec_module(mod)
-        except Exception as exc:
-            sys.modules.pop(mod_name, None)
-            raise ConfigError(
-                f"user_field {spec!r}: importing {path} failed: {type(exc).__name__}: {exc}"
-            ) from exc
-    else:
-        try:
-            mod = importlib.import_module(module)
-        except Exception as exc:
-            raise ConfigError(
-                f"user_field {spec!r}: cannot import module {module!r}: {type(exc).__name__}: {exc}"
-            ) from exc
-    func = getattr(mod, name, None)
-    if func is None:
-        raise ConfigError(f"user_field {spec!r}: {module} has no attribute {name!r}")
-    if not callable(func):
-        raise ConfigError(f"user_field {spec!r}: {module}.{name} is not callable")
-    return func
-
-
-@dataclass(frozen=True)
-class UserField(Motion):
-    """A displacement field given by a Python function.
-
-    The function is imported on construction and called as
-    ``f(X_um, frame, **params) -> u`` with ``X_um`` the reference positions (N, 3) µm (a
-    read-only copy), ``frame`` the frame index, and ``u`` the displacement (N, 3) µm.
-
-    Parameters
-    ----------
-    function : str
-        ``"package.module:function"`` (imported from ``sys.path``) or
-        ``"path/to/file.py:function"`` (a file path; relative paths are relative to the current
-        folder, or to the experiment file's folder through :func:`motion_from_dict`).
-    params : Mapping
-        Extra keyword arguments for the function.
-
-    Raises
-    ------
-    ConfigError
-        When the function cannot be imported, or (on use) returns something other than a
-        finite (N, 3) array; the message names the function.
-    """
-
-    function: str
-    params: Mapping[str, Any] = field(default_factory=dict)
-
-    type_name: ClassVar[str] = "user_field"
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.params, Mapping):
-            raise ConfigError(
-                f"user_field {self.function!r}: params must be a table/dict, got {self.params!r}"
-            )
-        object.__setattr__(self, "params", dict(self.params))
-        object.__setattr__(self, "_func", _load_function(self.function))
-
-    def displacement(self, X_um, frame) -> np.ndarray:
-        """``u = f(X_um, frame, **params)``, shape (N, 3), µm (validated)."""
-        X = _check_points(X_um)
-        _check_frame(frame)
-        arg = X.copy()
-        arg.setflags(write=False)
-        try:
-            u = self._func(arg, frame, **self.params)  # type: ignore[attr-defined]
-        except Exception as exc:
-            raise LfsimError(
-                f"user_field {self.function!r} raised {type(exc).__name__} at frame {frame!r}: "
-                f"{exc}"
-            ) from exc
-        try:
-            u = np.asarray(u, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(
-                f"user_field {self.function!r} must return a numeric (N, 3) displacement array in "
-                f"µm, got {type(u).__name__}"
-            ) from exc
-        if u.shape != X.shape:
-            raise ConfigError(
-                f"user_field {self.function!r} returned shape {u.shape} at frame {frame!r}; "
-                f"expected {X.shape} (one displacement per reference position, µm)"
-            )
-        if not np.all(np.isfinite(u)):
-            raise ConfigError(
-                f"user_field {self.function!r} returned non-finite displacements at frame {frame!r}"
-            )
-        return u
-
-    def positions(self, X_um, frame) -> np.ndarray:
-        """``x = X + u`` (N, 3) µm."""
-        X = _check_points(X_um)
-        return X + self.displacement(X, frame)
-
-    def deformation_gradient(self, frame) -> np.ndarray:
-        """Not defined: a user field is not homogeneous."""
-        raise LfsimError(
-            f"user_field {self.function!r} is not a homogeneous motion; it has no single "
-            "deformation gradient"
-        )
 
 
 MOTION_TYPES: dict[str, type[Motion]] = {
