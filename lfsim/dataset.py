@@ -302,6 +302,214 @@ def render_frame(k: int, model: _RenderModel) -> dict:
 
 
 # -- the generator ----------------------------------------------------------------------------
+def _is_complete(out: Path, experiment: Experiment, previous: dict) -> bool:
+    """Whether the dataset in ``out`` (its record ``previous``) is complete with every frame
+    and the white image as they were written."""
+    n = experiment.frames
+    white_on = experiment.white.enabled
+    recs = list(previous.get("frame_records") or []) + [None] * n
+    done = [_frame_done(out, k, recs[k]) for k in range(n)]
+    white_rec = (previous.get("white") or {}).get("file_record")
+    white_done = (not white_on) or verify_record(out / WHITE, white_rec)
+    if previous.get("status") == "complete" and all(done) and white_done:
+        log.info("%s: dataset %r is complete; nothing to do", out, experiment.name)
+        return True
+    return False
+
+
+def _checked_inputs(experiment: Experiment) -> tuple:
+    """The scene and reference particles of ``experiment``, checked: particles seeded, in
+    the field of view and at depths the optics image in every frame."""
+    from .backend import backend_info, init_backend
+    from .render import check_depths, check_in_field
+    from .scene import load_scene
+
+    n = experiment.frames
+    if backend_info() is None:
+        init_backend()
+    scene = load_scene(experiment.scene)
+    optics = scene.optics
+    reference = reference_particles(experiment)
+    if len(reference) == 0:
+        raise ConfigError(f"experiment {experiment.name!r} seeds no particles")
+    check_in_field(
+        optics,
+        reference.positions_um,
+        reference.ids,
+        what=f"reference particles of experiment {experiment.name!r}",
+    )
+    positions = [experiment.positions(reference.positions_um, k) for k in range(n)]
+    for k, pos in enumerate(positions):
+        check_depths(
+            optics, pos, reference.ids, what=f"particles of frame {k} of {experiment.name!r}"
+        )
+    return scene, reference
+
+
+def _prepare_folder(out: Path, action: str) -> None:
+    """The dataset folder and its subfolders, this module's files deleted first when
+    replacing a dataset and leftovers of a killed run removed."""
+    if action == "replace":
+        _remove_tool_files(out)
+    try:
+        (out / FRAMES).mkdir(parents=True, exist_ok=True)
+        (out / TRUTH).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create dataset folder {out}: {exc}") from exc
+    _remove(_temp_files(out))  # leftovers of a killed run
+
+
+def _new_record(experiment, fingerprint, optics, n_particles, backend, started) -> dict:
+    """The ``dataset.json`` record of a new run (status "incomplete", no frame yet)."""
+    from . import __version__
+
+    n = experiment.frames
+    white_on = experiment.white.enabled
+    record: dict[str, Any] = {
+        "format": DATASET_FORMAT,
+        "format_version": DATASET_FORMAT_VERSION,
+        "lfsim_version": __version__,
+        "software": _software(),
+        "backend": None
+        if backend is None
+        else {"variant": backend.variant, "threads": backend.threads},
+        "status": "incomplete",
+        "fingerprint": fingerprint,
+        "name": experiment.name,
+        "experiment": experiment.to_dict(),
+        "experiment_file": None if experiment.source is None else str(experiment.source),
+        "scene": {"path": str(experiment.scene), "sha256": sha256_file(experiment.scene)},
+        "optics": optics.to_dict(),
+        "seed": experiment.seed,
+        "frames": n,
+        "n_particles": n_particles,
+        "object_pixel_um": optics.object_pixel_um,
+        "layout": {
+            "white": WHITE if white_on else None,
+            "frames": f"{FRAMES}/{{frame:06d}}.tif",
+            "truth": f"{TRUTH}/{{frame:06d}}.csv",
+        },
+        "snr_definition": SNR_DEFINITION,
+        "white": None,
+        "frame_records": [None] * n,
+        "created": started,
+        "runs": [],
+        "finished": None,
+    }
+    return record
+
+
+def _resume_record(record: dict, previous: dict, out: Path) -> None:
+    """Carry over into ``record`` what a previous run (its record ``previous``) wrote and is
+    still intact on disk: creation time, runs, white image and frames."""
+    record["created"] = previous.get("created", record["created"])
+    record["runs"] = list(previous.get("runs", []))
+    white_prev = previous.get("white") or {}
+    if verify_record(out / WHITE, white_prev.get("file_record")):
+        record["white"] = white_prev
+    old = previous.get("frame_records") or []
+    changed = []
+    for k in range(min(len(record["frame_records"]), len(old))):
+        if _frame_done(out, k, old[k]):
+            record["frame_records"][k] = old[k]
+        elif old[k] is not None:
+            changed.append(k)
+    if changed:
+        log.warning(
+            "%s: frame(s) %s changed on disk since they were written (truncated or "
+            "corrupt); rendering them again",
+            out,
+            ", ".join(map(str, changed)),
+        )
+
+
+def _write_white(out: Path, experiment, scene, record: dict, common_meta: dict) -> None:
+    """Render and write the white (flat-field) image unless it is there as recorded."""
+    from .render import render_white
+
+    optics = scene.optics
+    rec_path = out / RECORD
+    white_rec = record.get("white") or {}
+    if experiment.white.enabled and not verify_record(out / WHITE, white_rec.get("file_record")):
+        t0 = time.perf_counter()
+        w_seed, w_rng = white_seeds(experiment.seed)
+        clean = render_white(
+            scene,
+            experiment.white.rays_per_lenslet,
+            seed=w_seed,
+            diffraction=experiment.render.diffraction,
+            tracer=experiment.render.tracer,
+        )
+        img, info = add_gaussian_noise(
+            clean.astype(np.float64),
+            experiment.white.snr,
+            w_rng,
+            bit_depth=experiment.white.bit_depth,
+        )
+        meta = {
+            **common_meta,
+            "kind": "white",
+            "rays_per_lenslet": experiment.white.rays_per_lenslet,
+            "render_seed": w_seed,
+            "noise": info,
+        }
+        write_tiff(
+            out / WHITE, img, metadata=meta, pixel_size_um=optics.object_pixel_um, overwrite=True
+        )
+        record["white"] = {
+            "file": WHITE,
+            "seconds": time.perf_counter() - t0,
+            "noise": info,
+            "file_record": file_record(out / WHITE),
+        }
+        write_json(rec_path, record, overwrite=True)
+        log.info("wrote %s", out / WHITE)
+
+
+def _render_frames(
+    out, experiment, scene, reference, common_meta, backend, todo, run, record, parallel, progress
+) -> None:
+    """Render the frames ``todo`` wherever ``parallel`` runs them (:func:`render_frame`),
+    recording each in ``record`` and ``dataset.json`` as it arrives."""
+    from hrvbase.parallel import Parallel, WorkerContext, frame_map
+
+    rec_path = out / RECORD
+    par = Parallel() if parallel is None else parallel
+    record["parallel"] = {"mode": par.describe()}
+    context = WorkerContext(
+        _render_model,
+        # Paths absolute: workers may run in another folder.
+        (
+            experiment,
+            scene if par.in_process else Path(experiment.scene).resolve(),
+            reference,
+            common_meta,
+            out.resolve(),
+            backend,
+        ),
+    )
+    fmap = frame_map(
+        render_frame,
+        todo,
+        parallel=par,
+        context=context,
+        progress=progress,
+        desc=experiment.name,
+    )
+    try:
+        with fmap:
+            for k, frame_record in fmap:
+                record["frame_records"][k] = frame_record
+                run["frames_rendered"] += 1
+                write_json(rec_path, record, overwrite=True)
+                log.debug("frame %d: %.2f s", k, frame_record["seconds"])
+    except (HrvError, KeyboardInterrupt):
+        run["finished"] = _now()
+        write_json(rec_path, record, overwrite=True)
+        raise
+    record["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
+
+
 def generate_dataset(
     experiment: Experiment,
     out_dir: str | os.PathLike,
@@ -341,9 +549,7 @@ def generate_dataset(
         (without ``overwrite``), or cannot be written.
     """
     from . import __version__
-    from .backend import backend_info, init_backend
-    from .render import check_depths, check_in_field, render_white
-    from .scene import load_scene
+    from .backend import backend_info
 
     if not isinstance(experiment, Experiment):
         raise ConfigError(f"experiment must be an Experiment, got {type(experiment).__name__}")
@@ -351,98 +557,18 @@ def generate_dataset(
     fingerprint = experiment.fingerprint()
     action, previous = _inspect(out, fingerprint, overwrite)
     n = experiment.frames
-    white_on = experiment.white.enabled
-    if action == "resume":
-        recs = list(previous.get("frame_records") or []) + [None] * n
-        done = [_frame_done(out, k, recs[k]) for k in range(n)]
-        white_rec = (previous.get("white") or {}).get("file_record")
-        white_done = (not white_on) or verify_record(out / WHITE, white_rec)
-        if previous.get("status") == "complete" and all(done) and white_done:
-            log.info("%s: dataset %r is complete; nothing to do", out, experiment.name)
-            return out
+    if action == "resume" and _is_complete(out, experiment, previous):
+        return out
 
     # Everything that can fail on bad input happens before the folder is touched.
-    if backend_info() is None:
-        init_backend()
-    scene = load_scene(experiment.scene)
+    scene, reference = _checked_inputs(experiment)
     optics = scene.optics
-    reference = reference_particles(experiment)
-    if len(reference) == 0:
-        raise ConfigError(f"experiment {experiment.name!r} seeds no particles")
-    check_in_field(
-        optics,
-        reference.positions_um,
-        reference.ids,
-        what=f"reference particles of experiment {experiment.name!r}",
-    )
-    positions = [experiment.positions(reference.positions_um, k) for k in range(n)]
-    for k, pos in enumerate(positions):
-        check_depths(
-            optics, pos, reference.ids, what=f"particles of frame {k} of {experiment.name!r}"
-        )
-
-    if action == "replace":
-        _remove_tool_files(out)
-    try:
-        (out / FRAMES).mkdir(parents=True, exist_ok=True)
-        (out / TRUTH).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create dataset folder {out}: {exc}") from exc
-    _remove(_temp_files(out))  # leftovers of a killed run
-
+    _prepare_folder(out, action)
     backend = backend_info()
     started = _now()
-    record: dict[str, Any] = {
-        "format": DATASET_FORMAT,
-        "format_version": DATASET_FORMAT_VERSION,
-        "lfsim_version": __version__,
-        "software": _software(),
-        "backend": None
-        if backend is None
-        else {"variant": backend.variant, "threads": backend.threads},
-        "status": "incomplete",
-        "fingerprint": fingerprint,
-        "name": experiment.name,
-        "experiment": experiment.to_dict(),
-        "experiment_file": None if experiment.source is None else str(experiment.source),
-        "scene": {"path": str(experiment.scene), "sha256": sha256_file(experiment.scene)},
-        "optics": optics.to_dict(),
-        "seed": experiment.seed,
-        "frames": n,
-        "n_particles": len(reference),
-        "object_pixel_um": optics.object_pixel_um,
-        "layout": {
-            "white": WHITE if white_on else None,
-            "frames": f"{FRAMES}/{{frame:06d}}.tif",
-            "truth": f"{TRUTH}/{{frame:06d}}.csv",
-        },
-        "snr_definition": SNR_DEFINITION,
-        "white": None,
-        "frame_records": [None] * n,
-        "created": started,
-        "runs": [],
-        "finished": None,
-    }
+    record = _new_record(experiment, fingerprint, optics, len(reference), backend, started)
     if action == "resume" and previous is not None:
-        record["created"] = previous.get("created", started)
-        record["runs"] = list(previous.get("runs", []))
-        white_prev = previous.get("white") or {}
-        if verify_record(out / WHITE, white_prev.get("file_record")):
-            record["white"] = white_prev
-        old = previous.get("frame_records") or []
-        changed = []
-        for k in range(min(n, len(old))):
-            if _frame_done(out, k, old[k]):
-                record["frame_records"][k] = old[k]
-            elif old[k] is not None:
-                changed.append(k)
-        if changed:
-            log.warning(
-                "%s: frame(s) %s changed on disk since they were written (truncated or "
-                "corrupt); rendering them again",
-                out,
-                ", ".join(map(str, changed)),
-            )
+        _resume_record(record, previous, out)
     run = {"started": started, "finished": None, "frames_rendered": 0, "frames_skipped": 0}
     record["runs"].append(run)
     rec_path = out / RECORD
@@ -455,42 +581,7 @@ def generate_dataset(
         "lfsim_version": __version__,
     }
 
-    # White (flat-field) image.
-    white_rec = record.get("white") or {}
-    if white_on and not verify_record(out / WHITE, white_rec.get("file_record")):
-        t0 = time.perf_counter()
-        w_seed, w_rng = white_seeds(experiment.seed)
-        clean = render_white(
-            scene,
-            experiment.white.rays_per_lenslet,
-            seed=w_seed,
-            diffraction=experiment.render.diffraction,
-            tracer=experiment.render.tracer,
-        )
-        img, info = add_gaussian_noise(
-            clean.astype(np.float64),
-            experiment.white.snr,
-            w_rng,
-            bit_depth=experiment.white.bit_depth,
-        )
-        meta = {
-            **common_meta,
-            "kind": "white",
-            "rays_per_lenslet": experiment.white.rays_per_lenslet,
-            "render_seed": w_seed,
-            "noise": info,
-        }
-        write_tiff(
-            out / WHITE, img, metadata=meta, pixel_size_um=optics.object_pixel_um, overwrite=True
-        )
-        record["white"] = {
-            "file": WHITE,
-            "seconds": time.perf_counter() - t0,
-            "noise": info,
-            "file_record": file_record(out / WHITE),
-        }
-        write_json(rec_path, record, overwrite=True)
-        log.info("wrote %s", out / WHITE)
+    _write_white(out, experiment, scene, record, common_meta)
 
     todo = [k for k in range(n) if not _frame_done(out, k, record["frame_records"][k])]
     skipped = n - len(todo)
@@ -498,42 +589,19 @@ def generate_dataset(
     if skipped:
         log.info("%s: %d of %d frames already present and verified, skipped", out, skipped, n)
 
-    from hrvbase.parallel import Parallel, WorkerContext, frame_map
-
-    par = Parallel() if parallel is None else parallel
-    record["parallel"] = {"mode": par.describe()}
-    context = WorkerContext(
-        _render_model,
-        # Paths absolute: workers may run in another folder.
-        (
-            experiment,
-            scene if par.in_process else Path(experiment.scene).resolve(),
-            reference,
-            common_meta,
-            out.resolve(),
-            backend,
-        ),
-    )
-    fmap = frame_map(
-        render_frame,
+    _render_frames(
+        out,
+        experiment,
+        scene,
+        reference,
+        common_meta,
+        backend,
         todo,
-        parallel=par,
-        context=context,
-        progress=progress,
-        desc=experiment.name,
+        run,
+        record,
+        parallel,
+        progress,
     )
-    try:
-        with fmap:
-            for k, frame_record in fmap:
-                record["frame_records"][k] = frame_record
-                run["frames_rendered"] += 1
-                write_json(rec_path, record, overwrite=True)
-                log.debug("frame %d: %.2f s", k, frame_record["seconds"])
-    except (HrvError, KeyboardInterrupt):
-        run["finished"] = _now()
-        write_json(rec_path, record, overwrite=True)
-        raise
-    record["parallel"]["peak_memory_bytes"] = fmap.peak_memory_bytes
 
     run["finished"] = record["finished"] = _now()
     record["status"] = "complete"
