@@ -268,124 +268,21 @@ class Experiment:
         """
         where = str(source) if source is not None else "experiment"
         base = Path(base_dir) if base_dir is not None else Path.cwd()
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"{where}: expected a table of sections, got {type(data).__name__}")
-        for key in data:
-            if key in DOWNSTREAM_SECTIONS:
-                continue
-            if key not in SECTIONS:
-                hint = difflib.get_close_matches(str(key), SECTIONS + DOWNSTREAM_SECTIONS, n=1)
-                did = f" (did you mean [{hint[0]}]?)" if hint else ""
-                raise ConfigError(
-                    f"{where}: unknown section or key [{key}]{did}; allowed sections: "
-                    f"{', '.join(f'[{s}]' for s in SECTIONS)}"
-                )
-        for req in ("experiment", "particles"):
-            if req not in data:
-                raise ConfigError(f"{where}: missing required section [{req}]")
-
-        def fail(section: str, exc: Exception) -> ConfigError:
-            return ConfigError(f"{where}: [{section}]: {exc}")
-
-        # [experiment]
-        exp = _check_keys(where, "experiment", data["experiment"], EXPERIMENT_KEYS)
-        for req in ("name", "scene"):
-            if req not in exp:
-                raise ConfigError(f"{where}: [experiment] needs the key {req!r}")
-        if not isinstance(exp["scene"], str | os.PathLike):
-            raise ConfigError(f"{where}: [experiment] scene must be a path, got {exp['scene']!r}")
-        scene = Path(exp["scene"])
-        if not scene.is_absolute():
-            scene = base / scene
-        scene = scene.resolve()
-        if not scene.is_file():
-            raise ConfigError(
-                f"{where}: [experiment] scene: the scene file {scene} does not exist "
-                f"(write one with `lfsim scene`)"
-            )
-        try:
-            optics = read_optics(scene)
-        except ConfigError as exc:
-            raise fail("experiment", exc) from exc
-        frames = exp.get("frames", 1)
-        if not _is_int(frames) or frames < 1:
-            raise ConfigError(
-                f"{where}: [experiment] frames must be an integer >= 1, got {frames!r}"
-            )
-
-        # [particles]
-        ptab = _check_keys(where, "particles", data["particles"], PARTICLE_KEYS)
-        try:
-            particles = SeedingSpec.from_dict(ptab, base_dir=base)
-        except ConfigError as exc:
-            raise fail("particles", exc) from exc
-        if particles.kind == "csv" and not Path(particles.csv).is_file():
-            raise ConfigError(
-                f"{where}: [particles] csv: the particle table {particles.csv} does not exist"
-            )
-        if particles.n_particles == 0:
-            key = "count" if particles.count is not None else "density_per_mm3"
-            raise ConfigError(
-                f"{where}: [particles] {key} = {ptab[key]!r} seeds no particles; expected at "
-                "least 1"
-            )
-
-        # [motion]
-        motion = None
-        mtab = data.get("motion")
-        if mtab is not None:
-            if not isinstance(mtab, Mapping):
-                raise ConfigError(f"{where}: [motion] must be a table, got {mtab!r}")
-            try:
-                motion = motion_from_dict(mtab, base_dir=base)
-            except ConfigError as exc:
-                raise fail("motion", exc) from exc
-            n_sched = getattr(motion, "n_frames", None)
-            if n_sched is not None and n_sched != frames:
-                raise ConfigError(
-                    f"{where}: [motion] values has {n_sched} entries but [experiment] frames = "
-                    f"{frames}; give one value per frame"
-                )
-
-        # [render]
+        _check_sections(where, data)
+        exp, scene, optics, frames = _experiment_section(where, data["experiment"], base)
+        particles = _particles_section(where, data["particles"], base)
+        motion = _motion_section(where, data.get("motion"), base, frames)
         rtab = _check_keys(where, "render", data.get("render", {}), RENDER_KEYS)
         try:
             render = RenderConfig(**rtab)
         except ConfigError as exc:
-            raise fail("render", exc) from exc
-
-        # [noise]
-        ntab = dict(_check_keys(where, "noise", data.get("noise", DEFAULT_NOISE), NOISE_KEYS))
-        if "camera" in ntab and isinstance(ntab["camera"], Mapping):
-            ntab["camera"] = dict(ntab["camera"])
-        per_frame: dict[str, list] = {}
-        for key in PER_FRAME_NOISE_KEYS:
-            v = ntab.get(key)
-            if isinstance(v, list | tuple):
-                if len(v) != frames:
-                    raise ConfigError(
-                        f"{where}: [noise] {key} has {len(v)} values but [experiment] frames = "
-                        f"{frames}; give one value per frame or a single number"
-                    )
-                per_frame[key] = list(v)
-        noise = []
-        for k in range(frames):
-            d = dict(ntab)
-            for key, vals in per_frame.items():
-                d[key] = vals[k]
-            try:
-                noise.append(NoiseSpec.from_dict(d))
-            except ConfigError as exc:
-                at = f" (frame {k})" if per_frame else ""
-                raise ConfigError(f"{where}: [noise]{at}: {exc}") from exc
-
-        # [white]
+            raise _fail(where, "render", exc) from exc
+        noise = _noise_section(where, data.get("noise", DEFAULT_NOISE), frames)
         wtab = _check_keys(where, "white", data.get("white", {}), WHITE_KEYS)
         try:
             white = WhiteConfig(**wtab)
         except ConfigError as exc:
-            raise fail("white", exc) from exc
-
+            raise _fail(where, "white", exc) from exc
         try:
             return cls(
                 name=exp["name"],
@@ -396,13 +293,13 @@ class Experiment:
                 description=exp.get("description", ""),
                 motion=motion,
                 render=render,
-                noise=tuple(noise),
+                noise=noise,
                 white=white,
                 optics=optics,
                 source=Path(source) if source is not None else None,
             )
         except ConfigError as exc:
-            raise fail("experiment", exc) from exc
+            raise _fail(where, "experiment", exc) from exc
 
     # -- queries ---------------------------------------------------------------------------
     def noise_for_frame(self, k: int) -> NoiseSpec:
@@ -469,6 +366,127 @@ class Experiment:
         }
         text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
         return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _fail(where: str, section: str, exc: Exception) -> ConfigError:
+    """The error of section ``section`` of experiment file ``where``."""
+    return ConfigError(f"{where}: [{section}]: {exc}")
+
+
+def _check_sections(where: str, data) -> None:
+    """Refuse a file that is not a table, has an unknown section (naming the nearest) or
+    lacks [experiment] or [particles]."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a table of sections, got {type(data).__name__}")
+    for key in data:
+        if key in DOWNSTREAM_SECTIONS:
+            continue
+        if key not in SECTIONS:
+            hint = difflib.get_close_matches(str(key), SECTIONS + DOWNSTREAM_SECTIONS, n=1)
+            did = f" (did you mean [{hint[0]}]?)" if hint else ""
+            raise ConfigError(
+                f"{where}: unknown section or key [{key}]{did}; allowed sections: "
+                f"{', '.join(f'[{s}]' for s in SECTIONS)}"
+            )
+    for req in ("experiment", "particles"):
+        if req not in data:
+            raise ConfigError(f"{where}: missing required section [{req}]")
+
+
+def _experiment_section(where: str, table, base: Path) -> tuple:
+    """The [experiment] table checked, its scene file (absolute), the scene's optics and the
+    number of frames."""
+    exp = _check_keys(where, "experiment", table, EXPERIMENT_KEYS)
+    for req in ("name", "scene"):
+        if req not in exp:
+            raise ConfigError(f"{where}: [experiment] needs the key {req!r}")
+    if not isinstance(exp["scene"], str | os.PathLike):
+        raise ConfigError(f"{where}: [experiment] scene must be a path, got {exp['scene']!r}")
+    scene = Path(exp["scene"])
+    if not scene.is_absolute():
+        scene = base / scene
+    scene = scene.resolve()
+    if not scene.is_file():
+        raise ConfigError(
+            f"{where}: [experiment] scene: the scene file {scene} does not exist "
+            f"(write one with `lfsim scene`)"
+        )
+    try:
+        optics = read_optics(scene)
+    except ConfigError as exc:
+        raise _fail(where, "experiment", exc) from exc
+    frames = exp.get("frames", 1)
+    if not _is_int(frames) or frames < 1:
+        raise ConfigError(f"{where}: [experiment] frames must be an integer >= 1, got {frames!r}")
+    return exp, scene, optics, frames
+
+
+def _particles_section(where: str, table, base: Path) -> SeedingSpec:
+    """The seeding of the [particles] table (a csv table must exist; at least 1 particle)."""
+    ptab = _check_keys(where, "particles", table, PARTICLE_KEYS)
+    try:
+        particles = SeedingSpec.from_dict(ptab, base_dir=base)
+    except ConfigError as exc:
+        raise _fail(where, "particles", exc) from exc
+    if particles.kind == "csv" and not Path(particles.csv).is_file():
+        raise ConfigError(
+            f"{where}: [particles] csv: the particle table {particles.csv} does not exist"
+        )
+    if particles.n_particles == 0:
+        key = "count" if particles.count is not None else "density_per_mm3"
+        raise ConfigError(
+            f"{where}: [particles] {key} = {ptab[key]!r} seeds no particles; expected at least 1"
+        )
+    return particles
+
+
+def _motion_section(where: str, mtab, base: Path, frames: int) -> Motion | None:
+    """The motion of the [motion] table (None without one); a ``values`` schedule must have
+    one entry per frame."""
+    if mtab is None:
+        return None
+    if not isinstance(mtab, Mapping):
+        raise ConfigError(f"{where}: [motion] must be a table, got {mtab!r}")
+    try:
+        motion = motion_from_dict(mtab, base_dir=base)
+    except ConfigError as exc:
+        raise _fail(where, "motion", exc) from exc
+    n_sched = getattr(motion, "n_frames", None)
+    if n_sched is not None and n_sched != frames:
+        raise ConfigError(
+            f"{where}: [motion] values has {n_sched} entries but [experiment] frames = "
+            f"{frames}; give one value per frame"
+        )
+    return motion
+
+
+def _noise_section(where: str, table, frames: int) -> tuple[NoiseSpec, ...]:
+    """The noise model of every frame from the [noise] table (per-frame lists of
+    :data:`PER_FRAME_NOISE_KEYS` resolved)."""
+    ntab = dict(_check_keys(where, "noise", table, NOISE_KEYS))
+    if "camera" in ntab and isinstance(ntab["camera"], Mapping):
+        ntab["camera"] = dict(ntab["camera"])
+    per_frame: dict[str, list] = {}
+    for key in PER_FRAME_NOISE_KEYS:
+        v = ntab.get(key)
+        if isinstance(v, list | tuple):
+            if len(v) != frames:
+                raise ConfigError(
+                    f"{where}: [noise] {key} has {len(v)} values but [experiment] frames = "
+                    f"{frames}; give one value per frame or a single number"
+                )
+            per_frame[key] = list(v)
+    noise = []
+    for k in range(frames):
+        d = dict(ntab)
+        for key, vals in per_frame.items():
+            d[key] = vals[k]
+        try:
+            noise.append(NoiseSpec.from_dict(d))
+        except ConfigError as exc:
+            at = f" (frame {k})" if per_frame else ""
+            raise ConfigError(f"{where}: [noise]{at}: {exc}") from exc
+    return tuple(noise)
 
 
 def load_experiment(path: str | os.PathLike) -> Experiment:

@@ -23,7 +23,6 @@ CLI_PARSERS = {
 #: Modules and functions not split yet (path, or path:function). Each is to be split into
 #: units of one job and then removed from here; a stale entry fails the test below.
 NOT_SPLIT_YET = {
-    "lfsim/experiment.py:from_dict",
     "hrvptm/analysis.py:analyse_series",
 }
 
