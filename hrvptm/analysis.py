@@ -579,6 +579,57 @@ def _pool_heterogeneous(rows: list[dict], summary: dict) -> None:
         summary[f"pooled_E_ratio_ideal_{c}"] = meas / floor if floor > 0 else math.nan
 
 
+def _frame_strain(row: dict, st, k: int, fld, tracked: tuple, strain_err, floor_err):
+    """Compare the gridded strain ``fld`` of frame ``k`` with the imposed one: its statistics
+    (and, for a heterogeneous motion, the node-by-node comparison) into ``row``, its errors
+    and those of the sampling floor appended to ``strain_err`` and ``floor_err`` by
+    component. ``tracked``: the reference positions of the tracked true particles, the true
+    positions at frame 0 (by particle id), their ids and their true displacements. Returns
+    the imposed strain at the field's nodes."""
+    motion = st.experiment.motion
+    x_tracked, truth0, ids, true_u = tracked
+    Z, Y, X = np.meshgrid(fld.z_um, fld.y_um, fld.x_um, indexing="ij")
+    nodes = np.column_stack([X[fld.mask], Y[fld.mask], Z[fld.mask]])
+    F_true = imposed_F(motion, k, nodes)
+    E_true = green_lagrange(F_true)
+    E_meas = fld.E[fld.mask]
+    ts = tensor_stats(E_meas, E_true, "E_", n_independent=max(len(ids), 1))
+    row.update(ts)
+    if motion is not None and not getattr(motion, "homogeneous", False):
+        E_t = np.broadcast_to(E_true, E_meas.shape)
+        grid = st.track.series.grid
+        row.update(heterogeneous_errors(motion, k, fld, x_tracked, grid, E_meas, E_t))
+    E_floor = _sampling_floor(truth0, ids, true_u, fld)
+    for c in TENSOR_COMPONENTS:
+        i, j = TENSOR_COMPONENTS[c]
+        t = np.broadcast_to(E_true, E_meas.shape)[:, i, j]
+        strain_err[c].append(E_meas[:, i, j] - t)
+        if E_floor is not None:
+            d = E_floor[:, i, j] - t
+            row[f"E_floor_rmsd_{c}"] = float(np.sqrt(np.mean(d**2)))
+            floor_err[c].append(d)
+    return E_true
+
+
+def _series_summary(rows: list[dict], errs: list, strain_err: dict, floor_err: dict) -> dict:
+    """The pooled and worst-frame numbers of :func:`analyse_series` over its ``rows``."""
+    summary = _pooled(errs, "pooled_u_")
+    for ax in AXES:
+        summary[f"worst_u_rmsd_{ax}"] = _nan_reduce(max, [r[f"u_rmsd_{ax}"] for r in rows])
+    for c, chunks in strain_err.items():
+        e = np.concatenate(chunks) if chunks else np.zeros(0)
+        summary[f"pooled_E_rmsd_{c}"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
+        f = np.concatenate(floor_err[c]) if floor_err[c] else np.zeros(0)
+        summary[f"pooled_E_floor_rmsd_{c}"] = float(np.sqrt(np.mean(f**2))) if len(f) else math.nan
+        summary[f"pooled_E_err_{c}"] = float(e.mean()) if len(e) else math.nan
+        vals = [abs(r[f"E_err_{c}"]) for r in rows if not math.isnan(r[f"E_err_{c}"])]
+        summary[f"worst_E_abs_mean_err_{c}"] = float(max(vals)) if vals else math.nan
+    _pool_heterogeneous(rows, summary)
+    summary["min_tracking_ratio"] = _nan_reduce(min, [r["tracking_ratio"] for r in rows])
+    summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
+    return summary
+
+
 def analyse_series(data: VariantData) -> Analysis:
     """Cumulative displacements of the tracked particles and the gridded strain fields.
 
@@ -670,26 +721,8 @@ def analyse_series(data: VariantData) -> Analysis:
         fpath = data.paths.track / "fields" / f"{k:06d}.npz"
         if fpath.is_file() and not flat:
             fld = read_field_npz(fpath)
-            Z, Y, X = np.meshgrid(fld.z_um, fld.y_um, fld.x_um, indexing="ij")
-            nodes = np.column_stack([X[fld.mask], Y[fld.mask], Z[fld.mask]])
-            F_true = imposed_F(motion, k, nodes)
-            E_true = green_lagrange(F_true)
-            E_meas = fld.E[fld.mask]
-            ts = tensor_stats(E_meas, E_true, "E_", n_independent=max(int(known.sum()), 1))
-            row.update(ts)
-            if motion is not None and not getattr(motion, "homogeneous", False):
-                E_t = np.broadcast_to(E_true, E_meas.shape)
-                grid = st.track.series.grid
-                row.update(heterogeneous_errors(motion, k, fld, x0[i0][known], grid, E_meas, E_t))
-            E_floor = _sampling_floor(truth0, start[known], true_u, fld)
-            for c in TENSOR_COMPONENTS:
-                i, j = TENSOR_COMPONENTS[c]
-                t = np.broadcast_to(E_true, E_meas.shape)[:, i, j]
-                strain_err[c].append(E_meas[:, i, j] - t)
-                if E_floor is not None:
-                    d = E_floor[:, i, j] - t
-                    row[f"E_floor_rmsd_{c}"] = float(np.sqrt(np.mean(d**2)))
-                    floor_err[c].append(d)
+            tracked = (x0[i0][known], truth0, start[known], true_u)
+            E_true = _frame_strain(row, st, k, fld, tracked, strain_err, floor_err)
             if abs(amp) >= peak_amp:
                 peak_amp = abs(amp)
                 peak_field = {"frame": k, "field": fld, "E_true": E_true}
@@ -705,20 +738,7 @@ def analyse_series(data: VariantData) -> Analysis:
     arrays["vectors"] = vectors[peak]
     if peak_field is not None:
         arrays["field"] = peak_field
-    summary = _pooled(errs, "pooled_u_")
-    for ax in AXES:
-        summary[f"worst_u_rmsd_{ax}"] = _nan_reduce(max, [r[f"u_rmsd_{ax}"] for r in rows])
-    for c, chunks in strain_err.items():
-        e = np.concatenate(chunks) if chunks else np.zeros(0)
-        summary[f"pooled_E_rmsd_{c}"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
-        f = np.concatenate(floor_err[c]) if floor_err[c] else np.zeros(0)
-        summary[f"pooled_E_floor_rmsd_{c}"] = float(np.sqrt(np.mean(f**2))) if len(f) else math.nan
-        summary[f"pooled_E_err_{c}"] = float(e.mean()) if len(e) else math.nan
-        vals = [abs(r[f"E_err_{c}"]) for r in rows if not math.isnan(r[f"E_err_{c}"])]
-        summary[f"worst_E_abs_mean_err_{c}"] = float(max(vals)) if vals else math.nan
-    _pool_heterogeneous(rows, summary)
-    summary["min_tracking_ratio"] = _nan_reduce(min, [r["tracking_ratio"] for r in rows])
-    summary["wrong_tracks"] = int(sum(r["n_tracked"] - r["n_correct"] for r in rows))
+    summary = _series_summary(rows, errs, strain_err, floor_err)
     unc = _uncertainty(errs, sigs, disp, [data.inv_snr2(0, k) for k in range(1, n)])
     summary.update(coverage(unc["error"], unc["sigma"], "u_"))
     arrays["uncertainty"] = unc
