@@ -119,7 +119,7 @@ class Motion:
         raise NotImplementedError
 
     def to_dict(self) -> dict:
-        """Plain-JSON representation, the inverse of :func:`motion_from_dict`."""
+        """Plain-JSON representation, the inverse of :func:`~lfsim.motion.motion_from_dict`."""
         out: dict[str, Any] = {"type": self.type_name}
         for f in fields(self):  # type: ignore[arg-type]
             v = getattr(self, f.name)
@@ -189,7 +189,7 @@ class _Scheduled(Motion):
 
         Returns
         -------
-        float, or numpy.ndarray of shape (3,) for :class:`Translation`
+        float, or numpy.ndarray of shape (3,) for :class:`~lfsim.motion.Translation`
         """
         frame = _check_frame(frame)
         if self.values is None:

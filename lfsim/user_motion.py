@@ -89,7 +89,7 @@ class UserField(Motion):
     function : str
         ``"package.module:function"`` (imported from ``sys.path``) or
         ``"path/to/file.py:function"`` (a file path; relative paths are relative to the current
-        folder, or to the experiment file's folder through :func:`motion_from_dict`).
+        folder, or to the experiment file's folder through :func:`~lfsim.motion.motion_from_dict`).
     params : Mapping
         Extra keyword arguments for the function.
 

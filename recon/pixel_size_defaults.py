@@ -61,9 +61,9 @@ STRIP_MIN_DEG = 5.0
 #: reported with the angle as its likely cause (the lenslets average rotated lines out).
 ROTATED_DEG = 15.0
 #: Half-width (degrees) of the window of scale directions searched about the direction of the
-#: ruled band (:func:`ruling_direction`).
+#: ruled band (:func:`~recon.ruling_geometry.ruling_direction`).
 DIRECTION_WINDOW_DEG = 2.0
-#: Width (lenslets) of the Gaussian of :func:`ruling_direction`.
+#: Width (lenslets) of the Gaussian of :func:`~recon.ruling_geometry.ruling_direction`.
 DIRECTION_KERNEL = 1.0
 #: Largest defocus accepted, as a fraction of ``division / NA``: beyond, the defocus blur
 #: (diameter ``2 z NA``) spreads a line over more than half a division, which the model of

@@ -30,7 +30,7 @@ def _positive(value: Any, name: str) -> float:
 
 @dataclass(frozen=True)
 class PixelSizeResult:
-    """The measured object-space pixel size (see :func:`measure_pixel_size`).
+    """The measured object-space pixel size (see :func:`~recon.pixel_size.measure_pixel_size`).
 
     Attributes
     ----------
@@ -206,7 +206,8 @@ def build_record(
     version: str = "",
     elapsed_s: float | None = None,
 ) -> dict:
-    """The JSON record ``recon pixel-size`` writes (format :data:`PIXEL_SIZE_FORMAT`).
+    """The JSON record ``recon pixel-size`` writes (format
+    :data:`~recon.pixel_size_defaults.PIXEL_SIZE_FORMAT`).
 
     Holds the result (:meth:`PixelSizeResult.to_dict`: ``um_per_px`` and ``um_per_px_std``
     in µm per pixel, ``magnification``, ``nominal``, ``relative_deviation``, ``axis``,

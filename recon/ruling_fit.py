@@ -248,8 +248,8 @@ class AxisFit:
 
 def _axis_data(sums: np.ndarray, q0: float, theta_c: float) -> tuple[_Data, int]:
     """The lenslet sums of the ruled region (normalised, with their strip of the scale) and
-    the region's length along the scale (lenslets); :class:`PixelSizeError` for a region
-    too small to fit."""
+    the region's length along the scale (lenslets);
+    :class:`~recon.pixel_size_defaults.PixelSizeError` for a region too small to fit."""
     theta_strips = theta_c if abs(theta_c) > math.radians(STRIP_MIN_DEG) else 0.0
     region = _ruled_region(sums, q0, theta_strips)
     if region is None:
@@ -277,7 +277,8 @@ def _axis_data(sums: np.ndarray, q0: float, theta_c: float) -> tuple[_Data, int]
 
 def _refined_solutions(data: _Data, q_range, theta_range, sigma: float, bounds) -> list:
     """The rulings of the expected contrast refined from the spectral starts (one per basin,
-    the best few polished), best first; :class:`PixelSizeError` when there is none."""
+    the best few polished), best first; :class:`~recon.pixel_size_defaults.PixelSizeError`
+    when there is none."""
     lo, hi = bounds
     starts = _spectral_starts(data, q_range, theta_range)
     if not starts:
@@ -371,8 +372,8 @@ def _with_aliases(data: _Data, good: list, sigma: float, bounds) -> list:
 def _explained(data: _Data, best, total: float, axis: str) -> tuple[float, float]:
     """The noise variance of the best ruling's fit and the share of the variation within
     rows that it explains, per degree of freedom (adjusted R²: fair between the two axes,
-    which have different numbers of rows); :class:`PixelSizeError` below
-    :data:`MIN_EXPLAINED`."""
+    which have different numbers of rows); :class:`~recon.pixel_size_defaults.PixelSizeError` below
+    :data:`~recon.pixel_size_defaults.MIN_EXPLAINED`."""
     n, n_lin = len(data.y), 2 * data.n_rows
     dof = max(n - n_lin - 4, 1)
     s2 = max(best.cost / dof, 1e-12 * total)  # a noise-free image still has rounding
@@ -432,8 +433,9 @@ def _moire_cycles(data: _Data, params) -> float:
 
     The lenslet sums see the frequency vector ``F = q (cos θ, sin θ)`` folded to the nearest
     lattice point, ``F − round(F)``; a ruling whose folded frequency makes fewer periods
-    across the region than :data:`MIN_MOIRE_CYCLES` is not told apart from a slow variation
-    of the band (near a whole number of divisions per lenslet along both axes).
+    across the region than :data:`~recon.pixel_size_defaults.MIN_MOIRE_CYCLES` is not told
+    apart from a slow variation of the band (near a whole number of divisions per lenslet along both
+    axes).
     """
     q, theta = params[0], params[1]
     f = np.array([q * math.cos(theta), q * math.sin(theta)])
@@ -450,7 +452,7 @@ def _shared_gain_explained(data: _Data, params, sigma: float) -> float:
 
     A real ruling crosses every row (strip) of its region with the same contrast; a ruling
     fitted to noise or to the band's edges only fits with gains that differ from row to
-    row (:data:`MIN_CONSISTENT`).
+    row (:data:`~recon.pixel_size_defaults.MIN_CONSISTENT`).
     """
     q, theta, phi, rho = params
     R = ruling_coverage(data.c, data.r, q, theta, phi, rho, sigma)
@@ -517,13 +519,13 @@ def _uncertainty(data, best: _Solution, sigma, s2, bounds) -> tuple[float, float
     ``θ``: linearised (Jacobian at the optimum, noise variance ``s2``). ``q``: from the profile
     of the cost over ``q`` (``θ``, ``φ``, ``ρ`` re-fitted at every ``q``). From the optimum
     the profile is followed outwards on each side in doubling steps ``Δ`` until it rises by
-    more than :data:`PROFILE_STOP` noise variances or reaches the searched range; every
-    point gives ``Δ / √max(rise / s2, 1)`` — the standard deviation of a parabola through
-    it, and at least ``Δ`` where the profile is flat — and the largest of these is the
-    uncertainty. For a well-determined scale (parabolic profile) that is the usual
-    ``Δχ² = 1`` value; where the lenslets cannot tell scales apart (a coarse ruling whose lines
-    all stay inside their lenslets) the profile is a plateau, bumpy by a few variances, and
-    the uncertainty spans it instead of the first bump.
+    more than :data:`~recon.pixel_size_defaults.PROFILE_STOP` noise variances or reaches the
+    searched range; every point gives ``Δ / √max(rise / s2, 1)`` — the standard deviation of a
+    parabola through it, and at least ``Δ`` where the profile is flat — and the largest of these is
+    the uncertainty. For a well-determined scale (parabolic profile) that is the usual ``Δχ² = 1``
+    value; where the lenslets cannot tell scales apart (a coarse ruling whose lines all stay inside
+    their lenslets) the profile is a plateau, bumpy by a few variances, and the uncertainty spans it
+    instead of the first bump.
     """
     J = best.jac
     try:

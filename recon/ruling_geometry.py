@@ -29,9 +29,9 @@ def _ruled_region(
     ``theta_strips`` (radians, the scale's direction from the columns) is 0, else strips
     tilted by it (lenslet ``(u, v)`` is in strip ``round(v cos θ − u sin θ)``).
     Strips: the contiguous block, around the brightest strip, of strips whose mean over the
-    background reaches :data:`ROW_FRACTION` of the brightest's — a ruling crosses a block of
-    strips. Along the scale: the longest run lit in those strips after smoothing over one
-    division.
+    background reaches :data:`~recon.pixel_size_defaults.ROW_FRACTION` of the brightest's — a ruling
+    crosses a block of strips. Along the scale: the longest run lit in those strips after smoothing
+    over one division.
 
     Returns
     -------
@@ -80,10 +80,10 @@ def ruling_direction(sums: np.ndarray) -> tuple[float, float]:
     band along the scale; the lenslet sums alias the lines' period but not the band. Its
     direction is the one along which the sums, projected onto the perpendicular direction,
     have the sharpest profile: the largest ``wᵀ K w`` with ``w = sums − mean`` and ``K`` a
-    Gaussian of :data:`DIRECTION_KERNEL` lenslets in the projected distance between two
-    lenslets (a smooth projection, free of the lattice's preference for its own axes),
-    searched every degree and refined every 0.05° within ±1.5°. On the lfsim micrometers of
-    ``scenes/small.xml`` (0–90°, 0–150 µm defocus, SNR 5) it was within 0.6° of the truth.
+    Gaussian of :data:`~recon.pixel_size_defaults.DIRECTION_KERNEL` lenslets in the projected
+    distance between two lenslets (a smooth projection, free of the lattice's preference for its own
+    axes), searched every degree and refined every 0.05° within ±1.5° (its accuracy:
+    docs/validation_notes.md, "Pixel size").
 
     Parameters
     ----------

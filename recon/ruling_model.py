@@ -27,9 +27,9 @@ def lenslet_sums(
         Lenslet grid of the image (pixels).
     radius_fraction : float, optional
         Sum only the pixels whose centres lie within ``radius_fraction · pitch`` of the
-        lenslet centre (default :data:`SUM_RADIUS`): the rim of a lenslet image overlaps its
-        neighbours' (diffraction, f-number mismatch), and that cross-talk would look like
-        light from the neighbouring footprints. ``None`` sums the whole cell.
+        lenslet centre (default :data:`~recon.pixel_size_defaults.SUM_RADIUS`): the rim of a lenslet
+        image overlaps its neighbours' (diffraction, f-number mismatch), and that cross-talk would
+        look like light from the neighbouring footprints. ``None`` sums the whole cell.
 
     Returns
     -------

@@ -470,15 +470,14 @@ def detect_particles(
         factor ``s``; ``recon.json`` ``grid.s``, :attr:`track.volumes.VolumeInfo.
         lenslet_period_vox`). When given, the volume is treated as a light-field
         reconstruction: (1) the noise of every sub-lenslet phase is brought to its depth's
-        level (:func:`equalize_lenslet_phases`) in the volume the particles are found,
-        measured (PSF, width) and localised in (the input, ``localize_on="input"``);
-        (2) before the band-pass its outer lenslet (``s`` voxels) on the lateral faces and
-        its 2 outer depth planes, where the light from outside the field piles up, are set to
-        the volume's median; (3) each blob's significance is measured against the larger of
-        the volume's noise σ and that of its own depth plane; (4) particles longer than half
-        the volume along some axis (one RL iteration) are localised on the band-passed volume,
-        as their box around them is cut by the faces. None (default): none of this, the
-        behaviour without a period.
+        level (:func:`~track.lenslet_phases.equalize_lenslet_phases`) in the volume the particles
+        are found, measured (PSF, width) and localised in (the input, ``localize_on="input"``); (2)
+        before the band-pass its outer lenslet (``s`` voxels) on the lateral faces and its 2 outer
+        depth planes, where the light from outside the field piles up, are set to the volume's
+        median; (3) each blob's significance is measured against the larger of the volume's noise σ
+        and that of its own depth plane; (4) particles longer than half the volume along some axis
+        (one RL iteration) are localised on the band-passed volume, as their box around them is cut
+        by the faces. None (default): none of this, the behaviour without a period.
     lenslet_phase_vox : sequence of 2 int
         ``(phase_y, phase_x)``: sub-lenslet position of voxel row and column 0 (0 for the
         volumes of ``recon run``); used only with ``lenslet_period_vox``.

@@ -40,7 +40,8 @@ class LinkRadii(NamedTuple):
 
 @dataclass(frozen=True)
 class LinkSettings:
-    """Parameters of :func:`link_pair`. Lengths in µm; ``None`` means "derive from the data".
+    """Parameters of :func:`~track.matching.link_pair`. Lengths in µm; ``None`` means "derive from
+    the data".
 
     Attributes
     ----------
@@ -251,7 +252,7 @@ class IterationRecord:
 
 @dataclass(frozen=True)
 class LinkResult:
-    """Outcome of :func:`link_pair`.
+    """Outcome of :func:`~track.matching.link_pair`.
 
     Attributes
     ----------
