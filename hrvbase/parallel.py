@@ -641,7 +641,10 @@ def _local_cluster(par: Parallel):
                 processes=True,
                 memory_limit=par.memory_limit if par.memory_limit is not None else 0,
                 dashboard_address=None,
-                silence_logs=logging.ERROR,
+                # Dask's own log lines are not the user's: a worker's heartbeat that
+                # fails while a loaded machine shuts the cluster down logs an ERROR; the
+                # frames' failures reach the user through frame_map's results.
+                silence_logs=logging.CRITICAL,
                 env={"HRVPTM_THREADS": str(par.worker_threads())},
             )
     except BaseException:  # e.g. Ctrl-C pressed while the workers started
