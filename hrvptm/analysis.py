@@ -52,6 +52,7 @@ from .compare import (
     tensor_stats,
     vector_stats,
 )
+from .config import AS_AIR
 from .errors import StageError
 from .stages import VariantPaths, particle_tables
 
@@ -106,6 +107,11 @@ class VariantData:
     sigmas: list[np.ndarray] = field(default_factory=list)
     #: SNR of each camera frame as ``recon run`` measured it (None: not recorded)
     snr_measured: list = field(default_factory=list)
+    #: Where the reconstruction puts a true depth, ``z_recon ≈ truth_z_scale · z``: 1, or
+    #: for the ``as_air`` variant the specimen's axial scale (``Optics.axial_scale``). The
+    #: detections are associated with the true particles, and the true particles counted in
+    #: the volume, at those depths; every error is measured against the true ones.
+    truth_z_scale: float = 1.0
 
     @classmethod
     def load(cls, study, paths: VariantPaths) -> VariantData:
@@ -137,7 +143,18 @@ class VariantData:
         measured = [pre.get(k, {}).get("snr") for k in range(n)]
         for k in range(n):
             noise[k]["snr_measured"] = math.nan if measured[k] is None else float(measured[k])
-        return cls(study, paths, tids, txyz, dets, lo, hi, noise, sigmas, measured)
+        z_scale = 1.0
+        if paths.variant == AS_AIR:
+            from .stages import recon_optics
+
+            z_scale = recon_optics(study, study.dataset_variant(AS_AIR)).axial_scale
+        return cls(study, paths, tids, txyz, dets, lo, hi, noise, sigmas, measured, z_scale)
+
+    def _expected(self, xyz: np.ndarray) -> np.ndarray:
+        """True positions (N, 3) where the reconstruction puts them (:attr:`truth_z_scale`)."""
+        if self.truth_z_scale == 1.0:
+            return xyz
+        return np.asarray(xyz, float) * np.array([1.0, 1.0, self.truth_z_scale])
 
     def inv_snr2(self, *frames: int) -> float:
         """``Σ 1 / SNR²`` of the camera frames ``frames`` (``recon run``'s measurement; 0
@@ -157,12 +174,13 @@ class VariantData:
     def associate(self, k: int, points: np.ndarray) -> np.ndarray:
         """Truth id of each point of frame ``k`` (−1: no true particle within the radius)."""
         ids = np.full(len(points), -1, dtype=int)
-        i_p, i_t = associate(points, self.truth_xyz[k], self.study.study.match_radius_um)
+        truth = self._expected(self.truth_xyz[k])
+        i_p, i_t = associate(points, truth, self.study.study.match_radius_um)
         ids[i_p] = self.truth_ids[k][i_t]
         return ids
 
     def n_in_volume(self, k: int) -> int:
-        return int(self.in_volume(self.truth_xyz[k]).sum())
+        return int(self.in_volume(self._expected(self.truth_xyz[k])).sum())
 
 
 #: Coverage a right standard uncertainty gives within 1σ and 2σ (normal errors).
