@@ -107,8 +107,8 @@ def indentation_gradient(
 
 
 # -- stiff inclusion ---------------------------------------------------------------------------
-def _inclusion_parts(X, strain, center_um, radius_um, inner_fraction, axis):
-    d = X - np.asarray(center_um, dtype=np.float64).reshape(3)
+def _inclusion_parts(X, strain, center_xyz_um, radius_um, inner_fraction, axis):
+    d = X - np.asarray(center_xyz_um, dtype=np.float64).reshape(3)
     r = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
     m = np.full(3, -0.5)
     m[_axis_index(axis)] = 1.0
@@ -125,7 +125,7 @@ def _inclusion_parts(X, strain, center_um, radius_um, inner_fraction, axis):
 def inclusion_displacement(
     X_um,
     strain: float,
-    center_um,
+    center_xyz_um,
     radius_um: float,
     inner_fraction: float = 0.05,
     axis="x",
@@ -138,7 +138,7 @@ def inclusion_displacement(
         Reference positions (x, y, z), µm.
     strain : float
         Far-field engineering strain ``ε`` along ``axis`` (``−ε/2`` across).
-    center_um : array_like, shape (3,)
+    center_xyz_um : array_like, shape (3,)
         Centre of the sphere (x, y, z), µm.
     radius_um : float
         Radius ``a`` of the sphere, µm.
@@ -153,21 +153,25 @@ def inclusion_displacement(
         ``u`` in µm.
     """
     X = _points(X_um)
-    _, _, _, ed, phi, _ = _inclusion_parts(X, strain, center_um, radius_um, inner_fraction, axis)
+    _, _, _, ed, phi, _ = _inclusion_parts(
+        X, strain, center_xyz_um, radius_um, inner_fraction, axis
+    )
     return (1.0 - phi)[:, None] * ed
 
 
 def inclusion_gradient(
     X_um,
     strain: float,
-    center_um,
+    center_xyz_um,
     radius_um: float,
     inner_fraction: float = 0.05,
     axis="x",
 ) -> np.ndarray:
     """``∂u_i/∂X_j`` (N, 3, 3) of :func:`inclusion_displacement` (same parameters)."""
     X = _points(X_um)
-    d, r, e, ed, phi, dphi = _inclusion_parts(X, strain, center_um, radius_um, inner_fraction, axis)
+    d, r, e, ed, phi, dphi = _inclusion_parts(
+        X, strain, center_xyz_um, radius_um, inner_fraction, axis
+    )
     out = (1.0 - phi)[:, None, None] * np.diag(e)[None]
     out -= (dphi / r)[:, None, None] * ed[:, :, None] * d[:, None, :]
     return out

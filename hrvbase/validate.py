@@ -126,6 +126,24 @@ def per_axis(value: Any, name: str, *, positive: bool = True) -> tuple[float, fl
     return (z, y, x)
 
 
+#: Keys of the files users write whose names say the order of their values, by the name that
+#: does not (docs/conventions.md §3): such a key is refused with a message naming the key to
+#: write instead, so that no value is read in an order its file did not state.
+RENAMED_KEYS: dict[str, tuple[str, str]] = {
+    "center_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
+    "centre_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
+}
+
+
+def renamed_key_message(key: Any, allowed: Iterable[str]) -> str | None:
+    """Why ``key`` is refused if it is a :data:`RENAMED_KEYS` name of an ``allowed`` key
+    (``"'center_um' is named 'center_xyz_um' (...); rename the key"``), else None."""
+    new, meaning = RENAMED_KEYS.get(str(key), (None, ""))
+    if new is None or new not in allowed:
+        return None
+    return f"{key!r} is named {new!r} ({meaning}); rename the key"
+
+
 def check_table_keys(
     where: str,
     section: str,
@@ -137,13 +155,17 @@ def check_table_keys(
     """``table`` (a parsed TOML/JSON table) if all its keys are ``allowed``.
 
     An unknown key raises ``error`` naming the file (``where``), the section, the key, the
-    closest allowed key and every allowed key.
+    closest allowed key and every allowed key; a key of :data:`RENAMED_KEYS` raises it naming
+    the key to write instead.
     """
     if not isinstance(table, Mapping):
         raise error(f"{where}: [{section}] must be a table, got {type(table).__name__} {table!r}")
     allowed = list(allowed)
     for key in table:
         if key not in allowed:
+            renamed = renamed_key_message(key, allowed)
+            if renamed is not None:
+                raise error(f"{where}: [{section}] {renamed}")
             hint = difflib.get_close_matches(str(key), allowed, n=1)
             did = f" (did you mean {hint[0]!r}?)" if hint else ""
             raise error(
@@ -153,6 +175,7 @@ def check_table_keys(
 
 
 __all__ = [
+    "RENAMED_KEYS",
     "check_table_keys",
     "finite_float",
     "fixed_length",
@@ -162,4 +185,5 @@ __all__ = [
     "per_axis",
     "points_xyz",
     "positive_float",
+    "renamed_key_message",
 ]

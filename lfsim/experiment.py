@@ -27,7 +27,7 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
     plane = "xz"                    #   | gaussian_indentation | stiff_inclusion | user_field;
     step_gamma = 0.025              #   keys of lfsim.motion's classes; an explicit `values`
                                     #   schedule needs one value per frame
-    center_um = [0, 0, 250]
+    center_xyz_um = [0, 0, 250]
 
     [render]
     rays_per_particle = 100000      # rays (= photons) per particle of brightness 1
@@ -94,6 +94,11 @@ SECTIONS = ("experiment", "particles", "motion", "render", "noise", "white")
 DOWNSTREAM_SECTIONS = ("study", "recon", "track")
 #: Noise keys that may be a list with one value per frame.
 PER_FRAME_NOISE_KEYS = ("snr", "fps")
+
+#: Names under which :meth:`Experiment.fingerprint` hashes the keys named otherwise in the
+#: API (docs/conventions.md §3): the fingerprint identifies what an experiment produces, and a
+#: key's name does not change that, so the datasets already made keep theirs.
+FINGERPRINT_KEYS = {"center_xyz_um": "center_um"}
 
 #: Noise model when the file has no ``[noise]`` section: the paper's default (§4).
 DEFAULT_NOISE = {"model": "gaussian", "snr": 17.0}
@@ -343,7 +348,8 @@ class Experiment:
     def fingerprint(self) -> str:
         """SHA-256 identifying what this experiment produces.
 
-        Hash of the canonical dict (:meth:`to_dict`) with file locations replaced by the
+        Hash of the canonical dict (:meth:`to_dict`, its keys named as in
+        :data:`FINGERPRINT_KEYS`) with file locations replaced by the
         files' contents (the scene file's SHA-256, and those of a particle CSV or user-field
         module), plus ``lfsim.__version__``. Moving the files elsewhere keeps the
         fingerprint; editing any of them changes it.
@@ -351,7 +357,7 @@ class Experiment:
         from . import __version__
         from .io import sha256_file
 
-        d = self.to_dict()
+        d = _fingerprint_keys(self.to_dict())
         del d["experiment"]["scene"]
         if self.particles.kind == "csv":
             d["particles"]["csv"] = "sha256:" + sha256_file(self.particles.csv)
@@ -366,6 +372,15 @@ class Experiment:
         }
         text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
         return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _fingerprint_keys(obj):
+    """``obj`` (plain JSON) with the keys of :data:`FINGERPRINT_KEYS` renamed, at any depth."""
+    if isinstance(obj, dict):
+        return {FINGERPRINT_KEYS.get(k, k): _fingerprint_keys(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_fingerprint_keys(v) for v in obj]
+    return obj
 
 
 def _fail(where: str, section: str, exc: Exception) -> ConfigError:

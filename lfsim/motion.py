@@ -7,7 +7,7 @@ motions follow
     x = c + F(k) (X − c) + t(k),        u = x − X,
 
 with deformation gradient ``F`` (reference configuration, ``F = I + ∇u``), centre ``c``
-(``center_um``) and translation ``t``. Frame 0 is normally the reference configuration.
+(``center_xyz_um``) and translation ``t``. Frame 0 is normally the reference configuration.
 
 Schedules. Each homogeneous motion has one scalar (a 3-vector for :class:`Translation`)
 *amplitude* per frame, ``amplitude(k) = k · step`` by default. Passing ``values=[a0, a1, ...]``
@@ -19,7 +19,7 @@ is then an error. What the amplitude means:
 motion                 amplitude        deformation
 =====================  ===============  =====================================================
 ``Translation``        ``t`` (µm, 3)    ``F = I``, ``x = X + t``
-``Rotation``           angle (deg)      right-handed about ``axis`` through ``center_um``
+``Rotation``           angle (deg)      right-handed about ``axis`` through ``center_xyz_um``
 ``UniaxialTension``    ``λ − 1``        stretch ``λ`` along ``axis``, ``1/√λ`` across (det F = 1)
 ``SimpleShear``        ``γ``            plane ``"ab"``: ``x_a = X_a + γ (X_b − c_b)``
 =====================  ===============  =====================================================
@@ -59,6 +59,7 @@ from hrvbase.known_fields import (
     indentation_displacement,
     indentation_gradient,
 )
+from hrvbase.validate import renamed_key_message
 
 from .errors import ConfigError, LfsimError
 from .motion_base import (
@@ -93,7 +94,7 @@ class _Homogeneous(_Scheduled):
     @property
     def center(self) -> np.ndarray:
         """Centre ``c`` (3,) µm of the deformation."""
-        return np.asarray(getattr(self, "center_um", (0.0, 0.0, 0.0)), dtype=np.float64)
+        return np.asarray(getattr(self, "center_xyz_um", (0.0, 0.0, 0.0)), dtype=np.float64)
 
     def translation(self, frame) -> np.ndarray:
         """Rigid translation ``t`` (3,) µm at a frame (zero except for :class:`Translation`)."""
@@ -152,7 +153,7 @@ class Translation(_Homogeneous):
 
 @dataclass(frozen=True)
 class Rotation(_Homogeneous):
-    """Rigid rotation by ``k · step_deg`` (right-handed) about ``axis`` through ``center_um``.
+    """Rigid rotation by ``k · step_deg`` (right-handed) about ``axis`` through ``center_xyz_um``.
 
     Parameters
     ----------
@@ -160,7 +161,7 @@ class Rotation(_Homogeneous):
         Rotation axis (normalised internally). Default z.
     step_deg : float
         Rotation per frame in degrees.
-    center_um : array_like, shape (3,)
+    center_xyz_um : array_like, shape (3,)
         A point on the axis, µm.
     values : sequence of float, optional, keyword-only
         Explicit angle of every frame in degrees, instead of ``step_deg``.
@@ -168,7 +169,7 @@ class Rotation(_Homogeneous):
 
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     step_deg: float | None = None
-    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    center_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     type_name: ClassVar[str] = "rotation"
     _step_name: ClassVar[str] = "step_deg"
@@ -178,7 +179,9 @@ class Rotation(_Homogeneous):
         if axis == (0.0, 0.0, 0.0):
             raise ConfigError("rotation axis must be a non-zero vector")
         object.__setattr__(self, "axis", axis)
-        object.__setattr__(self, "center_um", _vec3("rotation center_um", self.center_um))
+        object.__setattr__(
+            self, "center_xyz_um", _vec3("rotation center_xyz_um", self.center_xyz_um)
+        )
         super().__post_init__()
 
     def deformation_gradient(self, frame) -> np.ndarray:
@@ -200,7 +203,7 @@ class UniaxialTension(_Homogeneous):
         Tension axis.
     step_stretch : float
         Engineering strain added per frame (0.05 for 5 % steps).
-    center_um : array_like, shape (3,)
+    center_xyz_um : array_like, shape (3,)
         Fixed point of the deformation, µm.
     values : sequence of float, optional, keyword-only
         Explicit engineering strain ``λ − 1`` of every frame, instead of ``step_stretch``.
@@ -208,7 +211,7 @@ class UniaxialTension(_Homogeneous):
 
     axis: str = "x"
     step_stretch: float | None = None
-    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    center_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     type_name: ClassVar[str] = "uniaxial_tension"
     _step_name: ClassVar[str] = "step_stretch"
@@ -216,7 +219,9 @@ class UniaxialTension(_Homogeneous):
     def __post_init__(self) -> None:
         if self.axis not in _AXES:
             raise ConfigError(f"uniaxial_tension axis must be 'x', 'y' or 'z', got {self.axis!r}")
-        object.__setattr__(self, "center_um", _vec3("uniaxial_tension center_um", self.center_um))
+        object.__setattr__(
+            self, "center_xyz_um", _vec3("uniaxial_tension center_xyz_um", self.center_xyz_um)
+        )
         super().__post_init__()
 
     def stretch(self, frame) -> float:
@@ -256,7 +261,7 @@ class SimpleShear(_Homogeneous):
         Two different letters of x, y, z: displacement direction then gradient direction.
     step_gamma : float
         Engineering shear strain added per frame (0.025 for 2.5 % steps).
-    center_um : array_like, shape (3,)
+    center_xyz_um : array_like, shape (3,)
         Point with zero displacement, µm (only its b component matters).
     values : sequence of float, optional, keyword-only
         Explicit ``γ`` of every frame, instead of ``step_gamma``.
@@ -264,7 +269,7 @@ class SimpleShear(_Homogeneous):
 
     plane: str = "xz"
     step_gamma: float | None = None
-    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    center_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     type_name: ClassVar[str] = "simple_shear"
     _step_name: ClassVar[str] = "step_gamma"
@@ -278,7 +283,9 @@ class SimpleShear(_Homogeneous):
             )
         if p[0] == p[1]:
             raise ConfigError(f"simple_shear plane needs two different axes, got {p!r}")
-        object.__setattr__(self, "center_um", _vec3("simple_shear center_um", self.center_um))
+        object.__setattr__(
+            self, "center_xyz_um", _vec3("simple_shear center_xyz_um", self.center_xyz_um)
+        )
         super().__post_init__()
 
     def deformation_gradient(self, frame) -> np.ndarray:
@@ -418,7 +425,7 @@ class StiffInclusion(_Heterogeneous):
         Stretch axis.
     step_strain : float
         Far-field engineering strain added per frame.
-    center_um : array_like, shape (3,)
+    center_xyz_um : array_like, shape (3,)
         Centre of the sphere (x, y, z), µm.
     inner_fraction : float
         Strain inside the sphere as a fraction of the far field, in [0, 1) (0: rigid).
@@ -429,7 +436,7 @@ class StiffInclusion(_Heterogeneous):
     radius_um: float
     axis: str = "x"
     step_strain: float | None = None
-    center_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    center_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
     inner_fraction: float = 0.05
 
     type_name: ClassVar[str] = "stiff_inclusion"
@@ -440,7 +447,7 @@ class StiffInclusion(_Heterogeneous):
         if self.axis not in _AXES:
             raise ConfigError(f"{n} axis must be 'x', 'y' or 'z', got {self.axis!r}")
         object.__setattr__(self, "radius_um", _positive(f"{n} radius_um", self.radius_um))
-        object.__setattr__(self, "center_um", _vec3(f"{n} center_um", self.center_um))
+        object.__setattr__(self, "center_xyz_um", _vec3(f"{n} center_xyz_um", self.center_xyz_um))
         f = _finite(f"{n} inner_fraction", self.inner_fraction)
         if not 0.0 <= f < 1.0:
             raise ConfigError(f"{n} inner_fraction must be in [0, 1), got {self.inner_fraction!r}")
@@ -450,7 +457,7 @@ class StiffInclusion(_Heterogeneous):
     def _params(self, amplitude: float) -> dict:
         return {
             "strain": float(amplitude),
-            "center_um": self.center_um,
+            "center_xyz_um": self.center_xyz_um,
             "radius_um": self.radius_um,
             "inner_fraction": self.inner_fraction,
             "axis": self.axis,
@@ -505,6 +512,10 @@ def motion_from_dict(d: Mapping, base_dir: str | os.PathLike | None = None) -> M
         raise ConfigError(f"unknown motion type {kind!r}; expected one of {sorted(MOTION_TYPES)}")
     allowed = [f.name for f in fields(cls)]  # type: ignore[arg-type]
     unknown = sorted(set(d) - {"type", *allowed})
+    for key in unknown:
+        renamed = renamed_key_message(key, allowed)
+        if renamed is not None:
+            raise ConfigError(f"motion type {kind!r}: {renamed}")
     if unknown:
         raise ConfigError(
             f"unknown key(s) {unknown} for motion type {kind!r}; expected some of "

@@ -12,7 +12,7 @@ from pathlib import Path
 BOX_UM = ((-150, 150), (-150, 150), (100, 300))
 
 #: The simple shear of the lfsim tests: γ grows 0.05 a frame in the xz plane about z = 200 µm.
-SHEAR_XZ = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.05, "center_um": (0, 0, 200)}
+SHEAR_XZ = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.05, "center_xyz_um": (0, 0, 200)}
 
 
 def toml_value(value: object) -> str:

@@ -30,31 +30,31 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class MomentNormalization:
-    """Affine map ``y = (x - centre_um) @ matrix.T`` that whitens a point cloud.
+    """Affine map ``y = (x - center_xyz_um) @ matrix.T`` that whitens a point cloud.
 
     Attributes
     ----------
-    centre_um : ndarray, shape (3,)
+    center_xyz_um : ndarray, shape (3,)
         Centroid of the cloud in µm.
     matrix : ndarray, shape (3, 3)
         ``scale_um · C^{-1/2}`` with ``C`` the covariance of the cloud (µm²), so the output
         has covariance ``scale_um² · I`` and keeps µm-like magnitudes.
     """
 
-    centre_um: np.ndarray
+    center_xyz_um: np.ndarray
     matrix: np.ndarray
 
     def __post_init__(self) -> None:
-        c = np.asarray(self.centre_um, dtype=float)
+        c = np.asarray(self.center_xyz_um, dtype=float)
         m = np.asarray(self.matrix, dtype=float)
         if c.shape != (3,) or m.shape != (3, 3):
-            raise InputError("MomentNormalization needs centre_um (3,) and matrix (3, 3)")
-        object.__setattr__(self, "centre_um", c)
+            raise InputError("MomentNormalization needs center_xyz_um (3,) and matrix (3, 3)")
+        object.__setattr__(self, "center_xyz_um", c)
         object.__setattr__(self, "matrix", m)
 
     def apply(self, xyz_um: np.ndarray) -> np.ndarray:
         """Normalised coordinates (N, 3) of points ``xyz_um`` (N, 3)."""
-        return (np.asarray(xyz_um, dtype=float) - self.centre_um) @ self.matrix.T
+        return (np.asarray(xyz_um, dtype=float) - self.center_xyz_um) @ self.matrix.T
 
 
 def moment_normalization(xyz_um: np.ndarray, scale_um: float) -> MomentNormalization:
@@ -87,7 +87,7 @@ def moment_normalization(xyz_um: np.ndarray, scale_um: float) -> MomentNormaliza
     w, v = np.linalg.eigh(cov)
     if w[0] <= 1e-12 * max(w[-1], 1e-300):
         raise InputError("xyz_um is coplanar: its covariance is singular")
-    return MomentNormalization(centre_um=c, matrix=scale_um * (v / np.sqrt(w)) @ v.T)
+    return MomentNormalization(center_xyz_um=c, matrix=scale_um * (v / np.sqrt(w)) @ v.T)
 
 
 def cloud_scale_um(xyz_um: np.ndarray) -> float:

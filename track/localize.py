@@ -305,10 +305,10 @@ def radial_symmetry_3d(
         If ``patch`` is not 3-D with ≥ 3 voxels per axis, or ``voxel_size_um`` is invalid.
     """
     p, spacing = _radial_setup(patch, voxel_size_um, length_scale_um)
-    centre_um, _ = _radial_fit(p, spacing, smooth, jacobian=False)
-    if centre_um is None:
+    center_xyz_um, _ = _radial_fit(p, spacing, smooth, jacobian=False)
+    if center_xyz_um is None:
         return np.full(3, np.nan)
-    return centre_um / np.asarray(spacing)
+    return center_xyz_um / np.asarray(spacing)
 
 
 def radial_symmetry_3d_cov(
@@ -344,12 +344,12 @@ def radial_symmetry_3d_cov(
     if not _is_number(noise_sigma) or not math.isfinite(noise_sigma) or noise_sigma < 0:
         raise InputError(f"noise_sigma must be a finite number >= 0, got {noise_sigma!r}")
     p, spacing = _radial_setup(patch, voxel_size_um, length_scale_um)
-    centre_um, jac = _radial_fit(p, spacing, smooth, jacobian=True)
-    if centre_um is None:
+    center_xyz_um, jac = _radial_fit(p, spacing, smooth, jacobian=True)
+    if center_xyz_um is None:
         return np.full(3, np.nan), np.full((3, 3), np.nan)
     sp = np.asarray(spacing)
     jac_vox = jac / sp[:, None]
-    return centre_um / sp, float(noise_sigma) ** 2 * (jac_vox @ jac_vox.T)
+    return center_xyz_um / sp, float(noise_sigma) ** 2 * (jac_vox @ jac_vox.T)
 
 
 def _centroid(p: np.ndarray, background: float | None) -> tuple[np.ndarray, np.ndarray]:

@@ -82,34 +82,34 @@ class AffineDisplacement:
     ----------
     matrix : ndarray, shape (3, 3)
         Deformation gradient ``A`` (dimensionless), mapping reference to deformed vectors.
-    centre_um : ndarray, shape (3,)
+    center_xyz_um : ndarray, shape (3,)
         Reference point ``X0`` in µm.
     translation_um : ndarray, shape (3,)
-        Displacement at ``centre_um`` in µm.
+        Displacement at ``center_xyz_um`` in µm.
     """
 
     matrix: np.ndarray
-    centre_um: np.ndarray
+    center_xyz_um: np.ndarray
     translation_um: np.ndarray
 
     def __post_init__(self) -> None:
         m = np.asarray(self.matrix, dtype=float)
-        c = np.asarray(self.centre_um, dtype=float)
+        c = np.asarray(self.center_xyz_um, dtype=float)
         t = np.asarray(self.translation_um, dtype=float)
         if m.shape != (3, 3) or c.shape != (3,) or t.shape != (3,):
             raise InputError(
-                "AffineDisplacement needs matrix (3, 3), centre_um and translation_um (3,)"
+                "AffineDisplacement needs matrix (3, 3), center_xyz_um and translation_um (3,)"
             )
         if not (np.all(np.isfinite(m)) and np.all(np.isfinite(c)) and np.all(np.isfinite(t))):
             raise InputError("AffineDisplacement parameters must be finite")
         object.__setattr__(self, "matrix", m)
-        object.__setattr__(self, "centre_um", c)
+        object.__setattr__(self, "center_xyz_um", c)
         object.__setattr__(self, "translation_um", t)
 
     def __call__(self, xyz_um) -> np.ndarray:
         """Displacement (P, 3) in µm at reference points ``xyz_um`` (P, 3) in µm."""
         x = _as_points("xyz_um", xyz_um, allow_empty=True)
-        return (x - self.centre_um) @ (self.matrix - np.eye(3)).T + self.translation_um
+        return (x - self.center_xyz_um) @ (self.matrix - np.eye(3)).T + self.translation_um
 
 
 def fit_affine(points_um, displacements_um, weights=None) -> AffineDisplacement:
@@ -143,7 +143,9 @@ def fit_affine(points_um, displacements_um, weights=None) -> AffineDisplacement:
     coef, _, rank, _ = np.linalg.lstsq(design, rhs, rcond=None)
     if rank < 4:
         raise InputError("fit_affine: points_um are coplanar or collinear (rank-deficient)")
-    return AffineDisplacement(matrix=np.eye(3) + coef[:3].T, centre_um=c, translation_um=coef[3])
+    return AffineDisplacement(
+        matrix=np.eye(3) + coef[:3].T, center_xyz_um=c, translation_um=coef[3]
+    )
 
 
 @dataclass(frozen=True)

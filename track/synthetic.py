@@ -136,12 +136,12 @@ class AffineField(KnownField):
     """``u = L (x − centre) + translation`` with a constant gradient ``L``."""
 
     grad: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    centre_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    center_xyz_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
     translation_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __call__(self, xyz_um) -> np.ndarray:
         x = _points(xyz_um)
-        return (x - self.centre_um) @ np.asarray(self.grad).T + self.translation_um
+        return (x - self.center_xyz_um) @ np.asarray(self.grad).T + self.translation_um
 
     def gradient(self, xyz_um) -> np.ndarray:
         x = _points(xyz_um)
@@ -250,7 +250,7 @@ class StiffInclusion(KnownField):
     ``stiff_inclusion`` motion is the same).
     """
 
-    centre_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    center_xyz_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
     strain: float = 0.0
     radius_um: float = 1.0
     inner_fraction: float = 0.05
@@ -258,7 +258,7 @@ class StiffInclusion(KnownField):
     def _params(self) -> dict:
         return {
             "strain": self.strain,
-            "center_um": self.centre_um,
+            "center_xyz_um": self.center_xyz_um,
             "radius_um": self.radius_um,
             "inner_fraction": self.inner_fraction,
             "axis": "x",
@@ -275,13 +275,13 @@ class StiffInclusion(KnownField):
 class ShearWaveFront(KnownField):
     """``u = p A ½ (1 − tanh(n·(x − c) / w))``: a shear front on the plane through ``c``."""
 
-    centre_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    center_xyz_um: np.ndarray = field(default_factory=lambda: np.zeros(3))
     normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     polarisation: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
     width_um: float = 1.0
 
     def _t(self, x):
-        return np.tanh((x - self.centre_um) @ self.normal / self.width_um)
+        return np.tanh((x - self.center_xyz_um) @ self.normal / self.width_um)
 
     def __call__(self, xyz_um) -> np.ndarray:
         x = _points(xyz_um)
@@ -340,7 +340,7 @@ def make_field(name: str, bounds_xyz_um, spacing_um: float, amplitude_um: float)
     corners = _box_corners(b)
     g = GRADIENT_PER_AMPLITUDE / s  # steepest gradient per µm of amplitude
     if name == "translation":
-        f = AffineField(name, a, translation_um=a * _unit([1.0, 0.4, -0.3]), centre_um=c)
+        f = AffineField(name, a, translation_um=a * _unit([1.0, 0.4, -0.3]), center_xyz_um=c)
     elif name == "rotation":
         axis = _unit([0.2, 0.3, 1.0])
         d = corners - c
@@ -348,13 +348,13 @@ def make_field(name: str, bounds_xyz_um, spacing_um: float, amplitude_um: float)
         th = 2.0 * np.arcsin(min(1.0, a / (2.0 * rho)))
         k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
         rot = np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * (k @ k)
-        f = AffineField(name, a, grad=rot - np.eye(3), centre_um=c)
+        f = AffineField(name, a, grad=rot - np.eye(3), center_xyz_um=c)
     elif name == "uniaxial_stretch":
-        f = AffineField(name, a, grad=np.diag([a / half[0], 0.0, 0.0]), centre_um=c)
+        f = AffineField(name, a, grad=np.diag([a / half[0], 0.0, 0.0]), center_xyz_um=c)
     elif name == "simple_shear":
         grad = np.zeros((3, 3))
         grad[0, 2] = a / half[2]
-        f = AffineField(name, a, grad=grad, centre_um=c)
+        f = AffineField(name, a, grad=grad, center_xyz_um=c)
     elif name == "gaussian_indentation":
         w = np.exp(-0.5) / g
         f = GaussianIndentation(
@@ -372,11 +372,13 @@ def make_field(name: str, bounds_xyz_um, spacing_um: float, amplitude_um: float)
         f = Vortex(name, a, centre_xy_um=c[:2], angle_rad=0.5 * (lo + hi), radius_um=radius)
     elif name == "stiff_inclusion":
         eps = a / float(np.sqrt(half[0] ** 2 + 0.25 * half[1] ** 2 + 0.25 * half[2] ** 2))
-        f = StiffInclusion(name, a, centre_um=c, strain=eps, radius_um=3.0 * s)
+        f = StiffInclusion(name, a, center_xyz_um=c, strain=eps, radius_um=3.0 * s)
     elif name == "shear_wave_front":
         n = _unit([0.2, 0.3, 1.0])
         p = _unit(np.cross(n, [0.0, 1.0, 0.0]))
-        f = ShearWaveFront(name, a, centre_um=c, normal=n, polarisation=p, width_um=1.0 / (2.0 * g))
+        f = ShearWaveFront(
+            name, a, center_xyz_um=c, normal=n, polarisation=p, width_um=1.0 / (2.0 * g)
+        )
     else:
         raise InputError(f"unknown field {name!r}; expected one of {FIELD_NAMES}")
     axes = [np.linspace(lo, hi, 24) for lo, hi in b]

@@ -128,7 +128,12 @@ def test_pairs_of_three_shots(tmp_path):
 
 
 def test_series_shear_displacements_strains_and_tracking(tmp_path):
-    motion = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.05, "center_um": [0, 0, 250]}
+    motion = {
+        "type": "simple_shear",
+        "plane": "xz",
+        "step_gamma": 0.05,
+        "center_xyz_um": [0, 0, 250],
+    }
     study = _study(4, motion, "series")
     paths = _fake_variant(
         tmp_path, study, bias=(1.0, 1.0, 4.0), noise_um=(0.05, 0.05, 0.2), drop=(3, 7)
@@ -198,7 +203,7 @@ def test_series_of_a_stiff_inclusion_against_the_truth_node_by_node(tmp_path):
     motion = {
         "type": "stiff_inclusion",
         "radius_um": 130.0,
-        "center_um": [0, 0, 260],
+        "center_xyz_um": [0, 0, 260],
         "step_strain": 0.05,
     }
     study = _study(3, motion, "series")
@@ -246,7 +251,12 @@ def test_localization_counts_a_frame_without_detections_as_failed(tmp_path):
 def _failed_series(tmp_path, name="v"):
     """Simple shear over 5 frames whose frame 2 kept only 3 detections: pairs 1 → 2 and
     2 → 3 cannot be linked and no track from frame 0 reaches frames 2–4."""
-    motion = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.02, "center_um": [0, 0, 250]}
+    motion = {
+        "type": "simple_shear",
+        "plane": "xz",
+        "step_gamma": 0.02,
+        "center_xyz_um": [0, 0, 250],
+    }
     study = _study(5, motion, "series", figure="6c")
     paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n={2: 3}, name=name)
     _link(tmp_path, paths, 5)
@@ -397,7 +407,12 @@ def test_series_with_no_frame_compared_has_no_tracking_ratio_and_no_numpy_warnin
     import math
     import warnings
 
-    motion = {"type": "simple_shear", "plane": "xz", "step_gamma": 0.02, "center_um": [0, 0, 250]}
+    motion = {
+        "type": "simple_shear",
+        "plane": "xz",
+        "step_gamma": 0.02,
+        "center_xyz_um": [0, 0, 250],
+    }
     study = _study(4, motion, "series", figure="6c")
     paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n={1: 0, 2: 0, 3: 0})
     _link(tmp_path, paths, 4)

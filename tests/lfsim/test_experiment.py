@@ -139,6 +139,31 @@ def test_unknown_keys_and_sections_name_key_file_and_allowed(tmp_path, old, new,
     assert str(path) in msg
 
 
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ("center_xyz_um = [0, 0, 200]", "center_um = [0, 0, 200]"),
+        ("center_xyz_um = [0, 0, 200]", "centre_um = [0, 0, 200]"),
+    ],
+)
+def test_keys_named_without_their_order_are_refused_naming_the_new_key(tmp_path, old, new):
+    path = write_toml(tmp_path, replace(BASE, old, new))
+    with pytest.raises(ConfigError) as info:
+        load_experiment(path)
+    msg = str(info.value)
+    key, want = new.split(" = ")[0], old.split(" = ")[0]
+    assert msg.startswith(f"{path}: [") and "\n" not in msg
+    assert f"{key!r} is named {want!r}" in msg and "rename the key" in msg
+
+
+def test_fingerprint_hashes_the_keys_under_fixed_names(tmp_path):
+    from lfsim.experiment import FINGERPRINT_KEYS, _fingerprint_keys
+
+    d = _fingerprint_keys(load_experiment(write_toml(tmp_path)).to_dict())
+    assert d["motion"]["center_um"] == [0.0, 0.0, 200.0] and "center_xyz_um" not in d["motion"]
+    assert set(FINGERPRINT_KEYS) == {"center_xyz_um"}
+
+
 def test_unknown_camera_key(tmp_path):
     text = replace(BASE, 'model = "gaussian"\nsnr = [30, 20, 10]', 'model = "camera"\n')
     text += "\n[noise.camera]\ngain = 1.0\n"

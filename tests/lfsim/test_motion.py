@@ -61,7 +61,7 @@ def test_rotation_about_z_quarter_turn_exact():
 
 @pytest.mark.parametrize("axis", [(0, 0, 1), (1, 0, 0), (1.0, -2.0, 0.5)])
 def test_rotation_rigid(axis):
-    m = Rotation(axis=axis, step_deg=5.0, center_um=CENTER)
+    m = Rotation(axis=axis, step_deg=5.0, center_xyz_um=CENTER)
     for k in (1, 3, 9):
         F = m.deformation_gradient(k)
         # round-off floor: a few ulp of 1 (BLAS/LAPACK kernels differ by an ulp or two)
@@ -82,7 +82,7 @@ def test_rotation_rigid(axis):
 
 
 def test_rotation_composition():
-    m = Rotation(axis=(0.3, 0.4, 1.0), step_deg=5.0, center_um=CENTER)
+    m = Rotation(axis=(0.3, 0.4, 1.0), step_deg=5.0, center_xyz_um=CENTER)
     F1 = m.deformation_gradient(1)
     np.testing.assert_allclose(np.linalg.matrix_power(F1, 9), m.deformation_gradient(9), atol=1e-14)
     R = rotation_matrix((0, 0, 1), 30.0)
@@ -93,7 +93,7 @@ def test_rotation_composition():
 
 @pytest.mark.parametrize("axis", ["x", "y", "z"])
 def test_uniaxial_tension_isochoric(axis):
-    m = UniaxialTension(axis=axis, step_stretch=0.05, center_um=CENTER)
+    m = UniaxialTension(axis=axis, step_stretch=0.05, center_xyz_um=CENTER)
     i = "xyz".index(axis)
     for k in range(6):
         F = m.deformation_gradient(k)
@@ -131,7 +131,7 @@ def test_uniaxial_tension_bad_stretch():
 
 def test_simple_shear_xz():
     g = 0.025
-    m = SimpleShear(plane="xz", step_gamma=g, center_um=CENTER)
+    m = SimpleShear(plane="xz", step_gamma=g, center_xyz_um=CENTER)
     for k in range(11):
         F = m.deformation_gradient(k)
         expected = np.eye(3)
@@ -153,7 +153,7 @@ def test_simple_shear_xz():
 
 @pytest.mark.parametrize("plane", ["xy", "yx", "zx", "yz", "zy"])
 def test_simple_shear_other_planes(plane):
-    m = SimpleShear(plane=plane, step_gamma=0.1, center_um=CENTER)
+    m = SimpleShear(plane=plane, step_gamma=0.1, center_xyz_um=CENTER)
     a, b = ("xyz".index(plane[0]), "xyz".index(plane[1]))
     u = m.displacement(X, 3)
     np.testing.assert_allclose(u[:, a], 0.3 * (X[:, b] - CENTER[b]), rtol=1e-12, atol=1e-12)
@@ -175,9 +175,9 @@ def test_simple_shear_composition():
     "m",
     [
         Translation(step_um=(1.0, 2.0, 3.0)),
-        Rotation(axis=(1, 1, 1), step_deg=7.0, center_um=CENTER),
-        UniaxialTension(axis="y", step_stretch=0.05, center_um=CENTER),
-        SimpleShear(plane="xz", step_gamma=0.025, center_um=CENTER),
+        Rotation(axis=(1, 1, 1), step_deg=7.0, center_xyz_um=CENTER),
+        UniaxialTension(axis="y", step_stretch=0.05, center_xyz_um=CENTER),
+        SimpleShear(plane="xz", step_gamma=0.025, center_xyz_um=CENTER),
     ],
 )
 def test_positions_apply_F_exactly(m):
@@ -312,7 +312,7 @@ def test_user_field_not_callable(user_file):
 def test_motion_from_dict_round_trip():
     cases = [
         {"type": "translation", "step_um": [5.0, 0.0, 0.0]},
-        {"type": "rotation", "axis": [0, 0, 1], "step_deg": 5.0, "center_um": list(CENTER)},
+        {"type": "rotation", "axis": [0, 0, 1], "step_deg": 5.0, "center_xyz_um": list(CENTER)},
         {"type": "uniaxial_tension", "axis": "x", "step_stretch": 0.05},
         {"type": "simple_shear", "plane": "xz", "step_gamma": 0.025},
         {"type": "simple_shear", "plane": "xz", "values": [0.0, 0.1, 0.31, 0.3]},
@@ -334,8 +334,17 @@ def test_motion_from_dict_round_trip():
         ({"type": "twist", "step_deg": 1.0}, r"unknown motion type 'twist'.*rotation"),
         ({"step_deg": 1.0}, "needs the key 'type'"),
         (
-            {"type": "rotation", "step_deg": 1.0, "centre_um": [0, 0, 0]},
-            r"unknown key\(s\) \['centre_um'\].*center_um",
+            {"type": "rotation", "step_deg": 1.0, "centre_xyz_um": [0, 0, 0]},
+            r"unknown key\(s\) \['centre_xyz_um'\].*center_xyz_um",
+        ),
+        (
+            {"type": "rotation", "step_deg": 1.0, "center_um": [0, 0, 0]},
+            r"^motion type 'rotation': 'center_um' is named 'center_xyz_um' \(the centre "
+            r"\(x, y, z\) in µm\); rename the key$",
+        ),
+        (
+            {"type": "simple_shear", "step_gamma": 0.1, "centre_um": [0, 0, 0]},
+            r"'centre_um' is named 'center_xyz_um'",
         ),
         ({"type": "simple_shear", "step_gamma": 0.1, "gamma": 0.1}, r"\['gamma'\]"),
         ({"type": "simple_shear", "plane": "xx", "step_gamma": 0.1}, "plane"),
@@ -370,7 +379,7 @@ HETERO = [
         "type": "stiff_inclusion",
         "axis": "x",
         "radius_um": 130.0,
-        "center_um": [0.0, 0.0, 260.0],
+        "center_xyz_um": [0.0, 0.0, 260.0],
         "step_strain": 0.05,
     },
     {"type": "stiff_inclusion", "axis": "z", "radius_um": 80.0, "values": [0.0, 0.02, -0.03]},
@@ -427,7 +436,7 @@ def test_gaussian_indentation_is_the_track_synthetic_field():
                          width_um=150.0, depth_um=120.0)  # fmt: skip
     np.testing.assert_array_equal(m.displacement(X, 2), t(X))
     m = motion_from_dict(HETERO[0])
-    t = TrackInclusion("s", 1.0, centre_um=np.array([0.0, 0.0, 260.0]), strain=0.15,
+    t = TrackInclusion("s", 1.0, center_xyz_um=np.array([0.0, 0.0, 260.0]), strain=0.15,
                        radius_um=130.0)  # fmt: skip
     np.testing.assert_allclose(m.displacement(X, 3), t(X), rtol=1e-12)  # 3 · 0.05 vs 0.15
 
