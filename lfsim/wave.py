@@ -70,6 +70,7 @@ __all__ = [
     "pattern_stack",
     "propagate",
     "pupil_phase",
+    "sample_grid",
 ]
 
 
@@ -326,6 +327,23 @@ def _grid(optics, sampling: WaveSampling):
     x = (-g - ax) * pix + (np.arange(nx) + 0.5) * dx
     y = (-g - ay) * pix + (np.arange(ny) + 0.5) * dx
     return x, y, dx, g
+
+
+def sample_grid(optics, sampling: WaveSampling | None = None):
+    """The sample grid of the array plane on which :func:`light_field` computes the optics'
+    sensor.
+
+    Returns
+    -------
+    x, y : ndarray of float64, shapes (nx,), (ny,)
+        Sample centres (µm from the optical axis, read-out frame) along columns and rows;
+        the sensor's pixels are samples ``guard·oversample …`` of each.
+    dx : float
+        Sample step (µm).
+    guard : int
+        Guard band (pixels) around the sensor on each side.
+    """
+    return _grid(optics, sampling or WaveSampling())
 
 
 def light_field(

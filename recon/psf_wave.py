@@ -1,0 +1,371 @@
+"""The wave-optics PSF bank: the patterns of :mod:`recon.psf` from scalar diffraction.
+
+The same :class:`~recon.psf.PSFBank` (channels, sparse format, units, cache folder) as the
+ray-traced bank, with each pattern computed by the wave-optics model of :mod:`lfsim.wave`
+(Debye / Gibson–Lanni field of the objective in the native image plane, the microlens array
+as a phase mask, angular-spectrum propagation to the sensor, intensity integrated over each
+pixel). The projector does not change, so its forward and backward projections stay exact
+adjoints.
+
+The computation is shared wherever the physics allows:
+
+- the Debye integral is evaluated once for all depths (one matrix product over the
+  quadrature nodes, :func:`lfsim.wave.native_field`) on one radial grid; every source of a
+  depth samples the same radial profile at its own lateral shift;
+- the lenslet mask and the propagation's transfer function depend only on the window, so
+  they are computed once per window size (depths are grouped by window);
+- the patterns of a depth are mirror images of one another: the optics are symmetric under
+  ``x → −x``, ``y → −y`` and ``x ↔ y`` about the axis of the source's lenslet, so only the
+  sub-lenslet positions ``0 ≤ a' ≤ b' ≤ (s − 1)/2`` (folded) are propagated (6 of 25 for
+  ``s = 5``) and the others are flipped or transposed copies;
+- the sources are propagated in batches of single-precision (``complex64``) FFTs.
+
+The window of a depth is the ray bank's (:func:`recon.psf.pattern_radius_lenslets`: the
+geometric cone at the array plus a lenslet and the diffraction blur), and pixels below
+``threshold × max`` of their pattern are dropped, as in the ray bank. The sampling defaults to
+:func:`default_wave_sampling`. Banks are cached under a key hashing the optics, depths,
+``s``, the sampling, the threshold and the model (``"wave"``).
+
+:func:`choose_psf_model` decides which model ``ReconSettings.psf_model = "auto"`` uses.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .psf import BANK_FORMAT, PSFBank, bank_key, default_cache_dir, pattern_radius_lenslets
+
+log = logging.getLogger(__name__)
+
+#: PSF models of :class:`recon.settings.ReconSettings` (``"auto"``: :func:`choose_psf_model`).
+PSF_MODELS = ("auto", "ray", "wave")
+
+#: ``auto`` chooses the wave-optics bank where a lenslet's diffraction spot ``λ f_l / p`` is
+#: wider than this many sensor pixels (:func:`lenslet_spot_px`). Set from the ray bank's
+#: localisation error against converged wave-optics references (benchmarks/README.md,
+#: "wave_bank.py — the wave-optics PSF bank", section "The auto rule").
+WAVE_SPOT_PX = 1.35
+
+#: Bytes of complex fields one batch of propagated sources may hold.
+BATCH_BYTES = 256 << 20
+
+
+def lenslet_spot_px(optics) -> float:
+    """Diffraction spot of one lenslet on the sensor, in pixels: ``λ f_l / (p · pixel)``
+    (``λ N`` with ``N = f_l / p`` the lenslet's f-number; 0.91 px for the paper's optics)."""
+    return optics.wavelength_um * optics.mla_focal_um / (optics.mla_pitch_um * optics.pixel_um)
+
+
+def choose_psf_model(optics, model: str = "auto") -> str:
+    """The PSF model (``"ray"`` or ``"wave"``) a reconstruction with ``psf_model=model`` uses.
+
+    ``"auto"`` is ``"wave"`` where :func:`lenslet_spot_px` exceeds :data:`WAVE_SPOT_PX`: where
+    a lenslet's diffraction spot spans more than about a pixel the ray bank's Gaussian blur no
+    longer stands in for diffraction; ``"ray"`` otherwise.
+    """
+    if model not in PSF_MODELS:
+        raise InputError(f"psf_model must be one of {PSF_MODELS}, got {model!r}")
+    if model != "auto":
+        return model
+    return "wave" if lenslet_spot_px(optics) > WAVE_SPOT_PX else "ray"
+
+
+def default_wave_sampling(optics):
+    """The :class:`lfsim.wave.WaveSampling` of a wave bank for these optics.
+
+    ``oversample``: the fewest samples per pixel with a step of at most
+    ``λ / (4 (NA_image + NA_lenslet))`` (the intensity behind the lenslets sampled at its
+    Nyquist rate). ``guard_lenslets`` 1: the light crossing the
+    window's edge between the array and the sensor spreads less than a lenslet
+    (``(NA_image + NA_lenslet) f_l < p`` for matched lenslets).
+    """
+    from lfsim.wave import WaveSampling
+
+    na_img = optics.medium_ior * math.sin(optics.emission_half_angle) / optics.magnification
+    step = optics.wavelength_um / (4.0 * (na_img + optics.lenslet_na))
+    os_min = max(1, math.ceil(optics.pixel_um / step))
+    return WaveSampling(oversample=os_min, guard_lenslets=1.0)
+
+
+def wave_bank_key(optics, depths_um, s: int, sampling, threshold: float) -> str:
+    """Cache key of a wave bank (the ray bank's scheme, :func:`recon.psf.bank_key`, with the
+    model and the sampling in place of the rays)."""
+    payload = json.dumps(
+        {
+            "model": "wave",
+            "optics": optics.to_dict(),
+            "depths": [round(float(d), 9) for d in depths_um],
+            "s": int(s),
+            "sampling": asdict(sampling),
+            "threshold": float(threshold),
+            "precision": "complex64",
+            "format": BANK_FORMAT,
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(payload.encode()).hexdigest()[:20]
+
+
+def model_bank_key(optics, depths_um, s: int, model: str, rays_per_pattern: int) -> str:
+    """Cache key of the bank :func:`compute_model_bank` makes (``model``: ``"ray"`` or
+    ``"wave"``, as :func:`choose_psf_model` gives it)."""
+    if model == "wave":
+        return wave_bank_key(optics, depths_um, s, default_wave_sampling(optics), 1e-3)
+    return bank_key(optics, depths_um, s, rays_per_pattern, 0, 1e-3)
+
+
+def compute_model_bank(
+    optics, depths_um, s: int, model: str, *, rays_per_pattern: int, progress: bool = False
+) -> PSFBank:
+    """The PSF bank of ``model`` (``"ray"``: :func:`recon.psf.compute_psf_bank`; ``"wave"``:
+    :func:`compute_wave_psf_bank`), from the default cache."""
+    if model == "wave":
+        return compute_wave_psf_bank(optics, depths_um, s, progress=progress)
+    from .psf import compute_psf_bank
+
+    return compute_psf_bank(
+        optics, depths_um, s, rays_per_pattern=rays_per_pattern, progress=progress
+    )
+
+
+def _check_inputs(optics, depths_um, s) -> tuple[int, np.ndarray]:
+    n = optics.px_per_lenslet
+    if abs(n - round(n)) > 1e-6:
+        raise InputError(
+            f"the PSF bank needs an integer number of pixels per lenslet, got {n:.4g}; "
+            "rectify the images first"
+        )
+    if isinstance(s, bool) or int(s) != s or s < 1:
+        raise InputError(f"super-resolution factor s must be a positive integer, got {s!r}")
+    if optics.mla_kind != "ideal":
+        raise InputError(
+            f"the wave-optics PSF bank models ideal lenslets; got mla_kind={optics.mla_kind!r}"
+        )
+    depths = np.atleast_1d(np.asarray(depths_um, dtype=np.float64))
+    if depths.ndim != 1 or not np.all(np.isfinite(depths)):
+        raise InputError("depths_um must be a 1-D array of finite depths (µm)")
+    return round(n), depths
+
+
+def compute_wave_psf_bank(
+    optics,
+    depths_um,
+    s: int,
+    *,
+    sampling=None,
+    threshold: float = 1e-3,
+    cache_dir: str | os.PathLike | None = None,
+    progress: bool = False,
+) -> PSFBank:
+    """Compute (or load from the cache) the wave-optics PSF bank.
+
+    Parameters
+    ----------
+    optics : lfsim.optics.Optics
+        With ideal lenslets and an integer number ``n`` of pixels per lenslet.
+    depths_um : array_like, shape (nz,)
+        Source depths from the native object plane (µm).
+    s : int
+        Voxels per lenslet along x and y.
+    sampling : lfsim.wave.WaveSampling, optional
+        Default :func:`default_wave_sampling`. Its ``batch`` is not used (batches are sized by
+        :data:`BATCH_BYTES`).
+    threshold : float
+        Pixels below ``threshold × max`` of their pattern are dropped.
+    cache_dir : path, optional
+        Default :func:`recon.psf.default_cache_dir`; ``""`` disables caching.
+    progress : bool
+        Show a progress bar over the depths.
+
+    Returns
+    -------
+    PSFBank
+        Channel ``k·s² + b·s + a``: depth ``k``, sub-lenslet position ``(a, b)`` along (x, y);
+        weights are the fraction of the light emitted into the collection cone reaching each
+        pixel (float32).
+    """
+    n, depths = _check_inputs(optics, depths_um, s)
+    s = int(s)
+    sampling = sampling or default_wave_sampling(optics)
+    key = wave_bank_key(optics, depths, s, sampling, threshold)
+    cache = None if cache_dir == "" else Path(cache_dir or default_cache_dir())
+    if cache is not None:
+        path = cache / f"psf_{key}.npz"
+        if path.is_file():
+            log.info("wave PSF bank from cache %s", path)
+            return PSFBank.load(path)
+    radii = np.array([pattern_radius_lenslets(optics, z) for z in depths])
+    images = _dense_patterns(optics, depths, s, n, radii, sampling, progress)
+    bank = _sparse_bank(images, depths, s, n, radii, threshold, optics)
+    log.info(
+        "wave PSF bank: %d depths × %d² patterns, oversample %d, %d non-zeros (%.0f per pattern)",
+        len(depths),
+        s,
+        sampling.oversample,
+        bank.nnz,
+        bank.nnz / bank.n_channels,
+    )
+    if cache is not None:
+        bank.save(cache / f"psf_{key}.npz")
+    return bank
+
+
+def _sparse_bank(images, depths, s, n, radii, threshold, optics) -> PSFBank:
+    """The :class:`PSFBank` of the dense patterns ``images[k]`` (shape ``(s², win, win)``)."""
+    dys, dxs, ws, counts = [], [], [], []
+    for k, stack in enumerate(images):
+        h = int(radii[k])
+        for img in stack:
+            peak = float(img.max())
+            keep = img > threshold * peak if peak > 0 else np.zeros(img.shape, bool)
+            yy, xx = np.nonzero(keep)
+            dys.append((yy - h * n).astype(np.int32))
+            dxs.append((xx - h * n).astype(np.int32))
+            ws.append(img[yy, xx].astype(np.float32))
+            counts.append(len(yy))
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return PSFBank(
+        depths_um=depths,
+        s=s,
+        n=n,
+        offsets=offsets,
+        dy=np.concatenate(dys),
+        dx=np.concatenate(dxs),
+        w=np.concatenate(ws),
+        optics=optics.to_dict(),
+    )
+
+
+def _folded(s: int) -> list[tuple[int, int]]:
+    """The sub-lenslet positions ``(a, b)`` computed: ``a ≤ b ≤ (s − 1)/2`` after folding."""
+    half = (s - 1) // 2
+    return [(a, b) for b in range(half + 1) for a in range(b + 1)]
+
+
+def _unfold(computed: dict, s: int) -> np.ndarray:
+    """Every position's pattern ``(s², win, win)`` from those of :func:`_folded` by mirror
+    images (``a → s − 1 − a`` flips the columns, ``b → s − 1 − b`` the rows) and the
+    transpose (``a ↔ b``)."""
+    out = []
+    for b in range(s):
+        for a in range(s):
+            fa, fb = min(a, s - 1 - a), min(b, s - 1 - b)
+            img = computed[(fa, fb)] if fa <= fb else computed[(fb, fa)].T
+            if a != fa:
+                img = img[:, ::-1]
+            if b != fb:
+                img = img[::-1, :]
+            out.append(img)
+    return np.stack(out)
+
+
+def _window_optics(optics, h: int, n: int):
+    """The optics on a window of ``2h + 1`` lenslets whose centre lenslet holds the axis."""
+    win = (2 * h + 1) * n
+    return replace(optics, sensor_px=(win, win), axis_px=(h * n + n / 2, h * n + n / 2))
+
+
+def _transfer(ny: int, nx: int, dx: float, distance: float, lam: float) -> np.ndarray:
+    """Angular-spectrum transfer function (complex64), as :func:`lfsim.wave.propagate`."""
+    from scipy import fft as sfft
+
+    fy = sfft.fftfreq(ny, d=dx)
+    fx = sfft.fftfreq(nx, d=dx)
+    arg = 1.0 / lam**2 - fy[:, None] ** 2 - fx[None, :] ** 2
+    kz = 2.0 * np.pi * np.sqrt(np.clip(arg, 0.0, None))
+    h = np.where(arg > 0, np.exp(1j * distance * (kz - 2.0 * np.pi / lam)), 0.0)
+    return h.astype(np.complex64)
+
+
+def _dense_patterns(optics, depths, s, n, radii, sampling, progress) -> list[np.ndarray]:
+    """Dense patterns per depth, ``(s², win_k, win_k)`` float64 (window of ``radii[k]``)."""
+    from lfsim.wave import lenslet_phase, native_field, sample_grid
+
+    lam = optics.wavelength_um
+    na_img = optics.medium_ior * math.sin(optics.emission_half_angle) / optics.magnification
+    grids = {int(h): sample_grid(_window_optics(optics, int(h), n), sampling) for h in set(radii)}
+    # one radial grid for every depth: out to the far corner of the largest window
+    far = max(math.hypot(abs(g[0]).max(), abs(g[1]).max()) for g in grids.values())
+    far += optics.mla_pitch_um  # the farthest sub-lenslet shift
+    dr = sampling.radial_step * lam / na_img
+    r = np.arange(0.0, far + 2 * dr, dr)
+    radial = native_field(optics, r, depths, sampling)  # (nz, nr) complex128
+    p_img = optics.mla_pitch_um
+    shifts = ((np.arange(s) + 0.5) / s - 0.5) * p_img  # image-plane source positions
+    todo = _folded(s)
+    out: list[np.ndarray] = [None] * len(depths)  # type: ignore[list-item]
+    order = np.argsort(radii, kind="stable")
+    it = order
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(order, desc="wave PSF bank", unit="depth", leave=False)
+    cached_h, mla, tf = None, None, None
+    for k in it:
+        h = int(radii[k])
+        x, y, dx, _ = grids[h]
+        if h != cached_h:
+            mla = lenslet_phase(
+                optics, x[None, :], y[:, None], paraxial=sampling.paraxial_lenslets
+            ).astype(np.complex64)
+            tf = _transfer(len(y), len(x), dx, optics.sensor_distance_um, lam)
+            cached_h = h
+        win = (2 * h + 1) * n
+        positions = [(shifts[a], shifts[b]) for a, b in todo]
+        computed = _propagate_sources(
+            radial[k], r, positions, grids[h], int(sampling.oversample), win, mla, tf
+        )
+        out[k] = _unfold(dict(zip(todo, computed, strict=True)), s)
+    return out
+
+
+def _propagate_sources(prof, r, positions, grid, os_, win, mla, tf) -> list[np.ndarray]:
+    """Sensor images ``(win, win)`` of sources at image-plane ``positions`` (µm from the
+    axis) sharing the radial field ``prof`` (sampled at ``r``), in batches of complex64
+    fields: field × lenslet mask → FFT × transfer function → inverse FFT → pixel sums."""
+    from scipy import fft as sfft
+
+    x, y, dx, g = grid
+    ny, nx = mla.shape
+    batch = max(1, int(BATCH_BYTES // (ny * nx * 8 * 2)))
+    lo_px, hi_px = g * os_, (g + win) * os_
+    out = []
+    for lo in range(0, len(positions), batch):
+        part = positions[lo : lo + batch]
+        fields = np.empty((len(part), ny, nx), np.complex64)
+        for j, (px, py) in enumerate(part):
+            rr = np.hypot(x[None, :] - px, y[:, None] - py)
+            fields[j].real = np.interp(rr, r, prof.real)
+            fields[j].imag = np.interp(rr, r, prof.imag)
+        fields *= mla
+        fields = sfft.fft2(fields, axes=(-2, -1), workers=-1, overwrite_x=True)
+        fields *= tf
+        fields = sfft.ifft2(fields, axes=(-2, -1), workers=-1, overwrite_x=True)
+        sensor = fields[:, lo_px:hi_px, lo_px:hi_px]
+        inten = sensor.real.astype(np.float64) ** 2 + sensor.imag.astype(np.float64) ** 2
+        sums = inten.reshape(len(part), win, os_, win, os_).sum(axis=(2, 4)) * (dx * dx)
+        out.extend(sums)
+    return out
+
+
+__all__ = [
+    "BATCH_BYTES",
+    "PSF_MODELS",
+    "WAVE_SPOT_PX",
+    "choose_psf_model",
+    "compute_model_bank",
+    "compute_wave_psf_bank",
+    "default_wave_sampling",
+    "lenslet_spot_px",
+    "model_bank_key",
+    "wave_bank_key",
+]
