@@ -26,7 +26,11 @@ user's focus setting: how far the stage moved the nominal focal plane into the s
 its near surface. Rays refract exactly (Snell's law) at the planar interfaces; a cover glass the
 objective is corrected for is compensated exactly. The native object plane then lies
 :attr:`Optics.focal_shift_um` beyond the nominal focal plane, and object coordinates ``z`` are
-true distances in the specimen from it.
+true distances in the specimen from it. The native plane may lie in front of the specimen (a
+negative focus, in the cover glass or the immersion medium, keeps the whole specimen on one
+side of it, away from the reconstruction's native-plane artefacts); ``z`` then continues the
+specimen's depth scale through it, and the specimen's near surface lies at
+``z = surface_z_um > 0``.
 
 All lengths are micrometres.
 """
@@ -119,8 +123,9 @@ class Optics:
         (0: not corrected, as most low-magnification dry objectives).
     focus_depth_um : float
         Focus setting: distance by which the stage moved the nominal focal plane into the
-        specimen past its near surface (the cover glass's far face). Used only where the
-        specimen has an interface (:attr:`has_interfaces`).
+        specimen past its near surface (the cover glass's far face); negative when the
+        nominal focal plane lies in front of the specimen. Used only where the specimen has an
+        interface (:attr:`has_interfaces`).
     axis_px : tuple of float, optional
         Sensor position ``(column, row)`` of the optical axis in continuous pixel coordinates
         (pixel ``i`` spans ``[i, i + 1)``). Default: the centre of the lenslet nearest to the
@@ -165,13 +170,6 @@ class Optics:
         ):
             raise ConfigError(
                 f"focus_depth_um must be a finite number, got {self.focus_depth_um!r}"
-            )
-        if self.has_interfaces and self.paraxial_native_plane_depth_um < 0:
-            raise ConfigError(
-                f"focus_depth_um={self.focus_depth_um:g} puts the native object plane "
-                f"{-self.paraxial_native_plane_depth_um:.4g} µm in front of the specimen; focus "
-                "at least "
-                f"{-self._coverslip_residual_um:.4g} µm into it"
             )
         for name in (
             "f_objective_um",
@@ -329,8 +327,9 @@ class Optics:
         focal plane (:meth:`_focus_terms`). Paraxially it is
         ``(n_medium / n_imm) · (focus_depth_um + (t − t₀)(1 − n_imm / n_cover))``; the rays of a
         finite NA focus a little deeper (spherical aberration of the planar interfaces: +2.4 %
-        of the shift at 0.2 NA into a gel of index 1.35). Without interfaces it is
-        ``focus_depth_um``.
+        of the shift at 0.2 NA into a gel of index 1.35). Negative when the native plane lies
+        in front of the specimen (the specimen's depth scale continued through it). Without
+        interfaces it is ``focus_depth_um``.
         """
         if not self.has_interfaces:
             return self.focus_depth_um
@@ -353,7 +352,8 @@ class Optics:
 
     @property
     def surface_z_um(self) -> float:
-        """Object ``z`` (µm) of the specimen's near surface: sources must lie beyond it."""
+        """Object ``z`` (µm) of the specimen's near surface: sources must lie beyond it
+        (positive when the native plane lies in front of the specimen)."""
         return -self.native_plane_depth_um
 
     @property

@@ -14,7 +14,9 @@ depth range ``z_min_um``, ``z_max_um``
     symmetric about the native focal plane, out to where a point's light covers a disc of
     :data:`RANGE_PATTERN_LENSLETS` lenslets in radius (``|z| tan(asin NA) = 6 p_obj``),
     where ``p_obj`` is the lenslet pitch in object space; ±730 µm for the paper's optics
-    (its experiments use −80 … 720 µm);
+    (its experiments use −80 … 720 µm). With a specimen the range starts no nearer than the
+    specimen's near surface (``Optics.surface_z_um``, rounded up to a step), and a given
+    ``z_min_um`` in front of it is refused: nothing emits there;
 super-resolution ``s``
     voxels per lenslet that make the lateral voxel about the depth step (isotropic voxels),
     at most the pixels per lenslet: 5 for the paper's optics (25 µm lenslets, 5 µm voxels).
@@ -172,7 +174,15 @@ class ReconSettings:
         z0, z1 = self.z_min_um, self.z_max_um
         if z0 is None:
             zlim = default_z_limit_um(optics, step)
-            z0, z1 = -zlim, zlim
+            z0, z1 = max(-zlim, _first_plane_in_specimen_um(optics, step)), zlim
+            if z1 <= z0:
+                z1 = z0 + 2 * zlim
+        elif getattr(optics, "has_interfaces", False) and z0 < optics.surface_z_um - 1e-6:
+            raise InputError(
+                f"z_min_um={z0:g} lies in front of the specimen's near surface at "
+                f"z = {optics.surface_z_um:.4g} µm, where nothing can emit; start the depth "
+                f"range at z_min_um >= {_first_plane_in_specimen_um(optics, step):g}"
+            )
         s = self.s if self.s is not None else default_s(optics, step)
         return replace(self, z_min_um=z0, z_max_um=z1, z_step_um=step, s=s)
 
@@ -217,6 +227,14 @@ def default_z_limit_um(optics, z_step_um: float) -> float:
     slope = math.tan(optics.theta_max) * optics.axial_scale
     zlim = RANGE_PATTERN_LENSLETS * optics.lenslet_object_um / slope
     return math.floor(zlim / z_step_um) * z_step_um
+
+
+def _first_plane_in_specimen_um(optics, z_step_um: float) -> float:
+    """The first multiple of the step at or beyond the specimen's near surface (µm); −inf
+    without interfaces."""
+    if not getattr(optics, "has_interfaces", False):
+        return -math.inf
+    return math.ceil(optics.surface_z_um / z_step_um - 1e-9) * z_step_um
 
 
 def default_s(optics, z_step_um: float) -> int:

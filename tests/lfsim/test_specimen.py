@@ -88,7 +88,6 @@ def test_high_na_immersion_objectives_are_accepted():
         ({"coverslip_thickness_um": -1.0}, "coverslip_thickness_um"),
         ({"coverslip_corrected_um": float("inf")}, "coverslip_corrected_um"),
         ({"focus_depth_um": float("nan")}, "focus_depth_um"),
-        ({"medium_ior": 1.35, "focus_depth_um": -10.0}, "focus_depth_um"),
     ],
 )
 def test_contradictions_are_refused_by_name(kw, needle):
@@ -119,6 +118,22 @@ def test_scene_files_without_the_specimen_fields_describe_air(tmp_path):
     old = tmp_path / "old.xml"
     old.write_text(text)
     assert read_optics(old) == small_optics()
+
+
+def test_a_native_plane_in_front_of_the_specimen_continues_its_depth_scale():
+    """Focused into the glass bottom, the native plane lies in front of the gel: ``z`` is the
+    gel's depth scale continued through it, so a point ``d`` below the surface lies at
+    ``z = surface_z_um + d`` and the depths stay linear in the focus setting."""
+    far = gel_optics(focus_depth_um=-130.0)
+    residual = 170.0 * (1 - 1 / 1.523)
+    assert far.paraxial_native_plane_depth_um == pytest.approx(1.35 * (-130.0 + residual))
+    assert far.native_plane_depth_um < 0 and far.surface_z_um > 0
+    assert far.surface_z_um == pytest.approx(-far.native_plane_depth_um)
+    assert far.axial_scale == pytest.approx(gel_optics().axial_scale, rel=1e-12)
+    # The focus moves the native plane by 1/axial_scale per µm of stage travel on either side
+    # of the surface.
+    shift = gel_optics().native_plane_depth_um - far.native_plane_depth_um
+    assert shift == pytest.approx(430.0 / far.axial_scale, rel=1e-9)
 
 
 def test_sources_in_front_of_the_specimen_are_refused(backend):
@@ -210,13 +225,15 @@ def test_mitsuba_dielectric_planes_obey_snell(tmp_path, backend):
         GEL,
         {**GEL, "coverslip_corrected_um": 170.0},
         {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.35, "focus_depth_um": 40.0},
+        {**GEL, "focus_depth_um": -130.0},
     ],
-    ids=["gel-bare", "gel-cover-glass", "gel-corrected-glass", "water-objective"],
+    ids=["gel-bare", "gel-cover-glass", "gel-corrected-glass", "water-objective", "focus-in-glass"],
 )
 def test_mitsuba_and_direct_tracers_agree_through_the_specimen(tmp_path, backend, kw):
     o = small_optics(**kw)
     scene = load_scene(write_scene(o, tmp_path / "specimen.xml"))
-    src = Sources.spheres([[10.0, -20.0, 120.0], [-60.0, 40.0, -30.0]], 5.0)
+    dz = max(0.0, o.surface_z_um + 40.0) if o.has_interfaces else 0.0  # beyond the surface
+    src = Sources.spheres([[10.0, -20.0, 120.0 + dz], [-60.0, 40.0, -30.0 + dz]], 5.0)
     s0 = RenderSettings(rays_per_particle=100_000, seed=0)
     s1 = RenderSettings(rays_per_particle=100_000, seed=1)
     mit = trace_mitsuba(scene, src, s0)
@@ -281,19 +298,22 @@ def _exact_focus_um(o: Optics, z_um: float, n_quad: int = 4000) -> float:
         {**GEL, "coverslip_corrected_um": 170.0},
         {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.333, "focus_depth_um": 100.0},
         {"na": 0.8, "immersion_ior": 1.333, "medium_ior": 1.38, "focus_depth_um": 100.0},
+        {**GEL, "focus_depth_um": -130.0},
     ],
-    ids=["dry-gel", "dry-gel-corrected", "water-water", "water-gel"],
+    ids=["dry-gel", "dry-gel-corrected", "water-water", "water-gel", "dry-gel-focus-in-glass"],
 )
 def test_focal_shift_agrees_with_the_exact_ray_optics(backend, kw):
     o = small_optics(**kw)
-    # The tracer's rays from a point on the native plane converge where closed-form Snell optics
-    # says they do.
-    traced = _least_squares_focus_um(o, 0.0)
-    exact = _exact_focus_um(o, 0.0)
+    # The tracer's rays from a point converge where closed-form Snell optics says they do.
+    # Points in the specimen: on the native plane, or 50 µm past the surface where the native
+    # plane lies in front of it.
+    z_a = max(0.0, o.surface_z_um + 50.0)
+    traced = _least_squares_focus_um(o, z_a)
+    exact = _exact_focus_um(o, z_a)
     assert traced == pytest.approx(exact, abs=0.05)
     # The measured focal shift (the nominal-frame depth of the point whose rays converge on the
     # nominal focal plane) agrees with the optics' value within 1 %.
-    z_star = -traced / (_least_squares_focus_um(o, 50.0) - traced) * 50.0
+    z_star = z_a - traced / (_least_squares_focus_um(o, z_a + 50.0) - traced) * 50.0
     measured = o.focal_shift_um + z_star
     assert measured == pytest.approx(o.focal_shift_um, rel=0.01, abs=0.1)
 

@@ -79,3 +79,27 @@ def test_points_in_a_specimen_found_at_their_true_depths(backend, tmp_path, kw):
         shallow = _peak_depths(_reconstruct(air, image, depths, 3, tmp_path), depths, 3, air)
         scale = np.polyfit(POINTS[:, 2], shallow, 1)[0]
         assert scale == pytest.approx(o.axial_scale, abs=0.05), shallow
+
+
+def test_the_depth_range_starts_at_the_specimens_surface():
+    """The default range begins no nearer than the specimen's surface, and a range reaching in
+    front of it is refused by name: nothing emits there, and the bank could not be traced."""
+    from lfsim import small_optics
+    from recon.errors import InputError
+    from recon.settings import ReconSettings, default_z_limit_um
+
+    air = ReconSettings().resolved(small_optics())
+    zlim = default_z_limit_um(small_optics(), air.z_step_um)
+    assert (air.z_min_um, air.z_max_um) == (-zlim, zlim)
+    deep = small_optics(**{**GEL, "focus_depth_um": 1000.0})  # surface 1440 µm in front
+    r = ReconSettings().resolved(deep)
+    assert r.z_min_um == -default_z_limit_um(deep, r.z_step_um) > deep.surface_z_um
+    # The surface 487 and 80 µm in front of z = 0, and 96 µm beyond it.
+    for focus in (300.0, 0.0, -130.0):
+        o = small_optics(**{**GEL, "focus_depth_um": focus})
+        r = ReconSettings().resolved(o)
+        assert o.surface_z_um <= r.z_min_um < o.surface_z_um + r.z_step_um
+        assert r.z_max_um == default_z_limit_um(o, r.z_step_um)
+        z0 = o.surface_z_um - 10.0
+        with pytest.raises(InputError, match=r"^z_min_um=.*near surface.*z_min_um >= "):
+            ReconSettings(z_min_um=z0, z_max_um=600.0, z_step_um=5.0).resolved(o)
