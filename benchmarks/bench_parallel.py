@@ -35,14 +35,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 SMALL = {
     "scene": "small.xml",
-    "particles": "count = 8\nbox_um = [[-180, 160], [-180, 160], [150, 350]]\nmin_spacing_um = 60",
+    "particles": (
+        "count = 8\nbounds_xyz_um = [[-180, 160], [-180, 160], [150, 350]]\nmin_spacing_um = 60"
+    ),
     "rays": 30000,
     "recon": ["--z-range", "-40:400", "--z-step", "20", "-s", "3", "--rays-per-pattern", "20000"],
 }
 PAPER = {
     "scene": "paper_4x.xml",
     "particles": (
-        "count = 60\nbox_um = [[-950, 950], [-550, 550], [100, 400]]\nmin_spacing_um = 60"
+        "count = 60\nbounds_xyz_um = [[-950, 950], [-550, 550], [100, 400]]\nmin_spacing_um = 60"
     ),
     "rays": 100000,
     # the paper's reconstruction: 161 planes, 5 µm voxels (s = 5)

@@ -60,6 +60,14 @@ def int_in_range(value: Any, name: str, lo: int, hi: int | None = None) -> int:
     return v
 
 
+def one_of(value: Any, name: str, choices: Iterable[str]) -> str:
+    """``value`` if it is one of ``choices`` (strings)."""
+    choices = tuple(choices)
+    if not isinstance(value, str) or value not in choices:
+        raise InputError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+    return value
+
+
 def points_xyz(
     arr: Any, name: str, *, min_points: int = 0, error: type[InputError] = InputError
 ) -> np.ndarray:
@@ -132,6 +140,7 @@ def per_axis(value: Any, name: str, *, positive: bool = True) -> tuple[float, fl
 RENAMED_KEYS: dict[str, tuple[str, str]] = {
     "center_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
     "centre_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
+    "box_um": ("bounds_xyz_um", "the (lo, hi) ranges in x, y, z order, µm"),
 }
 
 
@@ -182,6 +191,7 @@ __all__ = [
     "int_in_range",
     "known_keys",
     "nonnegative_float",
+    "one_of",
     "per_axis",
     "points_xyz",
     "positive_float",

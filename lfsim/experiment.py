@@ -18,7 +18,7 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
     [particles]                     # required: lfsim.seeding.SeedingSpec
     kind = "box"                    # box | layer | csv
     count = 12                      # or density_per_mm3
-    box_um = [[-200, 180], [-200, 180], [100, 400]]
+    bounds_xyz_um = [[-200, 180], [-200, 180], [100, 400]]
     # z_um (layer), min_spacing_um, diameter_um (15), brightness (1), brightness_jitter (0),
     # csv (kind = "csv": a particle table)
 
@@ -98,7 +98,7 @@ PER_FRAME_NOISE_KEYS = ("snr", "fps")
 #: Names under which :meth:`Experiment.fingerprint` hashes the keys named otherwise in the
 #: API (docs/conventions.md §3): the fingerprint identifies what an experiment produces, and a
 #: key's name does not change that, so the datasets already made keep theirs.
-FINGERPRINT_KEYS = {"center_xyz_um": "center_um"}
+FINGERPRINT_KEYS = {"center_xyz_um": "center_um", "bounds_xyz_um": "box_um"}
 
 #: Noise model when the file has no ``[noise]`` section: the paper's default (§4).
 DEFAULT_NOISE = {"model": "gaussian", "snr": 17.0}

@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from hrvbase.validate import renamed_key_message
+
 from .errors import ConfigError
 from .particles import DEFAULT_DIAMETER_UM, Particles
 
@@ -37,20 +39,22 @@ SEEDING_KINDS = ("box", "layer", "csv")
 _PACKING = {3: math.pi / (3.0 * math.sqrt(2.0)), 2: math.pi / (2.0 * math.sqrt(3.0))}
 
 
-def _box(name: str, box_um, ndim: int) -> np.ndarray:
+def _box(name: str, bounds_um, ndim: int) -> np.ndarray:
     """Validate ``ndim`` ``(lo, hi)`` ranges; returns a float64 array of shape (ndim, 2)."""
     try:
-        b = np.asarray(box_um, dtype=np.float64)
+        b = np.asarray(bounds_um, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{name} must be {ndim} (lo, hi) ranges in µm, got {box_um!r}") from exc
+        raise ConfigError(
+            f"{name} must be {ndim} (lo, hi) ranges in µm, got {bounds_um!r}"
+        ) from exc
     if b.shape != (ndim, 2):
         raise ConfigError(
-            f"{name} must be {ndim} (lo, hi) ranges in µm (shape ({ndim}, 2)), got {box_um!r}"
+            f"{name} must be {ndim} (lo, hi) ranges in µm (shape ({ndim}, 2)), got {bounds_um!r}"
         )
     if not np.all(np.isfinite(b)):
-        raise ConfigError(f"{name} must be finite, got {box_um!r}")
+        raise ConfigError(f"{name} must be finite, got {bounds_um!r}")
     if np.any(b[:, 1] < b[:, 0]):
-        raise ConfigError(f"{name} ranges must satisfy lo <= hi, got {box_um!r}")
+        raise ConfigError(f"{name} ranges must satisfy lo <= hi, got {bounds_um!r}")
     return b
 
 
@@ -138,7 +142,7 @@ def _default_max_tries(n: int) -> int:
 
 def seed_box(
     n: int,
-    box_um: Sequence[Sequence[float]],
+    bounds_xyz_um: Sequence[Sequence[float]],
     min_spacing_um: float,
     rng: np.random.Generator,
     max_tries: int | None = None,
@@ -149,7 +153,7 @@ def seed_box(
     ----------
     n : int
         Number of particles (>= 0).
-    box_um : sequence of three (lo, hi) pairs
+    bounds_xyz_um : sequence of three (lo, hi) pairs
         ``((x0, x1), (y0, y1), (z0, z1))`` in µm; centres satisfy ``lo <= c < hi``. A range with
         ``lo == hi`` pins that coordinate.
     min_spacing_um : float
@@ -172,7 +176,7 @@ def seed_box(
         many were).
     """
     n = _count(n)
-    b = _box("box_um", box_um, 3)
+    b = _box("bounds_xyz_um", bounds_xyz_um, 3)
     s = _spacing(min_spacing_um)
     if not isinstance(rng, np.random.Generator):
         raise ConfigError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
@@ -184,7 +188,7 @@ def seed_box(
 
 def seed_layer(
     n: int,
-    box_xy_um: Sequence[Sequence[float]],
+    bounds_xy_um: Sequence[Sequence[float]],
     z_um: float,
     min_spacing_um: float,
     rng: np.random.Generator,
@@ -196,7 +200,7 @@ def seed_layer(
     ----------
     n : int
         Number of particles (>= 0).
-    box_xy_um : sequence of two (lo, hi) pairs
+    bounds_xy_um : sequence of two (lo, hi) pairs
         ``((x0, x1), (y0, y1))`` in µm.
     z_um : float
         Depth of the layer in µm.
@@ -213,7 +217,7 @@ def seed_layer(
     ConfigError
         On invalid arguments or when ``n`` centres cannot be placed.
     """
-    bxy = _box("box_xy_um", box_xy_um, 2)
+    bxy = _box("bounds_xy_um", bounds_xy_um, 2)
     try:
         z = float(z_um)
     except (TypeError, ValueError) as exc:
@@ -223,14 +227,14 @@ def seed_layer(
     return seed_box(n, [*bxy.tolist(), [z, z]], min_spacing_um, rng, max_tries)
 
 
-def count_from_density(density_per_mm3: float, box_um: Sequence[Sequence[float]]) -> int:
+def count_from_density(density_per_mm3: float, bounds_xyz_um: Sequence[Sequence[float]]) -> int:
     """Particle count for a number density in a box.
 
     Parameters
     ----------
     density_per_mm3 : float
         Particles per cubic millimetre (>= 0).
-    box_um : sequence of three (lo, hi) pairs
+    bounds_xyz_um : sequence of three (lo, hi) pairs
         Box in µm.
 
     Returns
@@ -242,7 +246,7 @@ def count_from_density(density_per_mm3: float, box_um: Sequence[Sequence[float]]
         raise ConfigError(f"density_per_mm3 must be a number, got {density_per_mm3!r}")
     if not math.isfinite(density_per_mm3) or density_per_mm3 < 0:
         raise ConfigError(f"density_per_mm3 must be finite and >= 0, got {density_per_mm3!r}")
-    b = _box("box_um", box_um, 3)
+    b = _box("bounds_xyz_um", bounds_xyz_um, 3)
     volume_mm3 = float(np.prod(b[:, 1] - b[:, 0])) * 1e-9
     return round(density_per_mm3 * volume_mm3)
 
@@ -271,11 +275,11 @@ class SeedingSpec:
     count : int, optional
         Number of particles (box/layer). Exactly one of ``count`` and ``density_per_mm3``.
     density_per_mm3 : float, optional
-        Number density (box/layer); the count is :func:`count_from_density` of ``box_um``
-        (a layer needs a z range in ``box_um`` for this).
-    box_um : sequence of (lo, hi) pairs
-        ``((x0, x1), (y0, y1), (z0, z1))`` in µm (box/layer). A layer may give only the x and y
-        ranges.
+        Number density (box/layer); the count is :func:`count_from_density` of ``bounds_xyz_um``
+        (a layer needs a z range in ``bounds_xyz_um`` for this).
+    bounds_xyz_um : sequence of (lo, hi) pairs
+        ``((x0, x1), (y0, y1), (z0, z1))`` in µm, the ranges in x, y, z order (box/layer). A
+        layer may give only the x and y ranges.
     z_um : float, optional
         Depth of the layer in µm (layer only).
     min_spacing_um : float, optional
@@ -296,7 +300,7 @@ class SeedingSpec:
     kind: str
     count: int | None = None
     density_per_mm3: float | None = None
-    box_um: tuple[tuple[float, float], ...] | None = None
+    bounds_xyz_um: tuple[tuple[float, float], ...] | None = None
     z_um: float | None = None
     min_spacing_um: float | None = None
     diameter_um: float = DEFAULT_DIAMETER_UM
@@ -319,7 +323,7 @@ class SeedingSpec:
         if self.kind == "csv":
             bad = [
                 k
-                for k in ("count", "density_per_mm3", "box_um", "z_um", "min_spacing_um")
+                for k in ("count", "density_per_mm3", "bounds_xyz_um", "z_um", "min_spacing_um")
                 if getattr(self, k) is not None
             ]
             if self.brightness_jitter:
@@ -341,12 +345,14 @@ class SeedingSpec:
             set_(self, "count", int(self.count))
         else:
             set_(self, "density_per_mm3", _opt_number("density_per_mm3", self.density_per_mm3))
-        if self.box_um is None:
-            raise ConfigError(f"seeding kind {self.kind!r} needs 'box_um' (x, y, z ranges in µm)")
+        if self.bounds_xyz_um is None:
+            raise ConfigError(
+                f"seeding kind {self.kind!r} needs 'bounds_xyz_um' (x, y, z ranges in µm)"
+            )
         if self.kind == "box":
             if self.z_um is not None:
                 raise ConfigError("seeding kind 'box' does not take 'z_um' (use kind 'layer')")
-            b = _box("box_um", self.box_um, 3)
+            b = _box("bounds_xyz_um", self.bounds_xyz_um, 3)
         else:
             if self.z_um is None:
                 raise ConfigError("seeding kind 'layer' needs 'z_um' (depth of the layer in µm)")
@@ -356,14 +362,14 @@ class SeedingSpec:
             if not math.isfinite(z):
                 raise ConfigError(f"z_um must be finite, got {z!r}")
             set_(self, "z_um", float(z))
-            nr = len(self.box_um) if hasattr(self.box_um, "__len__") else -1
-            b = _box("box_um", self.box_um, 3 if nr == 3 else 2)
+            nr = len(self.bounds_xyz_um) if hasattr(self.bounds_xyz_um, "__len__") else -1
+            b = _box("bounds_xyz_um", self.bounds_xyz_um, 3 if nr == 3 else 2)
             if self.density_per_mm3 is not None and b.shape[0] != 3:
                 raise ConfigError(
-                    "seeding kind 'layer' with 'density_per_mm3' needs 'box_um' with a z range "
-                    "(the volume the density refers to); or give 'count'"
+                    "seeding kind 'layer' with 'density_per_mm3' needs 'bounds_xyz_um' with a z "
+                    "range (the volume the density refers to); or give 'count'"
                 )
-        set_(self, "box_um", tuple(tuple(r) for r in b.tolist()))
+        set_(self, "bounds_xyz_um", tuple(tuple(r) for r in b.tolist()))
 
     @classmethod
     def from_dict(cls, d: Mapping, base_dir: str | os.PathLike | None = None) -> SeedingSpec:
@@ -384,6 +390,10 @@ class SeedingSpec:
             raise ConfigError(f"the seeding spec must be a table/dict, got {type(d).__name__}")
         known = [f.name for f in fields(cls)]
         unknown = sorted(set(d) - set(known))
+        for key in unknown:
+            renamed = renamed_key_message(key, known)
+            if renamed is not None:
+                raise ConfigError(renamed)
         if unknown:
             raise ConfigError(f"unknown seeding key(s) {unknown}; expected some of {known}")
         if "kind" not in d:
@@ -403,7 +413,7 @@ class SeedingSpec:
             v = getattr(self, f.name)
             if v is None:
                 continue
-            if f.name == "box_um":
+            if f.name == "bounds_xyz_um":
                 v = [list(r) for r in v]
             elif f.name == "csv":
                 v = str(v)
@@ -417,7 +427,7 @@ class SeedingSpec:
             return None
         if self.count is not None:
             return self.count
-        return count_from_density(self.density_per_mm3, self.box_um)
+        return count_from_density(self.density_per_mm3, self.bounds_xyz_um)
 
     def make(self, rng: np.random.Generator) -> Particles:
         """Make the particles.
@@ -440,9 +450,9 @@ class SeedingSpec:
         n = self.n_particles
         s = self.diameter_um if self.min_spacing_um is None else self.min_spacing_um
         if self.kind == "box":
-            pos = seed_box(n, self.box_um, s, rng)
+            pos = seed_box(n, self.bounds_xyz_um, s, rng)
         else:
-            pos = seed_layer(n, self.box_um[:2], self.z_um, s, rng)
+            pos = seed_layer(n, self.bounds_xyz_um[:2], self.z_um, s, rng)
         bright = np.full(n, self.brightness)
         if self.brightness_jitter > 0:
             bright = self.brightness * np.maximum(

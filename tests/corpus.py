@@ -33,7 +33,7 @@ EXPERIMENT = {
     "particles": {
         "kind": "box",
         "count": 6,
-        "box_um": [[-180, 160], [-180, 160], [150, 350]],
+        "bounds_xyz_um": [[-180, 160], [-180, 160], [150, 350]],
         "min_spacing_um": 60,
         "diameter_um": 15,
     },

@@ -383,17 +383,25 @@ EXPERIMENT_ERRORS = [
     ("count-negative", {"particles.count": -6}, "count"),
     ("count-text", {"particles.count": "six"}, "count"),
     ("kind-unknown", {"particles.kind": "sphere"}, "kind"),
-    ("box-inverted", {"particles.box_um": [[160, -180], [-180, 160], [150, 350]]}, "box_um"),
-    ("box-wrong-shape", {"particles.box_um": [1, 2, 3]}, "box_um"),
-    ("box-nan", {"particles.box_um": [[-180, 160], [-180, float("nan")], [150, 350]]}, "box_um"),
+    (
+        "box-inverted",
+        {"particles.bounds_xyz_um": [[160, -180], [-180, 160], [150, 350]]},
+        "bounds_xyz_um",
+    ),
+    ("box-wrong-shape", {"particles.bounds_xyz_um": [1, 2, 3]}, "bounds_xyz_um"),
+    (
+        "box-nan",
+        {"particles.bounds_xyz_um": [[-180, 160], [-180, float("nan")], [150, 350]]},
+        "bounds_xyz_um",
+    ),
     (
         "box-behind-the-objective",
-        {"particles.box_um": [[-180, 160], [-180, 160], [-70000, -60000]]},
+        {"particles.bounds_xyz_um": [[-180, 160], [-180, 160], [-70000, -60000]]},
         "objective",
     ),
     (
         "box-far-outside-the-field",
-        {"particles.box_um": [[1e5, 1.1e5], [-180, 160], [150, 350]]},
+        {"particles.bounds_xyz_um": [[1e5, 1.1e5], [-180, 160], [150, 350]]},
         "field",
     ),
     ("diameter-negative", {"particles.diameter_um": -15}, "diameter_um"),
@@ -438,7 +446,7 @@ def _csv_particles(e: Env, content: str | None) -> Path:
             "particles.kind": "csv",
             "particles.csv": str(table),
             "particles.count": DROP,
-            "particles.box_um": DROP,
+            "particles.bounds_xyz_um": DROP,
             "particles.min_spacing_um": DROP,
         }
     )

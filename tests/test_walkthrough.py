@@ -60,7 +60,7 @@ def camera_export(backend, tmp_path_factory):
             particles={
                 "kind": "box",
                 "count": 18,
-                "box_um": ((-180, 160), (-180, 160), (160, 340)),
+                "bounds_xyz_um": ((-180, 160), (-180, 160), (160, 340)),
                 "min_spacing_um": 55,
             },
             motion={"type": "translation", "step_um": STEP_UM},

@@ -29,7 +29,11 @@ SCENES = Path(__file__).resolve().parents[2] / "scenes"
 def _study(frames: int, motion: dict | None, kind: str, snr=17.0, **study):
     data = {
         "experiment": {"name": "synthetic", "scene": str(SCENES / "medium.xml"), "frames": frames},
-        "particles": {"kind": "box", "count": 60, "box_um": [[-400, 400], [-300, 300], [120, 400]]},
+        "particles": {
+            "kind": "box",
+            "count": 60,
+            "bounds_xyz_um": [[-400, 400], [-300, 300], [120, 400]],
+        },
         "noise": {"model": "gaussian", "snr": snr},
         "study": {"kind": kind, **study},
     }

@@ -20,7 +20,7 @@ EXPERIMENTS = ROOT / "scenes" / "experiments"
 
 BASE = experiment_toml(
     experiment={"name": "x", "scene": "{scene}", "frames": 3},
-    particles={"kind": "box", "count": 10, "box_um": ((-100, 100), (-100, 100), (150, 300))},
+    particles={"kind": "box", "count": 10, "bounds_xyz_um": ((-100, 100), (-100, 100), (150, 300))},
 )
 MOTION = "[motion]\ntype = 'translation'\nstep_um = [5, 0, 0]\n"
 
@@ -187,7 +187,7 @@ frames = 3
 [particles]
 kind = "box"
 count = 12
-box_um = [[-150, 150], [-120, 120], [50, 120]]
+bounds_xyz_um = [[-150, 150], [-120, 120], [50, 120]]
 min_spacing_um = 45
 diameter_um = 6
 

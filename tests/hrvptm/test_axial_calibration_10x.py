@@ -25,7 +25,7 @@ EXPERIMENT = experiment_toml(
     particles={
         "kind": "box",
         "count": 8,
-        "box_um": ((-110, 100), (-110, 100), TEN.z_particles_um),
+        "bounds_xyz_um": ((-110, 100), (-110, 100), TEN.z_particles_um),
         "min_spacing_um": 45,
         "diameter_um": TEN.particle_um,
     },

@@ -18,7 +18,7 @@ STUDIES = sorted(EXPERIMENTS.glob("*.toml"))
 
 BASE = experiment_toml(
     experiment={"name": "x", "scene": "{scene}", "frames": 4},
-    particles={"kind": "box", "count": 10, "box_um": ((-100, 100), (-100, 100), (150, 300))},
+    particles={"kind": "box", "count": 10, "bounds_xyz_um": ((-100, 100), (-100, 100), (150, 300))},
 )
 
 

@@ -20,7 +20,7 @@ SMALL = str(ROOT / "scenes" / "small.xml")
 
 TOML = experiment_toml(
     experiment={"name": "cli_tiny", "scene": SMALL, "seed": 1, "frames": 2},
-    particles={"kind": "box", "count": 3, "box_um": BOX_UM},
+    particles={"kind": "box", "count": 3, "bounds_xyz_um": BOX_UM},
     motion={"type": "translation", "step_um": (5, 0, 0)},
     render={"rays_per_particle": 2000},
     white={"rays_per_lenslet": 200},

@@ -22,7 +22,7 @@ SMALL = ROOT / "scenes" / "small.xml"
 
 TINY = experiment_toml(
     experiment={"name": "tiny", "scene": SMALL, "seed": 5, "frames": 3},
-    particles={"kind": "box", "count": 3, "box_um": BOX_UM, "min_spacing_um": 40},
+    particles={"kind": "box", "count": 3, "bounds_xyz_um": BOX_UM, "min_spacing_um": 40},
     motion=SHEAR_XZ,
     render={"rays_per_particle": 3000},
     noise={"model": "gaussian", "snr": (40, 20, 10)},
@@ -204,7 +204,7 @@ def test_non_dataset_folder_refused(made, tmp_path):
 
 
 def test_particles_outside_field_rejected(backend, tmp_path):
-    text = TINY.replace("box_um = [[-150, 150]", "box_um = [[300, 400]")
+    text = TINY.replace("bounds_xyz_um = [[-150, 150]", "bounds_xyz_um = [[300, 400]")
     exp = tiny(tmp_path, text)
     with pytest.raises(ConfigError, match="outside the field of view"):
         generate_dataset(exp, tmp_path / "ds", progress=False)
@@ -266,7 +266,9 @@ def test_interrupted_run_resumes_to_the_same_files(made, tmp_path, monkeypatch):
 def test_particles_outside_the_imaged_volume_are_refused(backend, tmp_path, box, motion, why):
     text = TINY.replace("[[-150, 150], [-150, 150], [100, 300]]", box)
     if motion:
-        shear = 'type = "simple_shear"\nplane = "xz"\nstep_gamma = 0.05\ncenter_um = [0, 0, 200]'
+        shear = (
+            'type = "simple_shear"\nplane = "xz"\nstep_gamma = 0.05\ncenter_xyz_um = [0, 0, 200]'
+        )
         assert shear in text
         text = text.replace(shear, 'type = "translation"\nstep_um = [0, 0, 900]')
     assert text != TINY

@@ -21,7 +21,7 @@ EXAMPLES = sorted((SCENES / "experiments").glob("*.toml"))
 
 BASE = experiment_toml(
     experiment={"name": "t", "scene": "{scene}", "seed": 2, "frames": 3},
-    particles={"kind": "box", "count": 4, "box_um": BOX_UM},
+    particles={"kind": "box", "count": 4, "bounds_xyz_um": BOX_UM},
     motion=SHEAR_XZ,
     render={"rays_per_particle": 1000},
     noise={"model": "gaussian", "snr": (30, 20, 10)},
@@ -144,6 +144,7 @@ def test_unknown_keys_and_sections_name_key_file_and_allowed(tmp_path, old, new,
     [
         ("center_xyz_um = [0, 0, 200]", "center_um = [0, 0, 200]"),
         ("center_xyz_um = [0, 0, 200]", "centre_um = [0, 0, 200]"),
+        ("bounds_xyz_um = [[", "box_um = [["),
     ],
 )
 def test_keys_named_without_their_order_are_refused_naming_the_new_key(tmp_path, old, new):
@@ -151,7 +152,7 @@ def test_keys_named_without_their_order_are_refused_naming_the_new_key(tmp_path,
     with pytest.raises(ConfigError) as info:
         load_experiment(path)
     msg = str(info.value)
-    key, want = new.split(" = ")[0], old.split(" = ")[0]
+    key, want = new.split(" =")[0], old.split(" =")[0]
     assert msg.startswith(f"{path}: [") and "\n" not in msg
     assert f"{key!r} is named {want!r}" in msg and "rename the key" in msg
 
@@ -161,7 +162,8 @@ def test_fingerprint_hashes_the_keys_under_fixed_names(tmp_path):
 
     d = _fingerprint_keys(load_experiment(write_toml(tmp_path)).to_dict())
     assert d["motion"]["center_um"] == [0.0, 0.0, 200.0] and "center_xyz_um" not in d["motion"]
-    assert set(FINGERPRINT_KEYS) == {"center_xyz_um"}
+    assert d["particles"]["box_um"] == [[-150.0, 150.0], [-150.0, 150.0], [100.0, 300.0]]
+    assert set(FINGERPRINT_KEYS) == {"center_xyz_um", "bounds_xyz_um"}
 
 
 def test_unknown_camera_key(tmp_path):

@@ -87,7 +87,7 @@ def test_seed_box_zero_spacing_and_zero_count():
     ("args", "match"),
     [
         ((-1, BOX, 15.0), "count"),
-        ((5, ((0, 1), (0, 1)), 15.0), "box_um"),
+        ((5, ((0, 1), (0, 1)), 15.0), "bounds_xyz_um"),
         ((5, ((0, 1), (0, 1), (2, 1)), 15.0), "lo <= hi"),
         ((5, BOX, -1.0), "min_spacing_um"),
     ],
@@ -125,7 +125,9 @@ def test_count_from_density():
 
 
 def test_spec_box_make():
-    spec = SeedingSpec.from_dict({"kind": "box", "count": 60, "box_um": [list(r) for r in BOX]})
+    spec = SeedingSpec.from_dict(
+        {"kind": "box", "count": 60, "bounds_xyz_um": [list(r) for r in BOX]}
+    )
     assert spec.min_spacing_um is None and spec.diameter_um == 15.0
     p = spec.make(np.random.default_rng(0))
     assert isinstance(p, Particles) and len(p) == 60
@@ -143,7 +145,7 @@ def test_spec_density_layer_and_jitter():
     spec = SeedingSpec(
         kind="layer",
         density_per_mm3=1000.0,
-        box_um=((-250.0, 250.0), (-200.0, 200.0), (150.0, 250.0)),
+        bounds_xyz_um=((-250.0, 250.0), (-200.0, 200.0), (150.0, 250.0)),
         z_um=160.0,
         min_spacing_um=25.0,
         brightness=2.0,
@@ -169,20 +171,20 @@ def test_spec_csv(tmp_path):
     ("d", "match"),
     [
         (
-            {"kind": "box", "count": 5, "box_um": BOX, "colour": "red"},
+            {"kind": "box", "count": 5, "bounds_xyz_um": BOX, "colour": "red"},
             r"unknown seeding key.*colour",
         ),
-        ({"count": 5, "box_um": BOX}, "kind"),
-        ({"kind": "sphere", "count": 5, "box_um": BOX}, "kind"),
-        ({"kind": "box", "box_um": BOX}, "exactly one of 'count' and 'density_per_mm3'"),
-        ({"kind": "box", "count": 5, "density_per_mm3": 3.0, "box_um": BOX}, "exactly one"),
-        ({"kind": "box", "count": 5}, "box_um"),
-        ({"kind": "box", "count": 5, "box_um": BOX, "z_um": 3.0}, "z_um"),
-        ({"kind": "layer", "count": 5, "box_um": BOX[:2]}, "z_um"),
-        ({"kind": "layer", "density_per_mm3": 5.0, "box_um": BOX[:2], "z_um": 0}, "z range"),
-        ({"kind": "box", "count": 5, "box_um": BOX, "diameter_um": 0}, "diameter_um"),
-        ({"kind": "box", "count": 5, "box_um": BOX, "brightness_jitter": -1}, "jitter"),
-        ({"kind": "box", "count": 2.5, "box_um": BOX}, "count"),
+        ({"count": 5, "bounds_xyz_um": BOX}, "kind"),
+        ({"kind": "sphere", "count": 5, "bounds_xyz_um": BOX}, "kind"),
+        ({"kind": "box", "bounds_xyz_um": BOX}, "exactly one of 'count' and 'density_per_mm3'"),
+        ({"kind": "box", "count": 5, "density_per_mm3": 3.0, "bounds_xyz_um": BOX}, "exactly one"),
+        ({"kind": "box", "count": 5}, "bounds_xyz_um"),
+        ({"kind": "box", "count": 5, "bounds_xyz_um": BOX, "z_um": 3.0}, "z_um"),
+        ({"kind": "layer", "count": 5, "bounds_xyz_um": BOX[:2]}, "z_um"),
+        ({"kind": "layer", "density_per_mm3": 5.0, "bounds_xyz_um": BOX[:2], "z_um": 0}, "z range"),
+        ({"kind": "box", "count": 5, "bounds_xyz_um": BOX, "diameter_um": 0}, "diameter_um"),
+        ({"kind": "box", "count": 5, "bounds_xyz_um": BOX, "brightness_jitter": -1}, "jitter"),
+        ({"kind": "box", "count": 2.5, "bounds_xyz_um": BOX}, "count"),
         ({"kind": "csv"}, "'csv'"),
         ({"kind": "csv", "csv": "a.csv", "count": 3}, r"does not take \['count'\]"),
     ],
