@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +37,18 @@ from .config import AS_AIR
 from .errors import StageError
 
 log = logging.getLogger(__name__)
+
+
+@contextmanager
+def _stage_errors(what: str) -> Iterator[None]:
+    """Run a stage's library calls: an :class:`hrvbase.errors.HrvError` they raise becomes a
+    one-line :class:`StageError` ``"{what}: {message}"`` (``what``: the stage and its folder)."""
+    from hrvbase.errors import HrvError
+
+    try:
+        yield
+    except HrvError as exc:
+        raise StageError(f"{what}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -137,12 +151,10 @@ def simulate(experiment, paths: VariantPaths, *, progress: bool = True, parallel
             overwrite = True
         if overwrite:
             log.info("%s: the experiment changed; the dataset is rendered again", paths.dataset)
-    try:
+    with _stage_errors(f"simulation into {paths.dataset}"):
         generate_dataset(
             experiment, paths.dataset, overwrite=overwrite, progress=progress, parallel=parallel
         )
-    except HrvError as exc:
-        raise StageError(f"simulation into {paths.dataset}: {exc}") from None
     return time.perf_counter() - t0
 
 
@@ -150,7 +162,6 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
     """Calibrate the white image and reconstruct every frame with the study's forward model
     (``recon_scene``), the frames on ``parallel`` (default: in process). Returns seconds
     spent."""
-    from hrvbase.errors import HrvError
     from recon.calibration import calibrate_white
     from recon.calibration_file import read_white
     from recon.pipeline import reconstruct_series
@@ -161,7 +172,7 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
         raise StageError(
             f"{paths.dataset}: expected {study.experiment.frames} frames, found {len(frames)}"
         )
-    try:
+    with _stage_errors(f"reconstruction into {paths.volumes}"):
         optics = recon_optics(study, paths.variant)
         white = read_white(paths.dataset / "white.tif")
         grid = calibrate_white(white, expected_pitch_px=optics.px_per_lenslet)
@@ -182,8 +193,6 @@ def reconstruct(study, paths: VariantPaths, *, progress: bool = True, parallel=N
             },
             parallel=parallel,
         )
-    except HrvError as exc:
-        raise StageError(f"reconstruction into {paths.volumes}: {exc}") from None
     return time.perf_counter() - t0
 
 
@@ -195,14 +204,13 @@ def track_stage(
     are kept (partial results allowed): the analysis counts them and fails the study. Returns
     seconds spent; with ``[track.axial]`` on (:func:`track_calibrated`), seconds per stage
     (``track``, ``axial_calibration``)."""
-    from hrvbase.errors import HrvError
     from track.pipeline import track_volumes
 
     if study.track.axial.enabled:
         return track_calibrated(study, paths, progress=progress, parallel=parallel)
     t0 = time.perf_counter()
     series = study.track.series if study.study.kind == "series" else None
-    try:
+    with _stage_errors(f"tracking {paths.volumes}"):
         track_volumes(
             paths.volumes,
             paths.track,
@@ -214,8 +222,6 @@ def track_stage(
             provenance={"caller": "hrvptm"},
             parallel=parallel,
         )
-    except HrvError as exc:
-        raise StageError(f"tracking {paths.volumes}: {exc}") from None
     return time.perf_counter() - t0
 
 
@@ -227,7 +233,6 @@ def track_calibrated(
     variant, and for a series ``track/`` (the corrected tables linked and gridded); the
     tables a study analyses are :func:`particle_tables`. Returns seconds spent: ``track``
     (detection, linking, fields) and ``axial_calibration`` (references and correction)."""
-    from hrvbase.errors import HrvError
     from recon.lenslet_grid import LensletGrid
 
     from .calibrated import ReconModel, detect_volumes_calibrated, track_volumes_calibrated
@@ -242,7 +247,7 @@ def track_calibrated(
         "parallel": parallel,
         "own_folder": False,  # the variant's folder: dataset, volumes, ...
     }
-    try:
+    with _stage_errors(f"tracking {paths.volumes} with the axial calibration"):
         model = ReconModel(
             recon_optics(study, paths.variant), LensletGrid.load(paths.calib), study.recon
         )
@@ -252,8 +257,6 @@ def track_calibrated(
             )
         else:
             _, _, secs = detect_volumes_calibrated(paths.volumes, paths.root, model=model, **common)
-    except HrvError as exc:
-        raise StageError(f"tracking {paths.volumes} with the axial calibration: {exc}") from None
     track_s = secs["detect"] + secs.get("link", 0.0)
     return {"track": track_s, "axial_calibration": secs["axial_calibration"]}
 
