@@ -131,14 +131,18 @@ def test_pairs_of_three_shots(tmp_path):
     assert [(r["frame_a"], r["frame_b"]) for r in a.rows] == [(0, 1), (0, 2), (3, 4), (3, 5)]
 
 
-def test_series_shear_displacements_strains_and_tracking(tmp_path):
-    motion = {
+def _shear_xz(step_gamma: float) -> dict:
+    """Simple shear in the xz plane about z = 250 µm, ``step_gamma`` more every frame."""
+    return {
         "type": "simple_shear",
         "plane": "xz",
-        "step_gamma": 0.05,
+        "step_gamma": step_gamma,
         "center_xyz_um": [0, 0, 250],
     }
-    study = _study(4, motion, "series")
+
+
+def test_series_shear_displacements_strains_and_tracking(tmp_path):
+    study = _study(4, _shear_xz(0.05), "series")
     paths = _fake_variant(
         tmp_path, study, bias=(1.0, 1.0, 4.0), noise_um=(0.05, 0.05, 0.2), drop=(3, 7)
     )
@@ -252,18 +256,14 @@ def test_localization_counts_a_frame_without_detections_as_failed(tmp_path):
     assert a.summary["pooled_rmsd_x"] < 0.2  # the numbers alone would look fine
 
 
-def _failed_series(tmp_path, name="v"):
-    """Simple shear over 5 frames whose frame 2 kept only 3 detections: pairs 1 → 2 and
-    2 → 3 cannot be linked and no track from frame 0 reaches frames 2–4."""
-    motion = {
-        "type": "simple_shear",
-        "plane": "xz",
-        "step_gamma": 0.02,
-        "center_xyz_um": [0, 0, 250],
-    }
-    study = _study(5, motion, "series", figure="6c")
-    paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n={2: 3}, name=name)
-    _link(tmp_path, paths, 5)
+def _failed_series(tmp_path, name="v", frames=5, keep_n=None):
+    """Simple shear (Fig. 6c) over ``frames`` frames, linked, whose frames ``keep_n`` (as
+    :func:`_fake_variant`) kept few or no detections; by default frame 2 of 5 kept only 3:
+    pairs 1 → 2 and 2 → 3 cannot be linked and no track from frame 0 reaches frames 2–4."""
+    study = _study(frames, _shear_xz(0.02), "series", figure="6c")
+    keep_n = {2: 3} if keep_n is None else keep_n
+    paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n=keep_n, name=name)
+    _link(tmp_path, paths, frames)
     return study, paths
 
 
@@ -411,15 +411,7 @@ def test_series_with_no_frame_compared_has_no_tracking_ratio_and_no_numpy_warnin
     import math
     import warnings
 
-    motion = {
-        "type": "simple_shear",
-        "plane": "xz",
-        "step_gamma": 0.02,
-        "center_xyz_um": [0, 0, 250],
-    }
-    study = _study(4, motion, "series", figure="6c")
-    paths = _fake_variant(tmp_path, study, (0, 0, 0), (0.05, 0.05, 0.2), keep_n={1: 0, 2: 0, 3: 0})
-    _link(tmp_path, paths, 4)
+    study, paths = _failed_series(tmp_path, frames=4, keep_n={1: 0, 2: 0, 3: 0})
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         a = analyse_series(VariantData.load(study, paths))
