@@ -83,6 +83,7 @@ from .calibration_file import (
 )
 from .errors import InputError, ReconError
 from .projector import PROJECTORS
+from .psf_wave import PSF_MODELS
 from .settings import BACKGROUND_MODELS, ReconSettings
 from .volume_store import FORMATS, NGFF_VERSION, make_writer
 
@@ -235,6 +236,14 @@ RUN_SETTINGS = (
     ),
     SettingOption(
         "rays_per_pattern", ("--rays-per-pattern",), "rays traced per PSF-bank pattern", int, "N"
+    ),
+    SettingOption(
+        "psf_model",
+        ("--psf-model",),
+        "PSF bank: ray-traced, wave optics, or auto (wave optics where a lenslet's diffraction "
+        "spot is wider than recon.psf_wave.WAVE_SPOT_PX pixels; rays at the paper's optics); "
+        "recon.json records the model used",
+        choices=PSF_MODELS,
     ),
     SettingOption(
         "projector",

@@ -35,7 +35,8 @@ from .filters import DepthFilter
 from .geometry import ReconGrid
 from .preprocess import Preprocess, check_dark, prepare_image, read_frame
 from .projector import make_projector
-from .psf import bank_key, compute_psf_bank, pattern_radius_lenslets
+from .psf import compute_psf_bank, pattern_radius_lenslets
+from .psf_wave import choose_psf_model, compute_wave_psf_bank, model_bank_key
 from .run_record import (
     RECON_JSON,
     RESULT_KEYS,
@@ -263,7 +264,7 @@ def reconstruct_series(
     nx, ny = geom.n_lenslets
     check_depths_resolvable(optics, depths, (nx, ny))
 
-    key = bank_key(ropt, depths, st.s, st.rays_per_pattern, 0, 1e-3)
+    key = _bank_key(optics, ropt, st)
     identity = _identity(st, pp, optics, grid, key, solver)
     dark_sum = identity["preprocess"]["dark_sha256"]
     fp = _fingerprint(identity)
@@ -297,6 +298,13 @@ def reconstruct_series(
     meta["status"] = "complete"
     write_json(meta_path, meta, overwrite=True)
     return SeriesResult(out, done, skipped, secs)
+
+
+def _bank_key(optics, ropt, st) -> str:
+    """Cache key of the series' PSF bank: of the model ``st.psf_model`` picks for ``optics``
+    (:func:`recon.psf_wave.choose_psf_model`), on the rectified optics ``ropt``."""
+    model = choose_psf_model(optics, st.psf_model)
+    return model_bank_key(ropt, st.depths_um, st.s, model, st.rays_per_pattern)
 
 
 def _frame_refs(frames) -> list:
@@ -388,6 +396,7 @@ def _series_record(
         "voxel_size_um": list(rgrid.voxel_size_um),
         "volume_shape": list(rgrid.shape),
         "psf_bank": key,
+        "psf_model": choose_psf_model(optics, st.psf_model),
         "scene_mla_kind": scene_mla_kind,
         "format": writer.format,
         **writer.record_extra(),
@@ -442,9 +451,12 @@ def _run_frames(run, st, pp, grid, optics, ropt, rgrid, writer, par, solver, pro
     nx, ny = rgrid.n_lenslets
     depths = st.depths_um
     t0 = time.perf_counter()
-    bank = compute_psf_bank(
-        ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
-    )
+    if choose_psf_model(optics, st.psf_model) == "wave":
+        bank = compute_wave_psf_bank(ropt, depths, st.s, progress=progress)
+    else:
+        bank = compute_psf_bank(
+            ropt, depths, st.s, rays_per_pattern=st.rays_per_pattern, progress=progress
+        )
     meta["psf_seconds"] = time.perf_counter() - t0
     meta["macs_per_projection"] = int(bank.nnz) * nx * ny
     # The projector and filter are built from the bank once per process (in each

@@ -36,7 +36,7 @@ import json
 import logging
 import math
 import os
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,8 +72,12 @@ def choose_psf_model(optics, model: str = "auto") -> str:
     a lenslet's diffraction spot spans more than about a pixel the ray bank's Gaussian blur no
     longer stands in for diffraction; ``"ray"`` otherwise.
     """
-    if model not in PSF_MODELS:
-        raise InputError(f"psf_model must be one of {PSF_MODELS}, got {model!r}")
+    from hrvbase import validate
+
+    from .errors import recon_input_errors
+
+    with recon_input_errors():
+        validate.one_of(model, "psf_model", PSF_MODELS)
     if model != "auto":
         return model
     return "wave" if lenslet_spot_px(optics) > WAVE_SPOT_PX else "ray"
@@ -116,25 +120,12 @@ def wave_bank_key(optics, depths_um, s: int, sampling, threshold: float) -> str:
 
 
 def model_bank_key(optics, depths_um, s: int, model: str, rays_per_pattern: int) -> str:
-    """Cache key of the bank :func:`compute_model_bank` makes (``model``: ``"ray"`` or
-    ``"wave"``, as :func:`choose_psf_model` gives it)."""
+    """Cache key of the default bank of ``model`` (``"ray"``: :func:`recon.psf.compute_psf_bank`
+    with ``rays_per_pattern``; ``"wave"``: :func:`compute_wave_psf_bank`), as
+    :func:`choose_psf_model` gives it."""
     if model == "wave":
         return wave_bank_key(optics, depths_um, s, default_wave_sampling(optics), 1e-3)
     return bank_key(optics, depths_um, s, rays_per_pattern, 0, 1e-3)
-
-
-def compute_model_bank(
-    optics, depths_um, s: int, model: str, *, rays_per_pattern: int, progress: bool = False
-) -> PSFBank:
-    """The PSF bank of ``model`` (``"ray"``: :func:`recon.psf.compute_psf_bank`; ``"wave"``:
-    :func:`compute_wave_psf_bank`), from the default cache."""
-    if model == "wave":
-        return compute_wave_psf_bank(optics, depths_um, s, progress=progress)
-    from .psf import compute_psf_bank
-
-    return compute_psf_bank(
-        optics, depths_um, s, rays_per_pattern=rays_per_pattern, progress=progress
-    )
 
 
 def _check_inputs(optics, depths_um, s) -> tuple[int, np.ndarray]:
@@ -205,7 +196,7 @@ def compute_wave_psf_bank(
             return PSFBank.load(path)
     radii = np.array([pattern_radius_lenslets(optics, z) for z in depths])
     images = _dense_patterns(optics, depths, s, n, radii, sampling, progress)
-    bank = _sparse_bank(images, depths, s, n, radii, threshold, optics)
+    bank = _sparse_bank(images, depths, s, n, threshold, optics)
     log.info(
         "wave PSF bank: %d depths × %d² patterns, oversample %d, %d non-zeros (%.0f per pattern)",
         len(depths),
@@ -219,28 +210,32 @@ def compute_wave_psf_bank(
     return bank
 
 
-def _sparse_bank(images, depths, s, n, radii, threshold, optics) -> PSFBank:
-    """The :class:`PSFBank` of the dense patterns ``images[k]`` (shape ``(s², win, win)``)."""
-    dys, dxs, ws, counts = [], [], [], []
-    for k, stack in enumerate(images):
-        h = int(radii[k])
+def _sparse_bank(images, depths, s, n, threshold, optics) -> PSFBank:
+    """The :class:`PSFBank` of the dense patterns ``(k, h, stack)`` that ``images`` yields
+    (depth ``k``, window radius ``h``, shape ``(s², (2h + 1) n, (2h + 1) n)``, any order of
+    depths), each made sparse as it arrives."""
+    parts: dict[int, list] = {}
+    for k, h, stack in images:
+        entries = []
         for img in stack:
             peak = float(img.max())
             keep = img > threshold * peak if peak > 0 else np.zeros(img.shape, bool)
             yy, xx = np.nonzero(keep)
-            dys.append((yy - h * n).astype(np.int32))
-            dxs.append((xx - h * n).astype(np.int32))
-            ws.append(img[yy, xx].astype(np.float32))
-            counts.append(len(yy))
+            entries.append(
+                ((yy - h * n).astype(np.int32), (xx - h * n).astype(np.int32), img[yy, xx])
+            )
+        parts[k] = entries
+    flat = [e for k in range(len(depths)) for e in parts[k]]
+    counts = [len(e[0]) for e in flat]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return PSFBank(
         depths_um=depths,
         s=s,
         n=n,
         offsets=offsets,
-        dy=np.concatenate(dys),
-        dx=np.concatenate(dxs),
-        w=np.concatenate(ws),
+        dy=np.concatenate([e[0] for e in flat]),
+        dx=np.concatenate([e[1] for e in flat]),
+        w=np.concatenate([e[2] for e in flat]).astype(np.float32),
         optics=optics.to_dict(),
     )
 
@@ -286,73 +281,119 @@ def _transfer(ny: int, nx: int, dx: float, distance: float, lam: float) -> np.nd
     return h.astype(np.complex64)
 
 
-def _dense_patterns(optics, depths, s, n, radii, sampling, progress) -> list[np.ndarray]:
-    """Dense patterns per depth, ``(s², win_k, win_k)`` float64 (window of ``radii[k]``)."""
-    from lfsim.wave import lenslet_phase, native_field, sample_grid
+@dataclass
+class _Window:
+    """What every depth of one window size shares: the sample grid, the lenslet mask and the
+    transfer function, and where the sources' native fields are read from one shared grid."""
+
+    h: int
+    grid: tuple
+    mla: np.ndarray
+    tf: np.ndarray
+    margin: int = 0  # samples added on each side of the shared grid (0: no shared grid)
+    index: np.ndarray | None = None  # radial-grid index of each shared sample
+    frac: np.ndarray | None = None  # its fraction of a radial step beyond that index
+
+
+def _window(optics, h: int, n: int, sampling, dr: float, shifts_um) -> _Window:
+    """The :class:`_Window` of radius ``h`` lenslets. Where every sub-lenslet shift is a whole
+    number of samples, the native field of a depth is sampled once, on the grid widened by
+    the largest shift, and each source reads its own part of it."""
+    from lfsim.wave import lenslet_phase, sample_grid
+
+    grid = sample_grid(_window_optics(optics, h, n), sampling)
+    x, y, dx, _ = grid
+    mla = lenslet_phase(optics, x[None, :], y[:, None], paraxial=sampling.paraxial_lenslets)
+    tf = _transfer(len(y), len(x), dx, optics.sensor_distance_um, optics.wavelength_um)
+    win = _Window(h, grid, mla.astype(np.complex64), tf)
+    steps = np.asarray(shifts_um) / dx
+    if np.allclose(steps, np.round(steps), rtol=0, atol=1e-6):
+        m = int(np.abs(np.round(steps)).max())
+        xe = x[0] + (np.arange(len(x) + 2 * m) - m) * dx
+        ye = y[0] + (np.arange(len(y) + 2 * m) - m) * dx
+        rr = np.hypot(xe[None, :], ye[:, None]) / dr
+        win.index = np.floor(rr).astype(np.int32)
+        win.frac = (rr - win.index).astype(np.float32)
+        win.margin = m
+    return win
+
+
+def _dense_patterns(optics, depths, s, n, radii, sampling, progress):
+    """Yield ``(k, h, patterns)`` for every depth ``k`` (in order of window radius ``h``):
+    its dense patterns, shape ``(s², (2h + 1) n, (2h + 1) n)``, float64."""
+    from lfsim.wave import native_field, sample_grid
 
     lam = optics.wavelength_um
     na_img = optics.medium_ior * math.sin(optics.emission_half_angle) / optics.magnification
-    grids = {int(h): sample_grid(_window_optics(optics, int(h), n), sampling) for h in set(radii)}
-    # one radial grid for every depth: out to the far corner of the largest window
-    far = max(math.hypot(abs(g[0]).max(), abs(g[1]).max()) for g in grids.values())
-    far += optics.mla_pitch_um  # the farthest sub-lenslet shift
+    # one radial grid for every depth: out to the far corner of the largest window, plus the
+    # farthest sub-lenslet shift
+    x, y, _, _ = sample_grid(_window_optics(optics, int(radii.max()), n), sampling)
+    far = math.hypot(abs(x).max(), abs(y).max()) + optics.mla_pitch_um
     dr = sampling.radial_step * lam / na_img
     r = np.arange(0.0, far + 2 * dr, dr)
     radial = native_field(optics, r, depths, sampling)  # (nz, nr) complex128
-    p_img = optics.mla_pitch_um
-    shifts = ((np.arange(s) + 0.5) / s - 0.5) * p_img  # image-plane source positions
+    shifts = ((np.arange(s) + 0.5) / s - 0.5) * optics.mla_pitch_um  # image plane, µm
     todo = _folded(s)
-    out: list[np.ndarray] = [None] * len(depths)  # type: ignore[list-item]
+    positions = [(shifts[a], shifts[b]) for a, b in todo]
     order = np.argsort(radii, kind="stable")
     it = order
     if progress:
         from tqdm.auto import tqdm
 
         it = tqdm(order, desc="wave PSF bank", unit="depth", leave=False)
-    cached_h, mla, tf = None, None, None
+    win = None
     for k in it:
         h = int(radii[k])
-        x, y, dx, _ = grids[h]
-        if h != cached_h:
-            mla = lenslet_phase(
-                optics, x[None, :], y[:, None], paraxial=sampling.paraxial_lenslets
-            ).astype(np.complex64)
-            tf = _transfer(len(y), len(x), dx, optics.sensor_distance_um, lam)
-            cached_h = h
-        win = (2 * h + 1) * n
-        positions = [(shifts[a], shifts[b]) for a, b in todo]
+        if win is None or win.h != h:
+            win = _window(optics, h, n, sampling, dr, shifts)
         computed = _propagate_sources(
-            radial[k], r, positions, grids[h], int(sampling.oversample), win, mla, tf
+            radial[k], r, positions, win, int(sampling.oversample), (2 * h + 1) * n
         )
-        out[k] = _unfold(dict(zip(todo, computed, strict=True)), s)
-    return out
+        yield int(k), h, _unfold(dict(zip(todo, computed, strict=True)), s)
 
 
-def _propagate_sources(prof, r, positions, grid, os_, win, mla, tf) -> list[np.ndarray]:
-    """Sensor images ``(win, win)`` of sources at image-plane ``positions`` (µm from the
-    axis) sharing the radial field ``prof`` (sampled at ``r``), in batches of complex64
-    fields: field × lenslet mask → FFT × transfer function → inverse FFT → pixel sums."""
+def _native_fields(prof, r, positions, win: _Window) -> np.ndarray:
+    """The native field (complex64) of each source at its ``positions`` (image plane, µm)
+    on the window's grid, from the radial profile ``prof`` sampled at ``r``."""
+    x, y, dx, _ = win.grid
+    fields = np.empty((len(positions), len(y), len(x)), np.complex64)
+    if win.index is not None:
+        p64 = np.asarray(prof, np.complex64)
+        shared = p64[win.index] * (1 - win.frac) + p64[win.index + 1] * win.frac
+        m = win.margin
+        for j, (px, py) in enumerate(positions):
+            ia, ib = round(px / dx), round(py / dx)
+            fields[j] = shared[m - ib : m - ib + len(y), m - ia : m - ia + len(x)]
+        return fields
+    for j, (px, py) in enumerate(positions):
+        rr = np.hypot(x[None, :] - px, y[:, None] - py)
+        fields[j].real = np.interp(rr, r, prof.real)
+        fields[j].imag = np.interp(rr, r, prof.imag)
+    return fields
+
+
+def _propagate_sources(prof, r, positions, win: _Window, os_: int, n_win: int) -> list:
+    """Sensor images ``(n_win, n_win)`` (float64) of sources at image-plane ``positions`` (µm
+    from the axis) sharing the radial field ``prof`` (sampled at ``r``), in batches of
+    complex64 fields: field × lenslet mask → FFT × transfer function → inverse FFT → pixel
+    sums."""
     from scipy import fft as sfft
 
-    x, y, dx, g = grid
-    ny, nx = mla.shape
+    _, _, dx, g = win.grid
+    ny, nx = win.mla.shape
     batch = max(1, int(BATCH_BYTES // (ny * nx * 8 * 2)))
-    lo_px, hi_px = g * os_, (g + win) * os_
+    lo_px, hi_px = g * os_, (g + n_win) * os_
     out = []
     for lo in range(0, len(positions), batch):
         part = positions[lo : lo + batch]
-        fields = np.empty((len(part), ny, nx), np.complex64)
-        for j, (px, py) in enumerate(part):
-            rr = np.hypot(x[None, :] - px, y[:, None] - py)
-            fields[j].real = np.interp(rr, r, prof.real)
-            fields[j].imag = np.interp(rr, r, prof.imag)
-        fields *= mla
+        fields = _native_fields(prof, r, part, win)
+        fields *= win.mla
         fields = sfft.fft2(fields, axes=(-2, -1), workers=-1, overwrite_x=True)
-        fields *= tf
+        fields *= win.tf
         fields = sfft.ifft2(fields, axes=(-2, -1), workers=-1, overwrite_x=True)
         sensor = fields[:, lo_px:hi_px, lo_px:hi_px]
         inten = sensor.real.astype(np.float64) ** 2 + sensor.imag.astype(np.float64) ** 2
-        sums = inten.reshape(len(part), win, os_, win, os_).sum(axis=(2, 4)) * (dx * dx)
+        sums = inten.reshape(len(part), n_win, os_, n_win, os_).sum(axis=(2, 4)) * (dx * dx)
         out.extend(sums)
     return out
 
@@ -362,7 +403,6 @@ __all__ = [
     "PSF_MODELS",
     "WAVE_SPOT_PX",
     "choose_psf_model",
-    "compute_model_bank",
     "compute_wave_psf_bank",
     "default_wave_sampling",
     "lenslet_spot_px",

@@ -34,6 +34,7 @@ from hrvbase import validate
 from .errors import InputError, recon_input_errors
 from .geometry import depth_range
 from .projector import PROJECTORS
+from .psf_wave import PSF_MODELS
 
 #: How the black level enters the reconstruction (:class:`ReconSettings`).
 BACKGROUND_MODELS = ("subtract", "model")
@@ -43,6 +44,10 @@ MAX_DEPTHS = 4096
 RANGE_PATTERN_LENSLETS = 6
 #: :class:`ReconSettings` fields that do not change the volumes (bit-identical results).
 RUN_ONLY_FIELDS = ("threads",)
+#: :class:`ReconSettings` fields that identify the volumes only through the PSF bank they
+#: resolve to (its cache key is part of the output folder's fingerprint): ``psf_model="auto"``
+#: and the model it picks give the same volumes.
+BANK_RESOLVED_FIELDS = ("psf_model",)
 
 
 def _wrap(check, *args):
@@ -69,7 +74,13 @@ class ReconSettings:
     stop_rel_change : float or None
         Stop early when the volume changes by less than this (relative L1, ≥ 0).
     rays_per_pattern : int
-        Rays traced per PSF-bank pattern (≥ 1000).
+        Rays traced per PSF-bank pattern (≥ 1000; the ray bank only).
+    psf_model : {"auto", "ray", "wave"}
+        The PSF bank: ray-traced (:func:`recon.psf.compute_psf_bank`) or wave optics
+        (:func:`recon.psf_wave.compute_wave_psf_bank`). ``"auto"``: wave optics where a
+        lenslet's diffraction spot is wider than :data:`recon.psf_wave.WAVE_SPOT_PX` sensor
+        pixels, rays otherwise (:func:`recon.psf_wave.choose_psf_model`; rays for the paper's
+        optics). ``recon.json`` records the model used.
     roi_px : tuple of int or None
         ``(x0, x1, y0, y1)``: reconstruct only lenslets whose images lie inside these pixels.
     projector : {"auto", "gather", "sparse"}
@@ -98,6 +109,7 @@ class ReconSettings:
     lanczos_a: float = 2.0
     stop_rel_change: float | None = None
     rays_per_pattern: int = 200_000
+    psf_model: str = "auto"
     roi_px: tuple | None = None
     projector: str = "auto"
     background_model: str = "subtract"
@@ -109,6 +121,9 @@ class ReconSettings:
                 f"background_model must be one of {BACKGROUND_MODELS}, "
                 f"got {self.background_model!r}"
             )
+        object.__setattr__(
+            self, "psf_model", _wrap(validate.one_of, self.psf_model, "psf_model", PSF_MODELS)
+        )
         if self.projector not in PROJECTORS:
             raise InputError(f"projector must be one of {PROJECTORS}, got {self.projector!r}")
         for name in ("z_min_um", "z_max_um"):
@@ -205,8 +220,10 @@ class ReconSettings:
 
     def result_dict(self) -> dict:
         """:meth:`to_dict` without the fields that change how fast, not what, is computed
-        (:data:`RUN_ONLY_FIELDS`): what identifies the volumes."""
-        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
+        (:data:`RUN_ONLY_FIELDS`), nor those the PSF bank's key stands for
+        (:data:`BANK_RESOLVED_FIELDS`): with that key, what identifies the volumes."""
+        skip = RUN_ONLY_FIELDS + BANK_RESOLVED_FIELDS
+        return {k: v for k, v in self.to_dict().items() if k not in skip}
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
@@ -245,6 +262,7 @@ def default_s(optics, z_step_um: float) -> int:
 
 __all__ = [
     "BACKGROUND_MODELS",
+    "BANK_RESOLVED_FIELDS",
     "MAX_DEPTHS",
     "RUN_ONLY_FIELDS",
     "ReconSettings",
