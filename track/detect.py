@@ -271,10 +271,10 @@ class Detection:
         The same in voxel indices ``(z, y, x)`` of the volume.
     intensities : ndarray, shape (N,), float64
         Peak intensity of every particle's blob (in the segmented volume).
-    sigma_um : ndarray, shape (N, 3), float64
-        Standard uncertainty of each centre, columns ``x, y, z`` (µm): :attr:`sigma_random_um`
+    sigma_xyz_um : ndarray, shape (N, 3), float64
+        Standard uncertainty of each centre, columns ``x, y, z`` (µm): :attr:`sigma_random_xyz_um`
         with ``DetectSettings.sigma_systematic_um`` added in quadrature.
-    sigma_random_um : ndarray, shape (N, 3), float64
+    sigma_random_xyz_um : ndarray, shape (N, 3), float64
         Its random part (independent between frames): the localiser's voxel-noise σ times
         ``DetectSettings.sigma_noise_factor``, with ``sigma_snr_um / snr`` in quadrature.
     sizes_vox : ndarray, shape (N,), int64
@@ -300,8 +300,8 @@ class Detection:
     report: dict = field(default_factory=dict)
     voxel_size_um: tuple[float, float, float] = (1.0, 1.0, 1.0)
     origin_xyz_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    sigma_um: np.ndarray | None = None
-    sigma_random_um: np.ndarray | None = None
+    sigma_xyz_um: np.ndarray | None = None
+    sigma_random_xyz_um: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -773,6 +773,6 @@ def _detection(
         report=report,
         voxel_size_um=spacing,
         origin_xyz_um=origin,
-        sigma_um=located.sig_zyx_um[:, ::-1].copy(),
-        sigma_random_um=located.rand_zyx_um[:, ::-1].copy(),
+        sigma_xyz_um=located.sig_zyx_um[:, ::-1].copy(),
+        sigma_random_xyz_um=located.rand_zyx_um[:, ::-1].copy(),
     )

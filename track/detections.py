@@ -67,9 +67,9 @@ def _first_psf(vol, info, settings):
     return psf, f"estimated from {info.name}, shape {list(psf.shape)}"
 
 
-def _known_sigmas(sigma_um: np.ndarray) -> np.ndarray | None:
+def _known_sigmas(sigma_xyz_um: np.ndarray) -> np.ndarray | None:
     """A table's uncertainties, or None when it has none (all NaN: an older table)."""
-    return None if sigma_um.size == 0 or np.all(np.isnan(sigma_um)) else sigma_um
+    return None if sigma_xyz_um.size == 0 or np.all(np.isnan(sigma_xyz_um)) else sigma_xyz_um
 
 
 def _detect_frame(job, ctx) -> dict:
@@ -97,12 +97,12 @@ def _detect_frame(job, ctx) -> dict:
     )
     part = numbered(out / "particles", v.frame, ".csv")
     write_points_csv(
-        part, det.positions_um, det.intensities, sigma_xyz_um=det.sigma_um, overwrite=True
+        part, det.positions_um, det.intensities, sigma_xyz_um=det.sigma_xyz_um, overwrite=True
     )
     positions = np.asarray(det.positions_um, dtype=float).reshape(-1, 3)
     sigma = None
-    if det.sigma_um is not None:
-        sigma = np.asarray(det.sigma_um, dtype=float).reshape(-1, 3)
+    if det.sigma_xyz_um is not None:
+        sigma = np.asarray(det.sigma_xyz_um, dtype=float).reshape(-1, 3)
     entry = {
         "particles": str(part.relative_to(out)),
         "n_particles": int(positions.shape[0]),

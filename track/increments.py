@@ -28,7 +28,7 @@ def _fit_job(pts, pair: PairResult, settings: SeriesSettings):
         )
     ref = pts[pair.ref_frame][pair.matches[:, 0]]
     # per-match uncertainty (K, 3) µm when the linker gives it (else estimated by the fit)
-    sigma = getattr(pair, "sigma_displacement_um", None)
+    sigma = getattr(pair, "sigma_displacement_xyz_um", None)
     if sigma is not None and not np.all(np.isfinite(sigma)):
         sigma = None
     return ref, pair.displacement_um, sigma

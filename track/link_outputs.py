@@ -231,7 +231,7 @@ def _write_increments(
             mfile,
             pair.matches,
             pair.displacement_um,
-            sigma_um=pair.sigma_displacement_um,
+            sigma_xyz_um=pair.sigma_displacement_xyz_um,
             dt_s=dt,
             overwrite=True,
         )
@@ -277,6 +277,6 @@ def _write_increments(
                 inc,
                 lam,
                 _pair_failure(entry, settings.compute_fields),
-                pair.sigma_displacement_um,
+                pair.sigma_displacement_xyz_um,
             )
         )

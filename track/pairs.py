@@ -39,7 +39,7 @@ class PairResult:
         Fraction of reference particles matched (NaN when skipped).
     iterations : int
         Linker iterations (0 when skipped).
-    sigma_displacement_um : ndarray, shape (K, 3), or None
+    sigma_displacement_xyz_um : ndarray, shape (K, 3), or None
         Standard uncertainty of each displacement (µm, x, y, z):
         ``sqrt(σ_ref² + σ_def²)`` per axis from the two particles' uncertainties; None when
         the clouds came without uncertainties (NaN where a particle's is unknown).
@@ -52,7 +52,7 @@ class PairResult:
     displacement_um: np.ndarray
     tracking_ratio: float = math.nan
     iterations: int = 0
-    sigma_displacement_um: np.ndarray | None = None
+    sigma_displacement_xyz_um: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -159,7 +159,7 @@ def link_pairs(
         Called with each :class:`PairResult` as it is finished (progress).
     sigmas : sequence of (ndarray, shape (N_i, 3)), optional
         Position uncertainties of each frame (µm); gives every pair's
-        :attr:`PairResult.sigma_displacement_um` (:func:`match_sigma`).
+        :attr:`PairResult.sigma_displacement_xyz_um` (:func:`match_sigma`).
     common_sigma_xyz_um : sequence of 3 float, optional
         The part of every σ shared by a particle's images, see :func:`match_sigma`.
     frame_times : sequence of float, optional

@@ -346,7 +346,7 @@ def track_clouds(
                 "n_particles": int(c.shape[0]),
             }
         )
-        frames.append(FrameDetections(i, name, c, part, sigma_um=sg))
+        frames.append(FrameDetections(i, name, c, part, sigma_xyz_um=sg))
     summary["frames"] = entries
     summary["frame_ids"] = list(range(len(points)))
     summary["frame_times_s"] = None

@@ -58,7 +58,7 @@ class FrameDetections:
     report : dict
         Detection report (counts per stage, threshold, ...; see
         :attr:`track.detect.Detection.report`); empty when reused or for point clouds.
-    sigma_um : ndarray, shape (N, 3), or None
+    sigma_xyz_um : ndarray, shape (N, 3), or None
         Standard uncertainty of each centre (µm, x, y, z); NaN where unknown (tables written
         without uncertainties), None for point clouds given without them.
     time_s : float or None
@@ -71,7 +71,7 @@ class FrameDetections:
     particles: Path
     reused: bool = False
     report: dict = field(default_factory=dict)
-    sigma_um: np.ndarray | None = None
+    sigma_xyz_um: np.ndarray | None = None
     time_s: float | None = None
 
     @property
@@ -96,7 +96,7 @@ class PairOutcome:
         Rows ``[row_ref, row_def]`` into the two frames' particle tables.
     displacement_um : ndarray, shape (K, 3)
         Displacement of each matched particle (µm, x, y, z).
-    sigma_displacement_um : ndarray, shape (K, 3), or None
+    sigma_displacement_xyz_um : ndarray, shape (K, 3), or None
         Its standard uncertainty (µm, x, y, z); None when the particles came without.
     tracking_ratio : float
         Fraction of reference particles matched (NaN when not linked).
@@ -121,7 +121,7 @@ class PairOutcome:
     increment_field: GridField | None = None
     smoothing_xyz: tuple[float, float, float] | None = None
     failure: str = ""
-    sigma_displacement_um: np.ndarray | None = None
+    sigma_displacement_xyz_um: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

@@ -66,8 +66,8 @@ def bias_decorrelation(displacement_um, length_xyz_um, period_um: float = 0.0) -
 
 def match_sigma(
     matches: np.ndarray,
-    sigma_ref_um: np.ndarray,
-    sigma_def_um: np.ndarray,
+    sigma_ref_xyz_um: np.ndarray,
+    sigma_def_xyz_um: np.ndarray,
     common_sigma_xyz_um=None,
     *,
     displacement_um: np.ndarray | None = None,
@@ -81,7 +81,7 @@ def match_sigma(
     ----------
     matches : ndarray of int, shape (K, 2)
         Rows ``[row_ref, row_def]``.
-    sigma_ref_um, sigma_def_um : ndarray, shape (N_ref, 3), (N_def, 3)
+    sigma_ref_xyz_um, sigma_def_xyz_um : ndarray, shape (N_ref, 3), (N_def, 3)
         Position uncertainties of the two frames (µm, x, y, z).
     common_sigma_xyz_um : sequence of 3 float, optional
         Part ``s`` of every position's σ that both images of a particle share (a
@@ -104,7 +104,7 @@ def match_sigma(
         µm; the random parts of the two localisations are independent (separate images).
     """
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
-    var = sigma_ref_um[m[:, 0]] ** 2 + sigma_def_um[m[:, 1]] ** 2
+    var = sigma_ref_xyz_um[m[:, 0]] ** 2 + sigma_def_xyz_um[m[:, 1]] ** 2
     if common_sigma_xyz_um is not None:
         var = np.clip(var - 2 * np.square(np.asarray(common_sigma_xyz_um, float)), 0.0, None)
     if bias_sigma_xyz_um is not None and displacement_um is not None:
@@ -130,9 +130,9 @@ class NoiseFloor:
         means the "static" frames drifted.
     mean_xyz_um : (float, float, float)
     predicted_xyz_um : (float, float, float)
-        RMS of the predicted displacement uncertainties (:attr:`PairResult.sigma_displacement_um`)
-        of the same matches (NaN without uncertainties): close to ``rms_xyz_um`` when the
-        per-particle σ is right.
+        RMS of the predicted displacement uncertainties
+        (:attr:`PairResult.sigma_displacement_xyz_um`) of the same matches (NaN without
+        uncertainties): close to ``rms_xyz_um`` when the per-particle σ is right.
     """
 
     frames: int
@@ -169,7 +169,7 @@ def noise_floor(pairs: Sequence[PairResult], static_frames: int) -> NoiseFloor |
     if not use or sum(len(x) for x in d) == 0:
         return None
     d = np.concatenate(d)
-    s = [p.sigma_displacement_um for p in use]
+    s = [p.sigma_displacement_xyz_um for p in use]
     pred = (math.nan,) * 3
     if all(x is not None for x in s):
         s = np.concatenate(s)

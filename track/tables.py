@@ -146,12 +146,12 @@ def write_matches_csv(
     matches: np.ndarray,
     displacement_um: np.ndarray,
     *,
-    sigma_um: np.ndarray | None = None,
+    sigma_xyz_um: np.ndarray | None = None,
     dt_s: float | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write matches ``row_ref,row_def,ux_um,uy_um,uz_um`` (0-based rows), with
-    ``sigma_dx_um,sigma_dy_um,sigma_dz_um`` when ``sigma_um`` (K, 3) µm is given and the
+    ``sigma_dx_um,sigma_dy_um,sigma_dz_um`` when ``sigma_xyz_um`` (K, 3) µm is given and the
     velocities ``vx_um_per_s,vy_um_per_s,vz_um_per_s`` (displacement / ``dt_s``, µm/s) when
     the time ``dt_s`` (s, > 0) between the two frames is."""
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
@@ -160,8 +160,8 @@ def write_matches_csv(
         raise InputError(f"{path}: {m.shape[0]} matches but {d.shape[0]} displacements")
     cols = [m[:, 0], m[:, 1], d[:, 0], d[:, 1], d[:, 2]]
     header = list(MATCH_COLUMNS)
-    if sigma_um is not None:
-        cols += _sigma_columns(path, sigma_um, m.shape[0], "matches")
+    if sigma_xyz_um is not None:
+        cols += _sigma_columns(path, sigma_xyz_um, m.shape[0], "matches")
         header += MATCH_SIGMA_COLUMNS
     if dt_s is not None:
         if not (np.isfinite(dt_s) and dt_s > 0):

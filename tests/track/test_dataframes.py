@@ -75,7 +75,7 @@ def test_matches_round_trip_with_both_frames(tmp_path):
     m = np.array([[0, 2], [1, 0], [3, 1]])
     d = rng.normal(size=(3, 3))
     s = rng.uniform(0.1, 1, (3, 3))
-    p = tables.write_matches_csv(tmp_path / "matches_000004.csv", m, d, sigma_um=s, dt_s=0.04)
+    p = tables.write_matches_csv(tmp_path / "matches_000004.csv", m, d, sigma_xyz_um=s, dt_s=0.04)
     tables.write_matches_csv(tmp_path / "matches_000002.csv", m[:1], d[:1])
     df = track.read_matches(p)  # no summary.json: the reference frame is unknown
     cols = ["def_frame", "row_ref", "row_def", "ux_um", "uy_um", "uz_um"]

@@ -194,11 +194,11 @@ def test_detect_particles_end_to_end(scene, method):
     if method == "radial":
         assert np.all(rms[1:] < 0.05)
     # the reported σ (x, y, z µm) is of the size of the actual error (white noise here)
-    sig_zyx_vox = det.sigma_um[:, ::-1] / np.array([5.0, 1.64, 1.64])
+    sig_zyx_vox = det.sigma_xyz_um[:, ::-1] / np.array([5.0, 1.64, 1.64])
     ratio = rms / np.sqrt(np.mean(sig_zyx_vox**2, axis=0))
     print(f"{method}: RMS error / RMS σ (z, y, x) = {ratio.round(2)}")
     assert np.all((ratio > 0.5) & (ratio < 2.0))
-    np.testing.assert_array_equal(det.sigma_random_um, det.sigma_um)  # no systematic part
+    np.testing.assert_array_equal(det.sigma_random_xyz_um, det.sigma_xyz_um)  # no systematic part
     # (z, y, x) voxels -> (x, y, z) µm with anisotropic voxels and the origin
     p = det.positions_vox
     expected_um = np.column_stack(
@@ -395,9 +395,11 @@ def test_sigma_noise_factor_per_axis(scene):
             sigma_systematic_um=(1.0, 0.0, 0.0),
         ),
     )
-    np.testing.assert_allclose(per_axis.sigma_random_um, base.sigma_random_um * [2.0, 3.0, 4.0])
     np.testing.assert_allclose(
-        per_axis.sigma_um[:, 2], np.hypot(4.0 * base.sigma_random_um[:, 2], 1.0)
+        per_axis.sigma_random_xyz_um, base.sigma_random_xyz_um * [2.0, 3.0, 4.0]
+    )
+    np.testing.assert_allclose(
+        per_axis.sigma_xyz_um[:, 2], np.hypot(4.0 * base.sigma_random_xyz_um[:, 2], 1.0)
     )
     assert DetectSettings(sigma_noise_factor=[4, 3, 2]).sigma_noise_factor == (4.0, 3.0, 2.0)
     assert DetectSettings(sigma_noise_factor=5).sigma_noise_factor == 5
@@ -411,8 +413,8 @@ def test_sigma_snr_term_falls_as_one_over_the_frame_snr(scene):
     st = DetectSettings(deconvolution_iterations=0, sigma_snr_um=(20.0, 4.0, 2.0))
     for snr in (5.0, 50.0):
         det = detect_particles(vol, VOXEL, st, snr=snr)
-        want = np.hypot(base.sigma_random_um, np.array([2.0, 4.0, 20.0]) / snr)
-        np.testing.assert_allclose(det.sigma_random_um, want)
+        want = np.hypot(base.sigma_random_xyz_um, np.array([2.0, 4.0, 20.0]) / snr)
+        np.testing.assert_allclose(det.sigma_random_xyz_um, want)
         np.testing.assert_allclose(det.positions_um, base.positions_um)  # σ only
         assert det.report["snr"] == snr
     with pytest.raises(InputError, match="sigma_snr_um is set but the volume has no camera SNR"):
@@ -421,7 +423,7 @@ def test_sigma_snr_term_falls_as_one_over_the_frame_snr(scene):
         detect_particles(vol, VOXEL, st, snr=0.0)
     # off (the default), a known SNR changes nothing
     off = detect_particles(vol, VOXEL, DetectSettings(deconvolution_iterations=0), snr=5.0)
-    np.testing.assert_array_equal(off.sigma_um, base.sigma_um)
+    np.testing.assert_array_equal(off.sigma_xyz_um, base.sigma_xyz_um)
 
 
 def test_resolved_neighbours_are_split_not_rejected(rng):

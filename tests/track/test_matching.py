@@ -286,9 +286,9 @@ def test_anisotropic_localisation_noise():
     rng = np.random.default_rng(0)
     ia = np.flatnonzero(rng.random(n) >= DROP)
     ib = rng.permutation(np.flatnonzero(rng.random(n) >= DROP))
-    sigma_um = np.array([0.1, 0.1, 1.0])
-    a = x[ia] + rng.normal(0.0, sigma_um, (ia.size, 3))
-    b = motion(x)[ib] + rng.normal(0.0, sigma_um, (ib.size, 3))
+    sigma_xyz_um = np.array([0.1, 0.1, 1.0])
+    a = x[ia] + rng.normal(0.0, sigma_xyz_um, (ia.size, 3))
+    b = motion(x)[ib] + rng.normal(0.0, sigma_xyz_um, (ib.size, 3))
     common = np.intersect1d(ia, ib).size
 
     def linked(res):

@@ -161,8 +161,8 @@ def test_the_snr_term_needs_every_frame_snr_and_follows_it(tmp_path):
     )
     for f, g, snr in zip(res.frames, off.frames, snrs, strict=True):
         assert f.report["snr"] == snr
-        want = np.hypot(g.sigma_um, np.array([2.0, 2.0, 10.0]) / snr)
-        np.testing.assert_allclose(f.sigma_um, want)
+        want = np.hypot(g.sigma_xyz_um, np.array([2.0, 2.0, 10.0]) / snr)
+        np.testing.assert_allclose(f.sigma_xyz_um, want)
     assert res.summary["parameters"]["frame_snr"] == snrs
     frames[0]["preprocess"]["snr"] = 8.0
     (vols / "recon.json").write_text(json.dumps({"frames": frames}))

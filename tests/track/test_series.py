@@ -300,7 +300,7 @@ def test_match_sigma_holds_the_moving_bias_of_the_settings():
             bias_sigma_xyz_um=bias,
             bias_length_xyz_um=(2.5, 2.5, 5.0),
         )
-        assert np.allclose(pair.sigma_displacement_um, want)
+        assert np.allclose(pair.sigma_displacement_xyz_um, want)
     assert np.median(want[:, 2]) > np.hypot(2.0, 2.0) + 0.05  # moved particles: bias adds
 
 

@@ -171,7 +171,7 @@ def test_track_clouds_writes_match_sigmas_and_the_noise_floor(tmp_path, rng):
         read_match_sigmas(tmp_path / "out" / "matches_000001.csv"),
         np.broadcast_to(true_sig * np.sqrt(2), (len(m), 3)),
     )
-    np.testing.assert_allclose(res.pairs[0].sigma_displacement_um[0], true_sig * np.sqrt(2))
+    np.testing.assert_allclose(res.pairs[0].sigma_displacement_xyz_um[0], true_sig * np.sqrt(2))
     floor = res.summary["noise_floor"]
     assert floor["frames"] == 3 and floor["n_displacements"] == 2 * len(x0)
     np.testing.assert_allclose(floor["rms_xyz_um"], true_sig * np.sqrt(2), rtol=0.15)
@@ -183,7 +183,7 @@ def test_track_clouds_writes_match_sigmas_and_the_noise_floor(tmp_path, rng):
     plain = [write_points_csv(tmp_path / f"p{k}.csv", read_points_csv(p)) for k, p in
              enumerate(paths)]  # fmt: skip
     res = track_clouds(plain, tmp_path / "out2", series=SeriesSettings(compute_fields=False))
-    assert res.pairs[0].sigma_displacement_um is None
+    assert res.pairs[0].sigma_displacement_xyz_um is None
     assert "sigma_dx_um" not in (tmp_path / "out2" / "matches_000001.csv").read_text()
     assert np.all(np.isnan(read_tracks_csv(tmp_path / "out2" / "tracks.csv")["sigma_x_um"]))
     assert noise_floor(res.pairs, 1) is None
