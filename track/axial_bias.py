@@ -85,7 +85,7 @@ class AxialCalibration:
 def reference_bias(
     reference_volume: np.ndarray,
     voxel_size_um: Sequence[float],
-    origin,
+    origin_xyz_um: Sequence[float],
     positions_xyz_um: np.ndarray,
     half_box_vox: Sequence[int],
 ) -> np.ndarray:
@@ -97,8 +97,8 @@ def reference_bias(
         Reconstruction of spheres rendered at ``positions_xyz_um`` (:mod:`recon.reference`).
     voxel_size_um : sequence of 3 float
         ``(dz, dy, dx)`` (µm).
-    origin : sequence of 3 float
-        Position of voxel ``(0, 0, 0)`` (µm; x, y, z).
+    origin_xyz_um : sequence of 3 float
+        Position of the centre of voxel ``(0, 0, 0)`` (µm; x, y, z).
     positions_xyz_um : ndarray, shape (N, 3)
         The detected positions (µm; x, y, z).
     half_box_vox : sequence of 3 int
@@ -114,7 +114,7 @@ def reference_bias(
         return np.zeros((0, 3))
     if pos.ndim != 2 or pos.shape[1] != 3 or not np.all(np.isfinite(pos)):
         raise InputError(f"positions must be a finite (N, 3) array (x, y, z µm), got {pos.shape}")
-    org = np.asarray(origin, dtype=np.float64).reshape(3)
+    org = np.asarray(origin_xyz_um, dtype=np.float64).reshape(3)
     vs = np.asarray(voxel_size_um, dtype=np.float64).reshape(3)
     seeds = ((pos - org) / vs[::-1])[:, ::-1]  # (z, y, x) voxels
     shape = np.asarray(np.shape(reference_volume))
