@@ -155,7 +155,7 @@ def _seed_words(seed: int) -> tuple[int, int]:
         z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
         return z ^ (z >> 31)
 
-    a = mix(seed)
+    a = mix(int(seed))  # a Python int: numpy integers would overflow in the mixing
     return a, mix(a)
 
 

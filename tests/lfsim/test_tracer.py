@@ -215,3 +215,13 @@ def test_particle_size_widens_the_in_focus_image(small):
     big = trace_paraxial(small.optics, Sources.spheres([[0, 0, 300.0]], 40.0), s)
     _, _, vb, _ = moments(big)
     assert vb > vp
+
+
+def test_a_numpy_integer_seed_draws_the_same_rays_as_the_python_int(small):
+    """Seeds computed with numpy (``np.int64``) are the same seeds, not an overflow."""
+    s = Sources.spheres([[0.0, 0.0, 30.0]], 5.0)
+    a = trace_paraxial(small.optics, s, RenderSettings(rays_per_particle=2000, seed=12345))
+    b = trace_paraxial(
+        small.optics, s, RenderSettings(rays_per_particle=2000, seed=np.int64(12345))
+    )
+    assert np.array_equal(a, b)
