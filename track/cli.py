@@ -84,7 +84,7 @@ from hrvbase.cli import (
 
 from . import __version__
 from .errors import FailedFramesError
-from .grid import GridSettings
+from .grid import BOX_GRID_NODES, PARTICLE_GRID_MAX_NODES, GridSettings
 from .series_settings import MAX_GRID_NODES, MODES, SeriesSettings, check_grid
 from .tables import read_points_csv
 from .volumes import VolumeInfo, scan_volumes
@@ -237,22 +237,24 @@ GRID_OPTIONS = (
         "spacing_um",
         ("--grid-spacing-um",),
         "node spacing of the gridded fields in µm (refused when it gives more than "
-        "10 × --target-nodes nodes)",
+        f"10 × --target-nodes nodes, {PARTICLE_GRID_MAX_NODES} without it)",
         _positive_float,
         "UM",
     ),
     SettingOption(
         "target_nodes",
         ("--target-nodes",),
-        f"nodes of the automatic grid (at most {MAX_GRID_NODES})",
+        f"sample the particles' bounding box with about N nodes (the paper: {BOX_GRID_NODES}) "
+        f"instead of following the particle density (at most {MAX_GRID_NODES})",
         _int_in(8, MAX_GRID_NODES),
         "N",
     ),
     SettingOption(
         "nodes_per_spacing",
         ("--nodes-per-spacing",),
-        "grid that follows the particles: node spacing = their median nearest-neighbour "
-        "distance / this (e.g. 2; at most 10 × --target-nodes nodes)",
+        "the default grid follows the particles: node spacing = their median nearest-neighbour "
+        f"distance / this (at most {PARTICLE_GRID_MAX_NODES} nodes; ignored with "
+        "--target-nodes or --grid-spacing-um)",
         _positive_float,
         "K",
     ),

@@ -2,8 +2,11 @@
 (:class:`GridSettings`, :func:`grid_axes`, :func:`grid_spacing_um`) and what a gridded field
 holds (:class:`GridAxes`, :class:`GridField`).
 
-Default grid: the particles' bounding box sampled with one isotropic spacing chosen so that
-the grid has about ``target_nodes`` = 50 000 nodes (the paper's value).
+Default grid: the particles' bounding box sampled with one isotropic spacing that follows the
+particle density, the particles' median nearest-neighbour distance over
+``nodes_per_spacing`` = 2 (:func:`grid_spacing_um`). Giving ``target_nodes`` (e.g. the paper's
+50 000) instead samples the box with about that many nodes, whatever the particles; giving
+``spacing_um`` fixes the spacing.
 """
 
 from __future__ import annotations
@@ -18,6 +21,14 @@ from .thin_plate import GCV_MIN_POINTS, _points
 
 _METHODS = ("rbf", "linear")
 
+#: Nodes of the bounding-box grid (:func:`grid_axes` without a spacing) when
+#: ``GridSettings.target_nodes`` is not given (the paper's value); the limits of the other
+#: grids are multiples of it.
+BOX_GRID_NODES = 50_000
+#: Most nodes of the particle-density grid: its spacing is made no finer than the one giving
+#: this many over the particles' bounding box.
+PARTICLE_GRID_MAX_NODES = 10 * BOX_GRID_NODES
+
 
 @dataclass(frozen=True)
 class GridSettings:
@@ -26,10 +37,14 @@ class GridSettings:
     Attributes
     ----------
     spacing_um : float, optional
-        Node spacing (µm, all three axes). Default: the spacing giving about
-        ``target_nodes`` nodes over the particles' bounding box.
-    target_nodes : int
-        Approximate node count of the default grid (50 000).
+        Node spacing (µm, all three axes). Default: the particle-density spacing
+        (``nodes_per_spacing``), or the ``target_nodes`` grid when that is given.
+    target_nodes : int, optional
+        Sample the particles' bounding box with about this many nodes (the paper: 50 000)
+        instead of following the particle density. Ignored when ``spacing_um`` is given.
+        Also scales the limit of an explicit ``spacing_um``
+        (:func:`track.series.check_grid`: at most 10 × this, default
+        :data:`BOX_GRID_NODES`).
     method : {"rbf", "linear"}
         Interpolant (see the module docstring).
     smoothing : float or "gcv"
@@ -49,27 +64,29 @@ class GridSettings:
         particle still count as supported. Default: the median nearest-neighbour distance
         between particles. With ``method="linear"`` only nodes inside the hull are
         supported (outside it the nearest particle's value is used, with zero gradient).
-    nodes_per_spacing : float, optional
-        Make the grid follow the particle density: node spacing = the particles' median
-        nearest-neighbour distance / ``nodes_per_spacing`` (at most
-        ``10 × target_nodes`` nodes), instead of the ``target_nodes`` grid. 2 resolves
-        everything the particles sample (a field's features are at least a particle spacing
-        wide) with far fewer nodes than 50 000 for a few hundred particles. Ignored when
-        ``spacing_um`` is given.
+    nodes_per_spacing : float
+        The default grid follows the particle density: node spacing = the particles' median
+        nearest-neighbour distance / ``nodes_per_spacing`` (default 2; at most
+        :data:`PARTICLE_GRID_MAX_NODES` nodes). 2 resolves everything the particles sample
+        (a field's features are at least a particle spacing wide): the strains at the nodes
+        are those of a finer grid (the spline does not depend on the nodes; its accuracy on
+        both grids: benchmarks/README.md, ``bench_fields.py``), with far fewer nodes than
+        50 000 for a few hundred particles and more for tens of thousands. Ignored when
+        ``spacing_um`` or ``target_nodes`` is given.
     uncertainty : bool
         Give the fields standard uncertainties (:attr:`GridField.u_std`, ``F_std``,
         ``e_std``; global thin-plate spline only, see :meth:`DisplacementInterpolant.std`).
     """
 
     spacing_um: float | None = None
-    target_nodes: int = 50_000
+    target_nodes: int | None = None
     method: str = "rbf"
     smoothing: float | str = "gcv"
     rbf_max_points: int = 2000
     rbf_neighbours: int = 64
     gcv_max_points: int = 1000
     support_radius_um: float | None = None
-    nodes_per_spacing: float | None = None
+    nodes_per_spacing: float = 2.0
     uncertainty: bool = True
 
     def __post_init__(self) -> None:
@@ -77,7 +94,7 @@ class GridSettings:
             math.isfinite(self.spacing_um) and self.spacing_um > 0
         ):
             raise InputError(f"spacing_um must be positive and finite, got {self.spacing_um!r}")
-        if int(self.target_nodes) < 8:
+        if self.target_nodes is not None and int(self.target_nodes) < 8:
             raise InputError(f"target_nodes must be at least 8, got {self.target_nodes!r}")
         if self.method not in _METHODS:
             raise InputError(f"method must be one of {_METHODS}, got {self.method!r}")
@@ -105,7 +122,7 @@ class GridSettings:
             raise InputError(
                 f"support_radius_um must be finite and >= 0, got {self.support_radius_um!r}"
             )
-        if self.nodes_per_spacing is not None and not (
+        if not (
             isinstance(self.nodes_per_spacing, (int, float))
             and not isinstance(self.nodes_per_spacing, bool)
             and math.isfinite(self.nodes_per_spacing)
@@ -233,7 +250,7 @@ def grid_axes(
     points_um: np.ndarray,
     spacing_um: float | None = None,
     *,
-    target_nodes: int = GridSettings.target_nodes,
+    target_nodes: int | None = None,
 ) -> GridAxes:
     """Regular grid over the bounding box of ``points_um``.
 
@@ -243,8 +260,8 @@ def grid_axes(
         Positions (µm), x, y, z.
     spacing_um : float, optional
         Node spacing; default ``(volume / target_nodes)^(1/3)`` of the bounding box.
-    target_nodes : int
-        Approximate node count of the default grid.
+    target_nodes : int, optional
+        Approximate node count when ``spacing_um`` is None (default :data:`BOX_GRID_NODES`).
 
     Returns
     -------
@@ -268,7 +285,8 @@ def grid_axes(
             f"the particles have no extent along {axis}; a 3-D grid cannot be fitted to them"
         )
     if spacing_um is None:
-        spacing_um = float(np.prod(ext) / float(target_nodes)) ** (1.0 / 3.0)
+        nodes = BOX_GRID_NODES if target_nodes is None else int(target_nodes)
+        spacing_um = float(np.prod(ext) / float(nodes)) ** (1.0 / 3.0)
     h = float(spacing_um)
     if not (math.isfinite(h) and h > 0):
         raise InputError(f"spacing_um must be positive and finite, got {spacing_um!r}")
@@ -282,16 +300,17 @@ def grid_axes(
 
 
 def grid_spacing_um(points_um: np.ndarray, settings: GridSettings) -> float | None:
-    """Node spacing (µm) the settings ask for over ``points_um`` (N, 3), None: the default.
+    """Node spacing (µm) the settings ask for over ``points_um`` (N, 3); None: the
+    ``target_nodes`` grid of :func:`grid_axes`.
 
-    ``settings.spacing_um`` when given; else, with ``settings.nodes_per_spacing``, the
-    particles' median nearest-neighbour distance divided by it, but no finer than the
-    spacing giving ``10 × target_nodes`` nodes over their bounding box; else None (the
-    ``target_nodes`` grid of :func:`grid_axes`).
+    ``settings.spacing_um`` when given; else None when ``settings.target_nodes`` is given;
+    else (the default) the particles' median nearest-neighbour distance divided by
+    ``settings.nodes_per_spacing``, but no finer than the spacing giving
+    :data:`PARTICLE_GRID_MAX_NODES` nodes over their bounding box.
     """
     if settings.spacing_um is not None:
         return float(settings.spacing_um)
-    if settings.nodes_per_spacing is None:
+    if settings.target_nodes is not None:
         return None
     from scipy.spatial import cKDTree
 
@@ -302,8 +321,16 @@ def grid_spacing_um(points_um: np.ndarray, settings: GridSettings) -> float | No
     h = float(np.median(d[:, 1])) / float(settings.nodes_per_spacing)
     ext = np.ptp(p, axis=0)
     if np.all(ext > 0):
-        h = max(h, float(np.prod(ext) / (10.0 * settings.target_nodes)) ** (1.0 / 3.0))
+        h = max(h, float(np.prod(ext) / float(PARTICLE_GRID_MAX_NODES)) ** (1.0 / 3.0))
     return h if h > 0 else None
 
 
-__all__ = ["GridAxes", "GridField", "GridSettings", "grid_axes", "grid_spacing_um"]
+__all__ = [
+    "BOX_GRID_NODES",
+    "PARTICLE_GRID_MAX_NODES",
+    "GridAxes",
+    "GridField",
+    "GridSettings",
+    "grid_axes",
+    "grid_spacing_um",
+]

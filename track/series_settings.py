@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .grid import GridSettings
+from .grid import BOX_GRID_NODES, GridSettings
 
 MODES = ("incremental", "cumulative")
 
@@ -24,7 +24,8 @@ OK = "ok"
 MAX_GRID_NODES = 2_000_000
 
 
-#: An explicit grid spacing may give at most this many times ``GridSettings.target_nodes``.
+#: An explicit grid spacing may give at most this many times ``GridSettings.target_nodes``
+#: (:data:`track.grid.BOX_GRID_NODES` when not given).
 SPACING_NODES_FACTOR = 10
 
 
@@ -147,7 +148,7 @@ class SeriesSettings:
             raise InputError(f"max_gap_frames must be an integer >= 0, got {g!r}")
         if not isinstance(self.grid, GridSettings):
             raise InputError(f"grid must be a GridSettings, got {type(self.grid).__name__}")
-        if int(self.grid.target_nodes) > MAX_GRID_NODES:
+        if self.grid.target_nodes is not None and int(self.grid.target_nodes) > MAX_GRID_NODES:
             raise InputError(
                 f"target_nodes must be at most {MAX_GRID_NODES}, got {self.grid.target_nodes!r}"
             )
@@ -197,8 +198,8 @@ def check_grid(
         Size along x, y, z (µm) of the box the grid covers (frame 0's particles, or a volume
         that holds them: an upper bound).
     grid : GridSettings
-        Only an explicit ``spacing_um`` is checked (the default spacing gives about
-        ``target_nodes`` nodes).
+        Only an explicit ``spacing_um`` is checked (the other grids keep within their own
+        limits, :func:`track.grid.grid_spacing_um`).
     where : str
         What the box is, for the message.
     spacing_name, target_name : str
@@ -207,7 +208,8 @@ def check_grid(
     Raises
     ------
     InputError
-        More than ``min(SPACING_NODES_FACTOR × target_nodes, MAX_GRID_NODES)`` nodes, or a
+        More than ``min(SPACING_NODES_FACTOR × target_nodes, MAX_GRID_NODES)`` nodes
+        (``target_nodes`` default :data:`track.grid.BOX_GRID_NODES`), or a
         spacing at least as large as the box's largest extent (the grid would be one cell).
     """
     h = grid.spacing_um
@@ -215,7 +217,8 @@ def check_grid(
     if h is None or not np.all(np.isfinite(ext)) or np.any(ext <= 0):
         return
     size = " × ".join(f"{v:.4g}" for v in ext)
-    limit = min(SPACING_NODES_FACTOR * int(grid.target_nodes), MAX_GRID_NODES)
+    target = BOX_GRID_NODES if grid.target_nodes is None else int(grid.target_nodes)
+    limit = min(SPACING_NODES_FACTOR * target, MAX_GRID_NODES)
     count = grid_node_count(ext, h)
     if count > limit:
         raise InputError(

@@ -153,7 +153,7 @@ def test_track_options_become_track_settings(tmp_path):
     )
     assert t.track.detect.threshold == "auto" and t.track.detect.deconvolution_iterations == 0
     default = load_study(_write(tmp_path, "")).track
-    assert default.series.grid == GridSettings()  # GCV smoothing, 50 000 nodes
+    assert default.series.grid == GridSettings()  # GCV smoothing, the particle-density grid
     assert default.series.mode == SeriesSettings().mode
     # track's own limits reach the study file, named
     with pytest.raises(StudyConfigError, match="target_nodes must be at most 2000000"):
