@@ -22,21 +22,28 @@ interface:
 the voxel size and origin in its metadata (:func:`hrvbase.formats.tiff_layout.write_tiff`);
 the record is the file's size and SHA-256 (:func:`hrvbase.io.file_record`).
 
-**Zarr** (``--format zarr``): ``OUT`` is one OME-Zarr image, written as OME-NGFF **0.5**
-(Zarr format 3), the version ``ome-zarr`` writes by default (:data:`NGFF_VERSION`): a group
-whose ``zarr.json`` holds the ``ome`` metadata (``multiscales`` with one dataset, no pyramid)
-and an array ``OUT/0`` of float32 ``(t, z, y, x)``, chunked ``(1, chunk_z, ny, nx)`` — one
-frame, or one slab of ``chunk_z`` planes of it, per chunk — whose missing chunks read as NaN.
-The dataset's coordinate transformations give the voxel size (``scale``, in micrometer) and
-the object-space position of the centre of voxel ``(0, 0, 0)`` (``translation``); the t axis
-is in seconds when the frames have evenly spaced times (``recon run --fps``), otherwise
-unitless (frame index). The group's attribute ``recon`` holds ``frames``: for every ``t``, the
-frame's original ``number`` and ``time_s`` (both may be null), as ``recon.json`` records them
-(the t axis cannot hold unevenly spaced times, e.g. camera frames 0, 1, 5). ``recon.json``
-lies inside the store. Zarr writes each chunk to a
-temporary file and renames it (atomic per chunk); the record of a frame is the SHA-256 of
-its float32 values in C order (:func:`hrvbase.io.array_sha256`), which :meth:`verify`
-recomputes from the chunks.
+**Zarr** (``--format zarr``): ``OUT`` is one OME-Zarr image, written as OME-NGFF **0.4**
+on Zarr format 2 (:data:`NGFF_VERSION`), the version that napari-ome-zarr, Fiji's N5 /
+OME-Zarr importer (n5-zarr), MoBIE and BigDataViewer open (their Zarr readers do not open
+Zarr format 3): a group whose ``.zattrs`` holds ``multiscales`` (one dataset, no pyramid) and
+an array ``OUT/0`` (``OUT/0/.zarray``) of float32 ``(t, z, y, x)``, chunked ``(1, chunk_z, ny,
+nx)`` — one frame, or one slab of ``chunk_z`` planes of it, per chunk — Blosc-compressed (LZ4,
+byte shuffle), with the dimension separator ``/`` so that frame ``k``'s chunks are the files
+under ``OUT/0/k/``; missing chunks read as NaN. The dataset's coordinate transformations give
+the voxel size (``scale``, in micrometer) and then the object-space position of the centre
+of voxel ``(0, 0, 0)`` (``translation``); the t axis is in seconds when the frames have
+evenly spaced times (``recon run --fps``), otherwise unitless (frame index). The group's
+attribute ``recon`` holds ``frames``: for every ``t``, the frame's original ``number`` and
+``time_s`` (both may be null), as ``recon.json`` records them (the t axis cannot hold
+unevenly spaced times, e.g. camera frames 0, 1, 5). ``recon.json`` lies inside the store.
+Zarr writes each chunk to a temporary file and renames it (atomic per chunk); the record of a
+frame is the SHA-256 of its float32 values in C order (:func:`hrvbase.io.array_sha256`), which
+:meth:`verify` recomputes from the chunks.
+
+A store holding Zarr format 3 metadata (``OUT/zarr.json``: OME-NGFF 0.5, chunks under
+``OUT/0/c/k/``) is continued in that format by a resumed run, so that one store never mixes
+the two; a run that replaces its array (``--overwrite`` with another chunking) or all of it
+(``--overwrite`` with other settings) writes OME-NGFF 0.4 anew.
 """
 
 from __future__ import annotations
@@ -62,8 +69,16 @@ log = logging.getLogger(__name__)
 #: Output formats of ``recon run --format``; the first is the default.
 FORMATS = ("tiff", "zarr")
 
-#: OME-NGFF version of the Zarr output: the default of ``ome-zarr`` (0.18: 0.5, Zarr v3).
-NGFF_VERSION = "0.5"
+#: OME-NGFF version of the Zarr output (on Zarr format 2): the version napari-ome-zarr and
+#: Fiji's readers (n5-zarr, MoBIE, BigDataViewer) open.
+NGFF_VERSION = "0.4"
+
+#: OME-NGFF version of a store in Zarr format 3 (``zarr.json``), which a resumed run continues.
+NGFF_VERSION_V3 = "0.5"
+
+#: Compressor of the Zarr format 2 chunks (numcodecs' Blosc codec configuration): Blosc with
+#: LZ4 and byte shuffle, which the Zarr readers of Python and of Fiji (n5-zarr) decode.
+ZARR_COMPRESSOR = {"id": "blosc", "cname": "lz4", "clevel": 5, "shuffle": 1, "blocksize": 0}
 
 #: Path of the full-resolution array inside the Zarr group.
 ZARR_DATASET = "0"
@@ -191,10 +206,19 @@ class ZarrSeriesWriter:
     chunk_z: int | None = None
     format: str = "zarr"
 
-    # The chunk key encoding is Zarr v3's "default" with "/": frame k's chunks are the files
-    # under out/0/c/k/.
+    def zarr_format(self) -> int:
+        """The Zarr format of the store: 3 where it holds Zarr format 3 metadata
+        (``zarr.json``), which is continued; otherwise 2 (what a new store is written in)."""
+        return 3 if (self.out / "zarr.json").is_file() else 2
+
+    def _chunk_root(self) -> Path:
+        """The folder of the frames' chunk folders: ``out/0`` (format 2, dimension separator
+        "/"), or ``out/0/c`` (format 3, chunk key encoding "default" with "/")."""
+        base = self.out / ZARR_DATASET
+        return base / "c" if self.zarr_format() == 3 else base
+
     def _frame_dir(self, k: int) -> Path:
-        return self.out / ZARR_DATASET / "c" / str(k)
+        return self._chunk_root() / str(k)
 
     def label(self, k: int) -> str:
         return f"{self.out.name}[t={k}]"
@@ -202,7 +226,9 @@ class ZarrSeriesWriter:
     def _array(self, mode: str = "r+"):
         import zarr
 
-        return zarr.open_array(store=str(self.out), path=ZARR_DATASET, mode=mode, zarr_format=3)
+        return zarr.open_array(
+            store=str(self.out), path=ZARR_DATASET, mode=mode, zarr_format=self.zarr_format()
+        )
 
     def chunks(self, shape: Sequence[int]) -> tuple[int, int, int, int]:
         nz, ny, nx = (int(v) for v in shape)
@@ -232,48 +258,86 @@ class ZarrSeriesWriter:
                 f"cannot create the OME-Zarr image {str(self.out)!r}: {_os_text(exc)}"
             ) from exc
 
+    def _existing_array(self, shape, chunks, overwrite):
+        """The store's array if it fits ``shape`` and ``chunks`` (resized to the frame count),
+        or None where there is none or ``overwrite`` cleared the store of another one."""
+        import zarr
+
+        fmt = self.zarr_format()
+        if not (self.out / ZARR_DATASET).exists():
+            return None
+        group = zarr.open_group(store=str(self.out), mode="r+", zarr_format=fmt)
+        arr = group.get(ZARR_DATASET)
+        same = (
+            isinstance(arr, zarr.Array)
+            and arr.ndim == 4
+            and tuple(arr.shape[1:]) == shape[1:]
+            and arr.dtype == np.float32
+            and tuple(arr.chunks) == chunks
+        )
+        if not same:
+            if not overwrite:
+                had = list(getattr(arr, "chunks", []))
+                raise OutputExistsError(
+                    f"output {str(self.out)!r} holds a Zarr array {ZARR_DATASET!r} of "
+                    f"another shape, type or chunking (chunks {had}, this run "
+                    f"{list(chunks)}); use a new output or --overwrite (nothing was written)"
+                )
+            log.info("%s: replacing the array of another chunking", self.out)
+            self.clear()  # the whole image is written anew, in format 2
+            return None
+        if arr.shape[0] != shape[0]:
+            arr.resize(shape)
+        return arr
+
     def _prepare(self, n_frames, geometry, times_s, overwrite, numbers) -> None:
         import zarr
-        from ome_zarr.format import FormatV05
-        from ome_zarr.writer import write_multiscales_metadata
+        from ome_zarr.format import FormatV04, FormatV05
 
         shape = (int(n_frames), *(int(v) for v in geometry.shape))
         chunks = self.chunks(geometry.shape)
         self.out.mkdir(parents=True, exist_ok=True)
-        group = zarr.open_group(store=str(self.out), mode="a", zarr_format=3)
-        arr = None
-        if ZARR_DATASET in group:
-            arr = group[ZARR_DATASET]
-            same = (
-                isinstance(arr, zarr.Array)
-                and arr.ndim == 4
-                and tuple(arr.shape[1:]) == shape[1:]
-                and arr.dtype == np.float32
-                and tuple(arr.chunks) == chunks
-            )
-            if not same:
-                if not overwrite:
-                    had = list(getattr(arr, "chunks", []))
-                    raise OutputExistsError(
-                        f"output {str(self.out)!r} holds a Zarr array {ZARR_DATASET!r} of "
-                        f"another shape, type or chunking (chunks {had}, this run "
-                        f"{list(chunks)}); use a new output or --overwrite (nothing was written)"
-                    )
-                log.info("%s: replacing the array of another chunking", self.out)
-                shutil.rmtree(self.out / ZARR_DATASET)
-                arr = None
-            elif arr.shape[0] != shape[0]:
-                arr.resize(shape)
+        arr = self._existing_array(shape, chunks, overwrite)
+        fmt = self.zarr_format()
+        group = zarr.open_group(store=str(self.out), mode="a", zarr_format=fmt)
         if arr is None:
+            if fmt == 3:
+                layout = {
+                    "chunk_key_encoding": {"name": "default", "separator": "/"},
+                    "dimension_names": ("t", "z", "y", "x"),
+                }
+            else:
+                layout = {
+                    "chunk_key_encoding": {"name": "v2", "separator": "/"},
+                    "compressors": dict(ZARR_COMPRESSOR),
+                }
             group.create_array(
                 ZARR_DATASET,
                 shape=shape,
                 chunks=chunks,
                 dtype="float32",
                 fill_value=float("nan"),
-                chunk_key_encoding={"name": "default", "separator": "/"},
-                dimension_names=("t", "z", "y", "x"),
+                **layout,
             )
+        self._write_metadata(group, FormatV05() if fmt == 3 else FormatV04(), geometry, times_s)
+        times = [None] * n_frames if times_s is None else list(times_s)
+        nums = [None] * n_frames if numbers is None else list(numbers)
+        group.attrs["recon"] = {
+            "frames": [
+                {
+                    "t": k,
+                    "number": None if n is None else int(n),
+                    "time_s": None if t is None or not math.isfinite(t) else float(t),
+                }
+                for k, (n, t) in enumerate(zip(nums, times, strict=True))
+            ]
+        }
+
+    def _write_metadata(self, group, fmt, geometry: VolumeGeometry, times_s) -> None:
+        """The ``multiscales`` metadata of OME-NGFF format ``fmt`` (ome-zarr's): axes t, z,
+        y, x with their units, and the dataset's scale and translation."""
+        from ome_zarr.writer import write_multiscales_metadata
+
         dt, t0, t_unit = _time_axis(times_s)
         axes = [
             {"name": "t", "type": "time", **({"unit": t_unit} if t_unit else {})},
@@ -291,22 +355,10 @@ class ZarrSeriesWriter:
                     ],
                 }
             ],
-            fmt=FormatV05(),
+            fmt=fmt,
             axes=axes,
             name=self.out.stem,
         )
-        times = [None] * n_frames if times_s is None else list(times_s)
-        nums = [None] * n_frames if numbers is None else list(numbers)
-        group.attrs["recon"] = {
-            "frames": [
-                {
-                    "t": k,
-                    "number": None if n is None else int(n),
-                    "time_s": None if t is None or not math.isfinite(t) else float(t),
-                }
-                for k, (n, t) in enumerate(zip(nums, times, strict=True))
-            ]
-        }
 
     def write(self, k: int, volume: np.ndarray, meta: Mapping) -> dict:
         """Write frame ``k`` (its chunks only); its record ``{"t", "sha256", "dtype"}``.
@@ -356,7 +408,7 @@ class ZarrSeriesWriter:
         return self._frame_dir(k).is_dir()
 
     def indices(self) -> list[int]:
-        base = self.out / ZARR_DATASET / "c"
+        base = self._chunk_root()
         if not base.is_dir():
             return []
         return sorted(int(p.name) for p in base.iterdir() if p.name.isdigit() and p.is_dir())
@@ -366,10 +418,12 @@ class ZarrSeriesWriter:
             shutil.rmtree(self._frame_dir(k))
 
     def clear(self) -> None:
-        """Remove the array and the group metadata (only this tool's files)."""
+        """Remove the array and the group metadata of either Zarr format (only this tool's
+        files)."""
         with contextlib.suppress(FileNotFoundError):
             shutil.rmtree(self.out / ZARR_DATASET)
-        (self.out / "zarr.json").unlink(missing_ok=True)
+        for name in ("zarr.json", ".zgroup", ".zattrs"):
+            (self.out / name).unlink(missing_ok=True)
 
     def discard(self) -> None:
         """Before the first volume: remove what :meth:`prepare` made."""
@@ -378,7 +432,7 @@ class ZarrSeriesWriter:
     def record_extra(self) -> dict:
         return {
             "zarr": {
-                "ngff_version": NGFF_VERSION,
+                "ngff_version": NGFF_VERSION_V3 if self.zarr_format() == 3 else NGFF_VERSION,
                 "dataset": ZARR_DATASET,
                 "axes": ["t", "z", "y", "x"],
                 "chunk_z": self.chunk_z,
@@ -389,6 +443,7 @@ class ZarrSeriesWriter:
 __all__ = [
     "FORMATS",
     "NGFF_VERSION",
+    "NGFF_VERSION_V3",
     "OutputExistsError",
     "TiffSeriesWriter",
     "VolumeGeometry",
