@@ -260,9 +260,12 @@ RUN_SETTINGS = (
 )
 
 
-def path_option(parser, flag: str, metavar: str, text: str) -> None:
-    """An optional file option (no default value)."""
-    parser.add_argument(flag, type=Path, metavar=metavar, help=text)
+def path_option(
+    parser, flags: str | tuple[str, ...], metavar: str, text: str, *, required: bool = False
+) -> None:
+    """A file or folder option (``flags``: its spellings) without a default value."""
+    flags = (flags,) if isinstance(flags, str) else flags
+    parser.add_argument(*flags, type=Path, required=required, metavar=metavar, help=text)
 
 
 def choice_option(parser, flag: str, choices: tuple[str, ...], text: str) -> None:
@@ -295,22 +298,15 @@ def build_parser() -> argparse.ArgumentParser:
         "uniformly fluorescent slide) and write it with the scene's optics to a JSON file.",
     )
     cal.add_argument("white", type=Path, metavar="WHITE.tif", help="white image, one 2-D TIFF")
-    cal.add_argument(
+    path_option(
+        cal,
         "--scene",
-        type=Path,
-        required=True,
-        metavar="SCENE.xml",
-        help="scene file of the microscope (required; its optics give the sensor size and the "
+        "SCENE.xml",
+        "scene file of the microscope (required; its optics give the sensor size and the "
         "nominal lenslet pitch)",
-    )
-    cal.add_argument(
-        "-o",
-        "--output",
-        type=Path,
         required=True,
-        metavar="CALIB.json",
-        help="output file (required)",
     )
+    path_option(cal, ("-o", "--output"), "CALIB.json", "output file (required)", required=True)
     cal.add_argument(
         "--overwrite", action="store_true", help="replace an existing output (default: refuse)"
     )
@@ -362,9 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FRACTION",
         help="search the magnification within nominal × (1 ± FRACTION) (default 0.2)",
     )
-    pix.add_argument(
-        "-o", "--output", type=Path, required=True, metavar="PIXEL.json", help="output file"
-    )
+    path_option(pix, ("-o", "--output"), "PIXEL.json", "output file", required=True)
     path_option(
         pix,
         "--write-scene",
@@ -412,18 +406,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="frame rate in frames per second: recon.json records each frame's time as its "
         "number / fps in s (default: the time recorded in the TIFF metadata, else none)",
     )
-    run.add_argument(
+    path_option(
+        run,
         "--scene",
-        type=Path,
-        metavar="SCENE.xml",
-        help="scene file of the microscope (its optics; default: the scene named by an lfsim "
+        "SCENE.xml",
+        "scene file of the microscope (its optics; default: the scene named by an lfsim "
         "dataset's dataset.json, otherwise required)",
     )
-    run.add_argument(
+    path_option(
+        run,
         "--calib",
-        type=Path,
-        metavar="CALIB.json",
-        help="lenslet calibration from `recon calibrate` (default: calibrate an lfsim "
+        "CALIB.json",
+        "lenslet calibration from `recon calibrate` (default: calibrate an lfsim "
         "dataset's white.tif, otherwise required)",
     )
     run.add_argument(
@@ -487,14 +481,13 @@ def build_parser() -> argparse.ArgumentParser:
         ("auto", "llvm", "cuda"),
         "Dr.Jit backend (auto: CUDA when available, else LLVM on the CPU)",
     )
-    run.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        metavar="VOLDIR",
-        help="output folder for NNNNNN.tif volumes and recon.json, or with --format zarr the "
+    path_option(
+        run,
+        ("-o", "--output"),
+        "VOLDIR",
+        "output folder for NNNNNN.tif volumes and recon.json, or with --format zarr the "
         "OME-Zarr image (e.g. out.zarr, recon.json inside) (required)",
+        required=True,
     )
     run.add_argument(
         "--format",
