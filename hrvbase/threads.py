@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
 from collections.abc import Iterator
 
 from .errors import InputError
@@ -54,6 +55,10 @@ def compute_threads() -> int:
     return available_cores() if n is None else n
 
 
+#: Depth of :func:`one_blas_thread` blocks on each thread.
+_blas_limited = threading.local()
+
+
 @contextlib.contextmanager
 def one_blas_thread() -> Iterator[None]:
     """Run the block with every loaded BLAS (numpy's and SciPy's OpenBLAS, MKL …) on one thread.
@@ -62,11 +67,27 @@ def one_blas_thread() -> Iterator[None]:
     so a result that must not depend on the process it was computed in (a Dask worker, whose
     nanny sets ``OPENBLAS_NUM_THREADS=1``, or this one) is computed on one BLAS thread. Uses
     `threadpoolctl <https://github.com/joblib/threadpoolctl>`_; the limits are set back after.
+    SciPy's linear algebra is imported first, so that its BLAS is loaded and limited too. A
+    block nested in another on the same thread changes nothing (the outer one has limited
+    them; finding the loaded libraries again takes milliseconds).
     """
+    depth = getattr(_blas_limited, "depth", 0)
+    if depth:
+        _blas_limited.depth = depth + 1
+        try:
+            yield
+        finally:
+            _blas_limited.depth = depth
+        return
+    import scipy.linalg  # noqa: F401  (loads SciPy's BLAS before the limits are set)
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        yield
+        _blas_limited.depth = 1
+        try:
+            yield
+        finally:
+            _blas_limited.depth = 0
 
 
 #: glibc ``mallopt`` parameters (malloc.h).

@@ -35,3 +35,25 @@ def test_bad_values_are_one_line_errors_in_every_package(monkeypatch, bad):
         resolve_threads()
     with pytest.raises(TrackInputError, match=msg):
         track_threads()
+
+
+def test_one_blas_thread_limits_numpy_and_scipy_blas_and_nests():
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_info
+
+    from hrvbase.threads import one_blas_thread
+
+    def blas_threads():
+        info = threadpool_info()
+        return {i["filepath"]: i["num_threads"] for i in info if i["user_api"] == "blas"}
+
+    before = blas_threads()
+    with one_blas_thread():
+        inside = blas_threads()
+        assert inside.keys() == before.keys() and set(inside.values()) == {1}
+        with one_blas_thread():  # nested: nothing changes, before or after
+            assert blas_threads() == inside
+        assert blas_threads() == inside
+        with one_blas_thread():  # the depth came back: a second nested block too
+            assert blas_threads() == inside
+    assert blas_threads() == before  # set back
