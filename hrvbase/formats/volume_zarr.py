@@ -1,11 +1,14 @@
 """Volume reader: one OME-Zarr image (``recon run --format zarr``, or any OME-NGFF image).
 
-The image's axes are ``(t, z, y, x)`` or ``(z, y, x)``, with an optional channel axis of
-length 1; its frames are the volumes. The voxel size and origin are the ``scale`` and
-``translation`` of its first (full-resolution) dataset, in the units of its space axes
-(converted to µm). A store written by ``recon run`` holds ``recon.json``, which gives the
-frames' numbers, times and SNRs and the lenslet period (:mod:`hrvbase.formats.volumes`); an
-OME-Zarr t axis in a unit of time gives the times of other images.
+OME-NGFF 0.4 on Zarr format 2 (``.zgroup``, ``.zattrs``: what ``recon run`` writes) and
+OME-NGFF 0.5 on Zarr format 3 (``zarr.json``) are read alike, through the ``ome-zarr`` reader
+(as napari-ome-zarr reads them) and zarr-python. The image's axes are ``(t, z, y, x)`` or
+``(z, y, x)``, with an optional channel axis of length 1; its frames are the volumes. The
+voxel size and origin are the ``scale`` and ``translation`` of its first (full-resolution)
+dataset, in the units of its space axes (converted to µm). A store written by ``recon run``
+holds ``recon.json``, which gives the frames' numbers, times and SNRs and the lenslet period
+(:mod:`hrvbase.formats.volumes`); an OME-Zarr t axis in a unit of time gives the times of
+other images.
 """
 
 from __future__ import annotations
