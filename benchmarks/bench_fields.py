@@ -8,9 +8,14 @@ drop-outs), every step the same known heterogeneous field (default ``stiff_inclu
 ``track link`` runs) in incremental mode: link the pairs, grid the fields, write the field
 files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, and prints:
 
-* ``link_s``, ``fields_s``, ``write_s``: wall / CPU seconds (all threads of this process;
-  with ``--workers N`` the workers' CPU is not counted) of each stage, and
-  ``(f+w)/link`` = (fields + write) / link, whose goal is ≤ 2;
+* ``link_s``, ``tracks_s``, ``fields_s``, ``write_s``: wall / CPU seconds (all threads of
+  this process; with ``--workers N`` the workers' CPU is not counted) of each stage: linking
+  the pairs (:func:`track.series.link_pairs`), building the tracks from them
+  (:func:`track.tracks.link_tracks`, gap bridging included, which ``track_series`` runs before
+  the fields), the fields (the rest of ``track_series``) and what is left of the writing
+  after the last field; ``(f+w)/link`` = (fields + write) / (link + tracks), whose goal is
+  ≤ 2, and ``(f+w+t)/pairs`` = (fields + write + tracks) / link, the tracks counted with the
+  fields as ``track link``'s ``summary.json`` times them;
   ``load``: the 1-min load average before the case (on a shared machine the wall times grow
   with the other load, the CPU seconds much less);
 * ``E_rmse``: RMSE of the six Green–Lagrange strain components of the total fields against
@@ -22,11 +27,12 @@ files (total ``.npz`` + ``.vti``, increment ``.npz``) into a temporary folder, a
 ``--baseline REV`` also runs ``track`` of git revision ``REV`` (extracted with ``git archive``
 to a temporary folder, today's ``synthetic.py`` and ``link_score.py`` copied in, run in a
 subprocess) on the same series, side by side. ``--grid`` chooses the grids of the new code
-(``default``: the ``GridSettings`` defaults, 50 000 nodes; ``particles``:
-``nodes_per_spacing`` (option ``--nodes-per-spacing``, default 2), the node spacing follows the
-particle spacing; ``particles-nostd``: the same without uncertainties); the baseline uses
-``--baseline-grid``. ``--workers 1 2`` also grids the increments on a local Dask cluster of 2
-workers (its start included in ``fields_s``).
+(``default``: the ``GridSettings`` defaults; ``box``: ``target_nodes = 50 000``, the paper's
+grid over the particles' bounding box; ``particles``: ``nodes_per_spacing`` (option
+``--nodes-per-spacing``, default 2), the node spacing follows the particle spacing;
+``particles-nostd``: the same without uncertainties); the baseline uses ``--baseline-grid``
+(``default`` is then that revision's default). ``--workers 1 2`` also grids the increments
+on a local Dask cluster of 2 workers (its start included in ``fields_s``).
 
 Usage (from the repository root; ``PYTHONPATH=.`` makes this checkout's ``track`` the one
 imported, ``OPENBLAS_NUM_THREADS=1`` keeps BLAS threads from fighting on a shared machine)::
@@ -34,6 +40,7 @@ imported, ``OPENBLAS_NUM_THREADS=1`` keeps BLAS threads from fighting on a share
     python benchmarks/bench_fields.py                               # new code only
     python benchmarks/bench_fields.py --baseline bf4f1fb --baseline-frames 6
     python benchmarks/bench_fields.py --frames 11 --grid particles particles-nostd
+    python benchmarks/bench_fields.py --grid default box      # the default grid and the paper's
 """
 
 from __future__ import annotations
@@ -53,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+GRIDS = ["default", "box", "particles", "particles-nostd"]
 
 
 def _timed(fn):
@@ -79,6 +87,8 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=
     if grid == "particles":
         g = dataclasses.replace(GridSettings(), nodes_per_spacing=nodes_per_spacing)
         settings = SeriesSettings(grid=g)
+    elif grid == "box":
+        settings = SeriesSettings(grid=dataclasses.replace(GridSettings(), target_nodes=50_000))
     elif grid == "particles-nostd":
         g = dataclasses.replace(
             GridSettings(), nodes_per_spacing=nodes_per_spacing, uncertainty=False
@@ -110,6 +120,22 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=
             put(write_field_npz, tmp / f"increment_{k + 1:06d}.npz", inc)
         queued.append(k)
 
+    # the tracks (track_series builds them before the fields) timed on their own
+    import track.series as series_module
+
+    link_tracks = getattr(series_module, "link_tracks", None)
+    tracks_t = [0.0, 0.0]
+
+    def timed_link_tracks(*a, **kw):
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            return link_tracks(*a, **kw)
+        finally:
+            tracks_t[0] += time.perf_counter() - t0
+            tracks_t[1] += time.process_time() - c0
+
+    if link_tracks is not None:
+        series_module.link_tracks = timed_link_tracks
     with ctx as writes:
         # as track link does: each increment's files are queued as soon as its fields exist
         # (a baseline whose on_field gets only k writes them all after the fields)
@@ -131,6 +157,10 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=
         t0, c0 = time.perf_counter(), time.process_time()
         write()
     write_s, write_cpu = time.perf_counter() - t0, time.process_time() - c0  # all written
+    if link_tracks is not None:
+        series_module.link_tracks = link_tracks
+    tracks_s, tracks_cpu = tracks_t
+    fields_s, fields_cpu = fields_s - tracks_s, fields_cpu - tracks_cpu
     tmp_dir.cleanup()
     sq_e, sq_u, last_e, inside, hits1, hits2, n_std = 0.0, 0.0, 0.0, 0, 0, 0, 0
     iu = np.triu_indices(3)
@@ -161,13 +191,17 @@ def run_case(frames, n, field, step, seed, grid, nodes_per_spacing=2.0, workers=
         "workers": workers,
         "grid_shape": list(res.axes.shape),
         "link_s": link_s,
+        "tracks_s": tracks_s,
         "fields_s": fields_s,
         "write_s": write_s,
         "link_cpu": link_cpu,
+        "tracks_cpu": tracks_cpu,
         "fields_cpu": fields_cpu,
         "write_cpu": write_cpu,
-        "ratio": (fields_s + write_s) / link_s,
-        "ratio_cpu": (fields_cpu + write_cpu) / link_cpu,
+        "ratio": (fields_s + write_s) / (link_s + tracks_s),
+        "ratio_cpu": (fields_cpu + write_cpu) / (link_cpu + tracks_cpu),
+        "ratio_pairs": (fields_s + write_s + tracks_s) / link_s,
+        "ratio_pairs_cpu": (fields_cpu + write_cpu + tracks_cpu) / link_cpu,
         "load": load,
         "E_rmse_all": float(np.sqrt(sq_e / max(6 * inside, 1))),
         "E_rmse_last": last_e,
@@ -205,9 +239,11 @@ def _fmt(r, label):
         f"{r['particles_per_frame']:.0f}",
         "×".join(map(str, r["grid_shape"])),
         f"{r['link_s']:.2f}/{r['link_cpu']:.2f}",
+        f"{r.get('tracks_s', 0.0):.2f}/{r.get('tracks_cpu', 0.0):.2f}",
         f"{r['fields_s']:.2f}/{r['fields_cpu']:.2f}",
         f"{r['write_s']:.2f}/{r['write_cpu']:.2f}",
         f"{r['ratio']:.2f}/{r['ratio_cpu']:.2f}",
+        f"{r.get('ratio_pairs', r['ratio']):.2f}/{r.get('ratio_pairs_cpu', r['ratio_cpu']):.2f}",
         f"{r['load']:.1f}",
         f"{r['E_rmse_all']:.2e}",
         f"{r['E_rmse_last']:.2e}",
@@ -226,8 +262,8 @@ def main(argv=None) -> None:
     ap.add_argument(
         "--grid",
         nargs="+",
-        default=["default", "particles"],
-        choices=["default", "particles", "particles-nostd"],
+        default=["default", "box"],
+        choices=GRIDS,
     )
     ap.add_argument("--nodes-per-spacing", type=float, default=2.0, help="of the 'particles' grids")
     ap.add_argument(
@@ -244,7 +280,7 @@ def main(argv=None) -> None:
     ap.add_argument(
         "--baseline-grid",
         default="default",
-        choices=["default", "particles", "particles-nostd"],
+        choices=GRIDS,
         help="grid of the baseline run (default: default)",
     )
     ap.add_argument("--json", metavar="PATH", help="write all rows to this JSON file")
@@ -266,17 +302,25 @@ def main(argv=None) -> None:
         for w in args.workers:
             label = f"new ({grid} grid)" + (f" {w} workers" if w > 1 else "")
             rows.append((label, run_case(*_case(args), grid, args.nodes_per_spacing, w)))
-    head = ["code", "frames", "N/frame", "grid", "link_s", "fields_s", "write_s"]
-    head += ["(f+w)/link", "load", "E_rmse_all", "E_rmse_last", "u_rmse", "cover1/2"]
+    head = ["code", "frames", "N/frame", "grid", "link_s", "tracks_s", "fields_s", "write_s"]
+    head += ["(f+w)/link", "(f+w+t)/pairs", "load", "E_rmse_all", "E_rmse_last", "u_rmse"]
+    head += ["cover1/2"]
     table = [_fmt(r, label) for label, r in rows]
     widths = [max(len(x[i]) for x in [head, *table]) for i in range(len(head))]
     for x in [head, *table]:
         print("  ".join(v.ljust(w) for v, w in zip(x, widths, strict=True)))
-    print("times: wall/CPU seconds; (f+w)/link: (fields + write) / link, wall/CPU")
+    print(
+        "times: wall/CPU seconds; (f+w)/link: (fields + write) / (link + tracks); "
+        "(f+w+t)/pairs: (fields + write + tracks) / link; wall/CPU"
+    )
     for label, r in rows:
         per = (r["fields_cpu"] + r["write_cpu"]) / max(r["frames"] - 1, 1)
         link = r["link_cpu"] / max(r["frames"] - 1, 1)
-        print(f"{label}: {per:.3f} CPU s of fields + writing per increment, {link:.3f} of linking")
+        tracks = r.get("tracks_cpu", 0.0) / max(r["frames"] - 1, 1)
+        print(
+            f"{label}: {per:.3f} CPU s of fields + writing per increment, {link:.3f} of "
+            f"linking the pairs, {tracks:.3f} of building the tracks"
+        )
     print(
         f"field {args.field}, step {args.step} spacings/frame, seed {args.seed}; "
         f"machine: {os.cpu_count()} cores, load average now {os.getloadavg()[0]:.1f}"
