@@ -3,8 +3,8 @@
 For each microscope (``--scopes``; the optics of ``benchmarks/wave_reference.py``: the paper's
 4×/0.2 dry, 20×/0.5 dry, 40×/0.8 W and 60×/1.2 W, 100 µm lenslets matched to the objective,
 15 px per lenslet) the depth planes are those ``recon run`` derives from the optics
-(:meth:`recon.settings.ReconSettings.resolved`; the paper's −80…720 µm in 5 µm steps, 161
-planes, for 4×) and ``s = --s`` (5) voxels per lenslet. Cases, each in its own subprocess
+(:meth:`recon.settings.ReconSettings.resolved`), for 4× the paper's −80…720 µm in 5 µm steps
+(161 planes), and ``s = --s`` (5) voxels per lenslet. Cases, each in its own subprocess
 (its peak resident memory, ``getrusage``, is its own):
 
 ``ours``
@@ -31,11 +31,17 @@ Usage::
     nice python benchmarks/bench_wave_bank.py                      # 4x: ours (161 planes) + pyolaf
     nice python benchmarks/bench_wave_bank.py --scopes 4x 40xW 60xW --pyolaf-px 15 45
     nice python benchmarks/bench_wave_bank.py --no-pyolaf --json out.json
+    nice python benchmarks/bench_wave_bank.py --convergence --scopes 4x 60xW --pyolaf-planes 3
+
+``--convergence``: the relative change ``‖I₂ − I₁‖ / ‖I₂‖`` of the dense patterns (all
+channels of ``--pyolaf-planes`` planes, no threshold) when the default sampling is doubled,
+and doubled again.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -65,6 +71,8 @@ def scope_planes(name: str, s: int) -> tuple:
 
     optics = make_optics(name, 11)
     st = ReconSettings(s=s).resolved(optics)
+    if name == "4x":  # the paper's experiments: -80 … 720 µm (161 planes)
+        st = ReconSettings(s=s, z_min_um=-80.0, z_max_um=720.0, z_step_um=5.0)
     return optics, [float(z) for z in st.depths_um]
 
 
@@ -158,6 +166,41 @@ def case_pyolaf(p: dict) -> dict:
     }
 
 
+def convergence(name: str, s: int, k: int) -> str:
+    """Relative change ``‖I₂ − I₁‖ / ‖I₂‖`` of the bank's dense patterns (no threshold) on
+    ``k`` planes when the default sampling is doubled (and doubled again)."""
+    from dataclasses import replace
+
+    from recon.psf_wave import compute_wave_psf_bank, default_wave_sampling
+
+    optics, depths = scope_planes(name, s)
+    sub = subset(depths, k)
+    base = default_wave_sampling(optics)
+    banks = []
+    for f in (1, 2, 4):
+        ws = replace(base, oversample=base.oversample * f)
+        banks.append(
+            compute_wave_psf_bank(optics, sub, s, sampling=ws, threshold=0.0, cache_dir="")
+        )
+    out = []
+    for a, b in itertools.pairwise(banks):
+        num = den = 0.0
+        for c in range(a.n_channels):
+            # the same pixels in both (every pixel of the window: no threshold)
+            ka = {(y, x): w for y, x, w in zip(*a.pattern(c), strict=True)}
+            kb = {(y, x): w for y, x, w in zip(*b.pattern(c), strict=True)}
+            for key in ka.keys() | kb.keys():
+                wa, wb = float(ka.get(key, 0.0)), float(kb.get(key, 0.0))
+                num += (wa - wb) ** 2
+                den += wb * wb
+        out.append(f"{math.sqrt(num / den):.2g}")
+    os_ = base.oversample
+    return (
+        f"{name}: planes {sub}; change of the patterns from oversample {os_} to {2 * os_}: "
+        f"{out[0]}, from {2 * os_} to {4 * os_}: {out[1]}"
+    )
+
+
 CASES = {"ours": case_ours, "pyolaf": case_pyolaf}
 
 
@@ -239,6 +282,12 @@ def main(argv=None) -> int:
     ap.add_argument("--no-pyolaf", action="store_true")
     ap.add_argument("--no-ours", action="store_true", help="skip ours on every plane")
     ap.add_argument("--json", type=Path)
+    ap.add_argument(
+        "--convergence",
+        action="store_true",
+        help="instead: the patterns' change on --pyolaf-planes planes when the default "
+        "sampling is doubled, and doubled again",
+    )
     args = ap.parse_args(argv)
     if args.case:
         p = json.loads(args.case)
@@ -246,6 +295,10 @@ def main(argv=None) -> int:
         return 0
     if args.s % 2 == 0 or any(q % PN or q % 2 == 0 for q in args.pyolaf_px):
         ap.error("--s must be odd and --pyolaf-px odd multiples of 15 (pyolaf makes them odd)")
+    if args.convergence:
+        for name in args.scopes:
+            print(convergence(name, args.s, args.pyolaf_planes), flush=True)
+        return 0
     rows = []
     for name in args.scopes:
         rows += run_scope(name, args)
