@@ -13,7 +13,9 @@ Calibration and rectification
     reconstruction works on rectified images).
 Reconstruction
     :func:`compute_psf_bank`, :class:`PSFBank` — the light-field PSF of every depth and
-    sub-lenslet position, traced with :mod:`lfsim` and cached; :func:`make_projector`,
+    sub-lenslet position, traced with :mod:`lfsim` and cached; :func:`compute_wave_psf_bank`
+    — the same bank from wave optics (:mod:`recon.psf_wave`; ``ReconSettings.psf_model``
+    chooses); :func:`make_projector`,
     :class:`LightFieldProjector` (Dr.Jit gathers, the GPU path), :class:`SparseProjector`
     (scipy.sparse, the CPU path) — the forward model ``H`` and its transpose;
     :func:`richardson_lucy`, :class:`RLResult` — the deconvolution, in the projector's array
@@ -47,6 +49,7 @@ from .geometry import ReconGrid
 from .pipeline import SeriesResult, reconstruct_series
 from .projector import LightFieldProjector, SparseProjector, make_projector
 from .psf import PSFBank, compute_psf_bank
+from .psf_wave import compute_wave_psf_bank
 from .rectify import RectifiedGeometry, rectify
 from .settings import ReconSettings
 
@@ -69,6 +72,7 @@ __all__ = [
     "__version__",
     "calibrate_white",
     "compute_psf_bank",
+    "compute_wave_psf_bank",
     "errors",
     "make_projector",
     "reconstruct_series",
