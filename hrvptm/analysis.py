@@ -115,6 +115,7 @@ class VariantData:
 
     @classmethod
     def load(cls, study, paths: VariantPaths) -> VariantData:
+        from hrvbase.formats.volumes import record_entry
         from hrvbase.io import read_json
         from lfsim.particles import Particles
         from track.tables import read_point_sigmas, read_points_csv
@@ -136,8 +137,9 @@ class VariantData:
             noise.append({"snr": nrec.get("snr", spec.snr), "fps": getattr(spec, "fps", None)})
         meta = read_json(paths.volumes / "recon.json")
         g = meta["grid"]
-        lo = np.array([g["origin_um"][0], g["origin_um"][1], min(g["depths_um"])], float)
-        size = g["lenslet_object_um"] * np.asarray(g["n_lenslets"], float)
+        corner = record_entry(g, "origin_xy_um")
+        lo = np.array([corner[0], corner[1], min(g["depths_um"])], float)
+        size = g["lenslet_object_um"] * np.asarray(record_entry(g, "n_lenslets_xy"), float)
         hi = np.array([lo[0] + size[0], lo[1] + size[1], max(g["depths_um"])], float)
         pre = {f.get("index"): f.get("preprocess") or {} for f in meta.get("frames", [])}
         measured = [pre.get(k, {}).get("snr") for k in range(n)]

@@ -463,7 +463,7 @@ class Optics:
         return 0.21 * self.wavelength_um / self.lenslet_na
 
     @property
-    def n_lenslets(self) -> tuple[int, int]:
+    def n_lenslets_xy(self) -> tuple[int, int]:
         """Number of whole or partial lenslets across the sensor ``(nx, ny)``."""
         w, h = self.sensor_px
         p = self.px_per_lenslet

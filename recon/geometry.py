@@ -35,17 +35,17 @@ class ReconGrid:
         Depth of every plane (µm, z away from the objective), increasing.
     s : int
         Voxels per lenslet along x and y (super-resolution factor).
-    n_lenslets : tuple of int
+    n_lenslets_xy : tuple of int
         ``(nx, ny)`` lenslets of the rectified image.
-    origin_um : tuple of float
+    origin_xy_um : tuple of float
         Object-space ``(x, y)`` of the corner of lenslet ``(0, 0)`` (µm).
     """
 
     lenslet_object_um: float
     depths_um: tuple
     s: int
-    n_lenslets: tuple
-    origin_um: tuple = (0.0, 0.0)
+    n_lenslets_xy: tuple
+    origin_xy_um: tuple = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not (self.lenslet_object_um > 0 and math.isfinite(self.lenslet_object_um)):
@@ -61,11 +61,13 @@ class ReconGrid:
                 f"super-resolution factor s must be a positive integer, got {self.s!r}"
             )
         object.__setattr__(self, "s", int(self.s))
-        nl = tuple(int(v) for v in self.n_lenslets)
+        nl = tuple(int(v) for v in self.n_lenslets_xy)
         if len(nl) != 2 or min(nl) < 1:
-            raise InputError(f"n_lenslets must be two positive integers, got {self.n_lenslets!r}")
-        object.__setattr__(self, "n_lenslets", nl)
-        object.__setattr__(self, "origin_um", tuple(float(v) for v in self.origin_um))
+            raise InputError(
+                f"n_lenslets_xy must be two positive integers, got {self.n_lenslets_xy!r}"
+            )
+        object.__setattr__(self, "n_lenslets_xy", nl)
+        object.__setattr__(self, "origin_xy_um", tuple(float(v) for v in self.origin_xy_um))
 
     @property
     def voxel_um(self) -> float:
@@ -81,7 +83,7 @@ class ReconGrid:
     @property
     def shape(self) -> tuple[int, int, int]:
         """Volume shape ``(nz, ny, nx)``."""
-        nx, ny = self.n_lenslets
+        nx, ny = self.n_lenslets_xy
         return (len(self.depths_um), ny * self.s, nx * self.s)
 
     @property
@@ -91,19 +93,19 @@ class ReconGrid:
 
     def x_um(self) -> np.ndarray:
         """Object-space x of every voxel column, shape ``(nx·s,)``."""
-        return self.origin_um[0] + (np.arange(self.shape[2]) + 0.5) * self.voxel_um
+        return self.origin_xy_um[0] + (np.arange(self.shape[2]) + 0.5) * self.voxel_um
 
     def y_um(self) -> np.ndarray:
         """Object-space y of every voxel row, shape ``(ny·s,)``."""
-        return self.origin_um[1] + (np.arange(self.shape[1]) + 0.5) * self.voxel_um
+        return self.origin_xy_um[1] + (np.arange(self.shape[1]) + 0.5) * self.voxel_um
 
     def to_um(self, zyx_index: np.ndarray) -> np.ndarray:
         """Fractional voxel indices ``(N, 3)`` (z, y, x) → positions ``(N, 3)`` (x, y, z) in µm."""
         idx = np.asarray(zyx_index, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(self.depths_um)
         z = np.interp(idx[:, 0], np.arange(len(d)), d) if len(d) > 1 else np.full(len(idx), d[0])
-        x = self.origin_um[0] + (idx[:, 2] + 0.5) * self.voxel_um
-        y = self.origin_um[1] + (idx[:, 1] + 0.5) * self.voxel_um
+        x = self.origin_xy_um[0] + (idx[:, 2] + 0.5) * self.voxel_um
+        y = self.origin_xy_um[1] + (idx[:, 1] + 0.5) * self.voxel_um
         return np.c_[x, y, z]
 
     def to_dict(self) -> dict:
@@ -111,8 +113,8 @@ class ReconGrid:
             "lenslet_object_um": self.lenslet_object_um,
             "depths_um": list(self.depths_um),
             "s": self.s,
-            "n_lenslets": list(self.n_lenslets),
-            "origin_um": list(self.origin_um),
+            "n_lenslets_xy": list(self.n_lenslets_xy),
+            "origin_xy_um": list(self.origin_xy_um),
         }
 
 

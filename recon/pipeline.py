@@ -60,7 +60,7 @@ log = logging.getLogger(__name__)
 MAX_PATTERN_RADIUS_LENSLETS = 120
 
 
-def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> None:
+def check_depths_resolvable(optics, depths_um, n_lenslets_xy: tuple[int, int]) -> None:
     """Refuse depths whose light leaves the sensor (the optics cannot resolve them).
 
     A point at depth z lights a disc of lenslets of radius ``r(z)``; once that disc is wider
@@ -68,7 +68,7 @@ def check_depths_resolvable(optics, depths_um, n_lenslets: tuple[int, int]) -> N
     reconstructed. The message gives the deepest resolvable ``|z|``, searched in steps of the
     optics' default depth step (:func:`recon.settings.default_z_step_um`).
     """
-    nx, ny = n_lenslets
+    nx, ny = n_lenslets_xy
     limit = min(nx / 2, ny / 2, MAX_PATTERN_RADIUS_LENSLETS)
     for z in (float(np.min(depths_um)), float(np.max(depths_um))):
         r = pattern_radius_lenslets(optics, z) - 2
@@ -261,7 +261,7 @@ def reconstruct_series(
     depths = st.depths_um
 
     first, geom = _first_frame(refs[0], grid, pp, n, st.roi_px)
-    nx, ny = geom.n_lenslets
+    nx, ny = geom.n_lenslets_xy
     check_depths_resolvable(optics, depths, (nx, ny))
 
     key = _bank_key(optics, ropt, st)
@@ -448,7 +448,7 @@ def _run_frames(run, st, pp, grid, optics, ropt, rgrid, writer, par, solver, pro
     from hrvbase.parallel import WorkerContext, frame_map
 
     refs, todo, frame_entries, meta, meta_path, first_shape, (o_x, o_y) = run
-    nx, ny = rgrid.n_lenslets
+    nx, ny = rgrid.n_lenslets_xy
     depths = st.depths_um
     t0 = time.perf_counter()
     if choose_psf_model(optics, st.psf_model) == "wave":
@@ -537,7 +537,7 @@ def _backend_device() -> str:
 
 def _frame_model(
     bank,
-    n_lenslets,
+    n_lenslets_xy,
     st,
     pp,
     grid,
@@ -559,7 +559,7 @@ def _frame_model(
 
     if backend_info() is None:
         init_backend(device=device)
-    projector = make_projector(bank, n_lenslets, st.projector, threads=st.threads)
+    projector = make_projector(bank, n_lenslets_xy, st.projector, threads=st.threads)
     filt = (
         DepthFilter.for_optics(ropt, rgrid.depths_um, st.s, st.filter_window)
         if st.filter_window is not None
@@ -641,7 +641,7 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
             "frame": k,
             **source,
             "depths_um": list(map(float, rgrid.depths_um)),
-            "origin_um": list(model.origin_xy_um),
+            "origin_xy_um": list(model.origin_xy_um),
             "iterations": res.iterations,
             # the lenslet period and phase travel with a TIFF copied without recon.json
             # (track.volumes.lenslet_phases), and so does the frame's SNR
@@ -679,7 +679,7 @@ def _object_origin(grid, geom, optics) -> tuple[float, float]:
     indices are converted with the calibrated grid and the object-space lenslet pitch.
     """
     ua, va = grid.lenslet_index(np.asarray([optics.axis_px], dtype=np.float64))[0]
-    u0, v0 = geom.first_lenslet
+    u0, v0 = geom.first_lenslet_xy
     p = optics.lenslet_object_um
     return ((u0 - ua - 0.5) * p, (v0 - va - 0.5) * p)
 

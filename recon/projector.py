@@ -72,11 +72,11 @@ class _ProjectorBase:
 
     arrays = NUMPY
 
-    def _init_common(self, bank: PSFBank, n_lenslets: tuple[int, int]) -> None:
+    def _init_common(self, bank: PSFBank, n_lenslets_xy: tuple[int, int]) -> None:
         self.bank = bank
-        self.nx, self.ny = (int(v) for v in n_lenslets)
+        self.nx, self.ny = (int(v) for v in n_lenslets_xy)
         if self.nx < 1 or self.ny < 1:
-            raise InputError(f"n_lenslets must be positive, got {n_lenslets!r}")
+            raise InputError(f"n_lenslets_xy must be positive, got {n_lenslets_xy!r}")
         self.n, self.s = bank.n, bank.s
         self.nz = len(bank.depths_um)
         self.n_channels = bank.n_channels
@@ -158,7 +158,7 @@ class LightFieldProjector(_ProjectorBase):
     Parameters
     ----------
     bank : PSFBank
-    n_lenslets : tuple of int
+    n_lenslets_xy : tuple of int
         ``(nx, ny)`` lenslets of the rectified image (image ``(ny·n, nx·n)`` pixels).
 
     Notes
@@ -170,8 +170,8 @@ class LightFieldProjector(_ProjectorBase):
     what the iterative solvers call.
     """
 
-    def __init__(self, bank: PSFBank, n_lenslets: tuple[int, int]):
-        self._init_common(bank, n_lenslets)
+    def __init__(self, bank: PSFBank, n_lenslets_xy: tuple[int, int]):
+        self._init_common(bank, n_lenslets_xy)
         if self.n_channels >= 1 << 16 or self.n_res >= 1 << 16:
             raise InputError("PSF bank too large for the packed projector (>= 65 536 channels)")
         self.arrays = drjit_arrays()
@@ -301,7 +301,7 @@ class SparseProjector(_ProjectorBase):
     Parameters
     ----------
     bank : PSFBank
-    n_lenslets : tuple of int
+    n_lenslets_xy : tuple of int
     block_mb : float
         Memory bound (MB) of one shifted-channel block ``B``; larger depths are split into
         groups of sub-positions.
@@ -329,13 +329,13 @@ class SparseProjector(_ProjectorBase):
     def __init__(
         self,
         bank: PSFBank,
-        n_lenslets: tuple[int, int],
+        n_lenslets_xy: tuple[int, int],
         block_mb: float = 256.0,
         threads: int | None = None,
     ):
         import scipy.sparse as sp
 
-        self._init_common(bank, n_lenslets)
+        self._init_common(bank, n_lenslets_xy)
         self.threads = resolve_threads(threads)
         c, r, qy, qx = self._terms()
         s2 = self.s * self.s
@@ -453,7 +453,7 @@ PROJECTORS = ("auto", "gather", "sparse")
 
 def make_projector(
     bank: PSFBank,
-    n_lenslets: tuple[int, int],
+    n_lenslets_xy: tuple[int, int],
     kind: str = "auto",
     threads: int | None = None,
     workers: int = 1,
@@ -475,5 +475,5 @@ def make_projector(
         info = backend_info() or init_backend()
         kind = "gather" if info.device == "cuda" else "sparse"
     if kind == "gather":
-        return LightFieldProjector(bank, n_lenslets)
-    return SparseProjector(bank, n_lenslets, threads=threads)
+        return LightFieldProjector(bank, n_lenslets_xy)
+    return SparseProjector(bank, n_lenslets_xy, threads=threads)

@@ -49,33 +49,33 @@ class RectifiedGeometry:
         The calibrated grid of the raw image.
     px_per_lenslet : int
         Output pixels per lenslet ``n`` along each axis.
-    first_lenslet : tuple of int
+    first_lenslet_xy : tuple of int
         Index ``(u0, v0)`` of the lenslet in the output's top-left block.
-    n_lenslets : tuple of int
+    n_lenslets_xy : tuple of int
         Number of whole lenslets ``(nx, ny)`` in the output (along ``u`` and ``v``).
     """
 
     grid: LensletGrid
     px_per_lenslet: int
-    first_lenslet: tuple[int, int]
-    n_lenslets: tuple[int, int]
+    first_lenslet_xy: tuple[int, int]
+    n_lenslets_xy: tuple[int, int]
 
     def __post_init__(self) -> None:
         if not isinstance(self.grid, LensletGrid):
             raise InputError(f"grid must be a LensletGrid, got {type(self.grid).__name__}")
         _check_px_per_lenslet(self.px_per_lenslet)
-        u0, v0 = (int(v) for v in self.first_lenslet)
-        nx, ny = (int(v) for v in self.n_lenslets)
+        u0, v0 = (int(v) for v in self.first_lenslet_xy)
+        nx, ny = (int(v) for v in self.n_lenslets_xy)
         if nx < 1 or ny < 1:
-            raise InputError(f"n_lenslets must be positive, got {self.n_lenslets!r}")
-        object.__setattr__(self, "first_lenslet", (u0, v0))
-        object.__setattr__(self, "n_lenslets", (nx, ny))
+            raise InputError(f"n_lenslets_xy must be positive, got {self.n_lenslets_xy!r}")
+        object.__setattr__(self, "first_lenslet_xy", (u0, v0))
+        object.__setattr__(self, "n_lenslets_xy", (nx, ny))
 
     @property
     def shape(self) -> tuple[int, int]:
         """Shape ``(height, width)`` of the rectified image, ``(ny n, nx n)``."""
         n = self.px_per_lenslet
-        return (self.n_lenslets[1] * n, self.n_lenslets[0] * n)
+        return (self.n_lenslets_xy[1] * n, self.n_lenslets_xy[0] * n)
 
     @property
     def scale_px(self) -> float:
@@ -98,28 +98,28 @@ class RectifiedGeometry:
         h, w = self.shape
         cols = np.arange(w) + 0.5
         rows = np.arange(h) + 0.5
-        return _sample_points(self.grid, self.px_per_lenslet, self.first_lenslet, rows, cols)
+        return _sample_points(self.grid, self.px_per_lenslet, self.first_lenslet_xy, rows, cols)
 
     def lenslet_of_output_pixel(self, rows: Any, cols: Any) -> tuple[np.ndarray, np.ndarray]:
         """Lenslet index ``(u, v)`` of output pixels ``(row, col)`` (arrays broadcast)."""
         n = self.px_per_lenslet
         r = np.asarray(rows)
         c = np.asarray(cols)
-        return c // n + self.first_lenslet[0], r // n + self.first_lenslet[1]
+        return c // n + self.first_lenslet_xy[0], r // n + self.first_lenslet_xy[1]
 
     def to_dict(self) -> dict:
         """Plain-JSON representation (the grid nested under ``"grid"``)."""
         return {
             "grid": self.grid.to_dict(),
             "px_per_lenslet": self.px_per_lenslet,
-            "first_lenslet": list(self.first_lenslet),
-            "n_lenslets": list(self.n_lenslets),
+            "first_lenslet_xy": list(self.first_lenslet_xy),
+            "n_lenslets_xy": list(self.n_lenslets_xy),
         }
 
     @classmethod
     def from_dict(cls, data: Any) -> RectifiedGeometry:
         """Inverse of :meth:`to_dict`; unknown or missing keys are an error naming them."""
-        keys = ("grid", "px_per_lenslet", "first_lenslet", "n_lenslets")
+        keys = ("grid", "px_per_lenslet", "first_lenslet_xy", "n_lenslets_xy")
         if not isinstance(data, dict):
             raise InputError(f"a rectified geometry must be a JSON object, got {data!r}")
         unknown = sorted(set(data) - set(keys))
@@ -132,8 +132,8 @@ class RectifiedGeometry:
         return cls(
             grid=LensletGrid.from_dict(data["grid"]),
             px_per_lenslet=data["px_per_lenslet"],
-            first_lenslet=tuple(data["first_lenslet"]),
-            n_lenslets=tuple(data["n_lenslets"]),
+            first_lenslet_xy=tuple(data["first_lenslet_xy"]),
+            n_lenslets_xy=tuple(data["n_lenslets_xy"]),
         )
 
 
@@ -233,8 +233,8 @@ def whole_lenslets(grid: LensletGrid, px_per_lenslet: int) -> RectifiedGeometry:
     return RectifiedGeometry(
         grid=grid,
         px_per_lenslet=n,
-        first_lenslet=(int(lo[0] + c0), int(lo[1] + r0)),
-        n_lenslets=(int(nc), int(nr)),
+        first_lenslet_xy=(int(lo[0] + c0), int(lo[1] + r0)),
+        n_lenslets_xy=(int(nc), int(nr)),
     )
 
 
@@ -261,7 +261,7 @@ def rectify(
     rectified : ndarray of float64, shape (ny n, nx n)
         Lenslet ``(u0 + U, v0 + V)`` in block ``[V n, (V + 1) n) × [U n, (U + 1) n)``.
     geometry : RectifiedGeometry
-        ``first_lenslet = (u0, v0)``, ``n_lenslets = (nx, ny)`` (the largest block of whole
+        ``first_lenslet_xy = (u0, v0)``, ``n_lenslets_xy = (nx, ny)`` (the largest block of whole
         lenslets inside the image), ``px_per_lenslet``, and the grid.
 
     Raises
@@ -288,8 +288,8 @@ def rectify(
         "rectified %s image to %s: %d x %d lenslets from (%d, %d), %d px per lenslet",
         img.shape,
         out.shape,
-        *geom.n_lenslets,
-        *geom.first_lenslet,
+        *geom.n_lenslets_xy,
+        *geom.first_lenslet_xy,
         geom.px_per_lenslet,
     )
     return out, geom

@@ -3,11 +3,13 @@
 Each file is a float32 ``(z, y, x)`` volume in the layout of
 :mod:`hrvbase.formats.tiff_layout`. Its voxel size ``[dz, dy, dx]`` and origin come, in this
 order of preference, from its JSON metadata (private tag 65001, or the ``ImageDescription`` of
-files of the previous layout: ``"voxel_size_um"``, ``"origin_xyz_um"`` or ``origin_um``
+files of the previous layout: ``"voxel_size_um"``, ``"origin_xyz_um"`` or ``origin_xy_um``
 ``[x0, y0]`` with ``depths_um``), from the ImageJ calibration of a file saved by Fiji
 (``unit`` µm, ``spacing``, ``XResolution``/``YResolution``, ``xorigin``/``yorigin``/
-``zorigin``), or from the folder's ``recon.json`` (``voxel_size_um``; ``grid.origin_um``
-``[x0, y0]`` and ``grid.depths_um`` place the volume in object space). The frame numbers,
+``zorigin``), or from the folder's ``recon.json`` (``voxel_size_um``; ``grid.origin_xy_um``
+``[x0, y0]`` and ``grid.depths_um`` place the volume in object space). Files of the
+older layout name the corner ``[x0, y0]`` ``origin_um``; it is read under either name
+(:func:`hrvbase.formats.volumes.record_entry`). The frame numbers,
 times, SNRs and lenslet period come from ``recon.json``, else from each file's metadata
 (:mod:`hrvbase.formats.volumes`).
 """

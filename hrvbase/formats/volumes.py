@@ -129,11 +129,26 @@ def parse_voxel_size(value, where: str) -> tuple[float, float, float]:
     return vals
 
 
+#: Entries of ``recon.json``'s ``grid`` and of a volume's metadata that the older layout
+#: names without their order: the name ``recon`` writes → the older one, read when the
+#: first is absent (:func:`record_entry`).
+RECORD_ALIASES = {"origin_xy_um": "origin_um", "n_lenslets_xy": "n_lenslets"}
+
+
+def record_entry(meta: Mapping, key: str):
+    """``meta[key]``, else the entry of its older name (:data:`RECORD_ALIASES`), else None."""
+    value = meta.get(key)
+    if value is None and key in RECORD_ALIASES:
+        value = meta.get(RECORD_ALIASES[key])
+    return value
+
+
 def parse_origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | None:
     """Object-space ``(x, y, z)`` of the centre of voxel ``(0, 0, 0)`` (µm) from metadata.
 
-    ``origin_xyz_um`` (that centre, as ``lfsim.io.write_tiff`` records it) or, in older files
-    and ``recon.json``, ``origin_um`` ``[x0, y0]`` (the corner of lenslet ``(0, 0)``) with
+    ``origin_xyz_um`` (that centre, as ``lfsim.io.write_tiff`` records it) or, in the files
+    without it and in ``recon.json``'s ``grid``, the corner ``[x0, y0]`` of lenslet
+    ``(0, 0)`` (``origin_xy_um``, :func:`record_entry`) with
     ``depths_um``. ``None`` when the metadata hold neither.
     """
     xyz = meta.get("origin_xyz_um")
@@ -145,7 +160,7 @@ def parse_origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | 
         if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
             raise InputError(f"{where}: origin_xyz_um must be 3 numbers [x, y, z], got {xyz!r}")
         return vals
-    o = meta.get("origin_um")
+    o = record_entry(meta, "origin_xy_um")
     d = meta.get("depths_um")
     if o is None and d is None:
         return None
@@ -153,7 +168,7 @@ def parse_origin(meta: Mapping, vs, where: str) -> tuple[float, float, float] | 
         ox, oy = (float(v) for v in (o if o is not None else (0.0, 0.0))[:2])
         z0 = float(d[0]) if d else 0.0
     except (TypeError, ValueError, IndexError):
-        raise InputError(f"{where}: bad origin_um/depths_um {o!r} / {d!r}") from None
+        raise InputError(f"{where}: bad origin_xy_um/depths_um {o!r} / {d!r}") from None
     # recon places voxel column i at origin + (i + 0.5) · dx (geometry.ReconGrid.x_um)
     return (ox + 0.5 * vs[2], oy + 0.5 * vs[1], z0)
 
@@ -163,7 +178,8 @@ def lenslet_phases(
 ) -> tuple[int | None, tuple[int, int]]:
     """Lenslet period (voxels) and phase of a volume from the ``grid`` of its ``recon.json``.
 
-    ``grid.s`` is the period; ``grid.origin_um`` (the corner of lenslet ``(0, 0)``) and the
+    ``grid.s`` is the period; ``grid.origin_xy_um`` (the corner of lenslet ``(0, 0)``,
+    :func:`record_entry`) and the
     volume's origin (centre of voxel ``(0, 0, 0)``) give the sub-lenslet position of voxel
     row and column 0 (0 for an uncropped ``recon run`` volume). When the volume's lateral
     voxel size is not ``grid.lenslet_object_um / s`` (a resampled copy) or its origin is not
@@ -187,16 +203,16 @@ def lenslet_phases(
         raise InputError(f"{where}: grid.s must be a positive integer, got {s!r}")
     try:
         pitch = float(pitch)
-        corner = [float(v) for v in grid.get("origin_um", (0.0, 0.0))][:2]
+        corner = [float(v) for v in (record_entry(grid, "origin_xy_um") or (0.0, 0.0))][:2]
     except (TypeError, ValueError):
         raise InputError(
-            f"{where}: grid.lenslet_object_um and grid.origin_um must be numbers, got "
-            f"{grid.get('lenslet_object_um')!r} and {grid.get('origin_um')!r}"
+            f"{where}: grid.lenslet_object_um and grid.origin_xy_um must be numbers, got "
+            f"{grid.get('lenslet_object_um')!r} and {record_entry(grid, 'origin_xy_um')!r}"
         ) from None
     if not (math.isfinite(pitch) and pitch > 0) or len(corner) != 2:
         raise InputError(
-            f"{where}: grid.lenslet_object_um must be > 0 µm and grid.origin_um [x0, y0], "
-            f"got {grid.get('lenslet_object_um')!r} and {grid.get('origin_um')!r}"
+            f"{where}: grid.lenslet_object_um must be > 0 µm and grid.origin_xy_um [x0, y0], "
+            f"got {grid.get('lenslet_object_um')!r} and {record_entry(grid, 'origin_xy_um')!r}"
         )
     _, dy, dx = voxel_size_um
     vox = pitch / s
@@ -329,6 +345,7 @@ def numbered(folder: str | os.PathLike, index: int, suffix: str) -> Path:
 __all__ = [
     "NUMBERED",
     "RECON_JSON",
+    "RECORD_ALIASES",
     "VolumeInfo",
     "check_frames",
     "frame_records",
@@ -340,4 +357,5 @@ __all__ = [
     "parse_origin",
     "parse_snr",
     "parse_voxel_size",
+    "record_entry",
 ]

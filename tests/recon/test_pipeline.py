@@ -78,8 +78,8 @@ def test_dataset_folder_reconstructs_and_finds_particles(dataset, tmp_path, caps
     vox = g["lenslet_object_um"] / g["s"]
     truth = np.loadtxt(dataset / "truth" / "000000.csv", delimiter=",", skiprows=1)[:, 1:4]
     for x, y, z in truth:
-        i = int((x - g["origin_um"][0]) / vox)
-        j = int((y - g["origin_um"][1]) / vox)
+        i = int((x - g["origin_xy_um"][0]) / vox)
+        j = int((y - g["origin_xy_um"][1]) / vox)
         k = int(np.argmin(np.abs(depths - z)))
         near = vol[max(k - 2, 0) : k + 3, max(j - 2, 0) : j + 3, max(i - 2, 0) : i + 3]
         assert near.max() > 0.3 * vol.max(), (x, y, z)
@@ -273,7 +273,7 @@ def test_roi_reconstructs_a_sub_field(dataset, tmp_path, capsys):
     )
     assert rc == 0, err
     meta = read_json(vol_dir / "recon.json")
-    nx, ny = meta["grid"]["n_lenslets"]
+    nx, ny = meta["grid"]["n_lenslets_xy"]
     # 14 whole lenslets lie in the region; rectification keeps those whose samples all lie
     # inside the region's pixel centres (the border lenslets may drop out).
     assert 12 <= nx <= 14 and 12 <= ny <= 14

@@ -206,7 +206,7 @@ def _lateral_centroids(vol_dir: Path, positions_um) -> np.ndarray:
     vol, _ = read_tiff(vol_dir / "000000.tif")
     g = read_json(vol_dir / "recon.json")["grid"]
     vox = g["lenslet_object_um"] / g["s"]
-    ox, oy = g["origin_um"]
+    ox, oy = g["origin_xy_um"]
     out = []
     for x, y, _ in positions_um:
         i0, j0 = int((x - ox) / vox), int((y - oy) / vox)

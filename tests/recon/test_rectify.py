@@ -19,10 +19,10 @@ def test_identity_crop_odd_pitch():
     image = rng.integers(0, 4096, size=(300, 310)).astype(np.uint16)
     grid = LensletGrid(15.0, 0.0, (157.5, 142.5), (300, 310))
     out, geom = rectify(image, grid, 15)
-    assert geom.n_lenslets == (20, 20)  # 310 px hold 20 whole lenslets from x = 0
-    assert geom.first_lenslet == (-10, -9)
-    x0 = round(grid.center(*geom.first_lenslet)[0] - 7.5)
-    y0 = round(grid.center(*geom.first_lenslet)[1] - 7.5)
+    assert geom.n_lenslets_xy == (20, 20)  # 310 px hold 20 whole lenslets from x = 0
+    assert geom.first_lenslet_xy == (-10, -9)
+    x0 = round(grid.center(*geom.first_lenslet_xy)[0] - 7.5)
+    y0 = round(grid.center(*geom.first_lenslet_xy)[1] - 7.5)
     assert (x0, y0) == (0, 0)
     assert out.shape == geom.shape == (300, 300)
     assert np.array_equal(out, image[y0 : y0 + 300, x0 : x0 + 300])
@@ -34,11 +34,11 @@ def test_identity_crop_even_pitch_and_lenslet_white():
     grid = LensletGrid(16.0, 0.0, (160.0, 152.0), (300, 330))
     image = white((300, 330), grid, noise_sigma=0.02, rng=1)
     out, geom = rectify(image, grid, 16)
-    x0 = round(grid.center(*geom.first_lenslet)[0] - 8)
-    y0 = round(grid.center(*geom.first_lenslet)[1] - 8)
+    x0 = round(grid.center(*geom.first_lenslet_xy)[0] - 8)
+    y0 = round(grid.center(*geom.first_lenslet_xy)[1] - 8)
     ny, nx = out.shape
     assert np.array_equal(out, image[y0 : y0 + ny, x0 : x0 + nx])
-    assert geom.n_lenslets == (20, 18)
+    assert geom.n_lenslets_xy == (20, 18)
 
 
 def test_rotated_non_integer_pitch_recalibrates_to_n():
@@ -50,7 +50,7 @@ def test_rotated_non_integer_pitch_recalibrates_to_n():
     image = white(shape, truth, noise_sigma=0.03, vignetting=0.5, dead_fraction=0.02, rng=3)
     fit = calibrate_white(image)
     out, geom = rectify(image, fit, 15)
-    assert out.shape == geom.shape == (geom.n_lenslets[1] * 15, geom.n_lenslets[0] * 15)
+    assert out.shape == geom.shape == (geom.n_lenslets_xy[1] * 15, geom.n_lenslets_xy[0] * 15)
     again = calibrate_white(out)
     print(
         f"\nrectified: pitch {again.pitch_px:.5f} px, rotation {again.rotation_deg:+.5f} deg, "
@@ -71,8 +71,8 @@ def test_rotated_non_integer_pitch_recalibrates_to_n():
     assert pts[..., 1].min() >= 0.5 and pts[..., 1].max() <= shape[0] - 0.5
     # the block is as large as the image allows (at most one lenslet row/column lost to
     # the rotation on each side)
-    assert geom.n_lenslets[0] >= int(600 / 14.7) - 2
-    assert geom.n_lenslets[1] >= int(400 / 14.7) - 2
+    assert geom.n_lenslets_xy[0] >= int(600 / 14.7) - 2
+    assert geom.n_lenslets_xy[1] >= int(400 / 14.7) - 2
     # flux: the rectified sum, scaled, matches the raw sum over the same lenslets
     assert out.sum() * geom.flux_scale == pytest.approx(
         _raw_sum_over_lenslets(image, fit, geom), rel=0.01
@@ -83,7 +83,7 @@ def _raw_sum_over_lenslets(image, grid, geom):
     h, w = image.shape
     yy, xx = np.mgrid[0:h, 0:w]
     uv = np.rint(grid.lenslet_index(np.stack([xx + 0.5, yy + 0.5], axis=-1)))
-    (u0, v0), (nx, ny) = geom.first_lenslet, geom.n_lenslets
+    (u0, v0), (nx, ny) = geom.first_lenslet_xy, geom.n_lenslets_xy
     inside = (uv[..., 0] >= u0) & (uv[..., 0] < u0 + nx)
     inside &= (uv[..., 1] >= v0) & (uv[..., 1] < v0 + ny)
     return float(image[inside].sum())
@@ -97,7 +97,7 @@ def test_downsampling_and_lenslet_lookup():
     assert again.pitch_px == pytest.approx(9.0, abs=0.01)
     assert abs(again.rotation_deg) < 0.03
     u, v = geom.lenslet_of_output_pixel(np.array([0, 9, 17]), np.array([0, 8, 9]))
-    u0, v0 = geom.first_lenslet
+    u0, v0 = geom.first_lenslet_xy
     assert list(u) == [u0, u0, u0 + 1]
     assert list(v) == [v0, v0 + 1, v0 + 1]
 

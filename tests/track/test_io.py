@@ -220,6 +220,12 @@ def test_recon_json_supplies_the_lenslet_period_and_phase(tmp_path, caplog):
     vols = volumes.scan_volumes(tmp_path)
     assert vols[0].lenslet_period_vox == 5 and vols[0].lenslet_phase_vox == (0, 0)
     assert volumes.lenslet_phases(recon, (4, 2, 2), (-20 + 7.0, 4 + 3.0, 0), "r") == (5, (1, 3))
+    # the corner under the name recon writes gives the same phase; it wins over the older name
+    new = {**grid, "origin_xy_um": grid["origin_um"]}
+    del new["origin_um"]
+    assert volumes.lenslet_phases({"grid": new}, (4, 2, 2), (-13.0, 7.0, 0), "r") == (5, (1, 3))
+    both = {"grid": {**new, "origin_um": [0.0, 0.0]}}
+    assert volumes.lenslet_phases(both, (4, 2, 2), (-13.0, 7.0, 0), "r") == (5, (1, 3))
     # no s (an older recon.json): no period
     assert volumes.lenslet_phases({"grid": {"origin_um": [0, 0]}}, (4, 2, 2), (1, 1, 0), "r") == (
         None,
