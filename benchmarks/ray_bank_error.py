@@ -56,12 +56,24 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from wave_reference import PN, SCOPES, make_optics, z_unit
+import wave_reference
+from wave_reference import PN, SCOPES, z_unit
+
+#: microscopes between the paper's and 20×/0.5 (dry, lenslets matched as in wave_reference),
+#: name: (M, NA, n); their lenslet spots λ f_l / p are 1.13 and 1.51 px
+EXTRA_SCOPES = {"10x-0.4": (10.0, 0.4, 1.0), "10x-0.3": (10.0, 0.3, 1.0)}
 
 #: source depths in units of z₁
 DEPTHS = (0.0, 0.5, 1.0, 2.0, 3.0, -0.5, -1.0, -2.0, -3.0)
 #: lateral source positions (x, y) in object-space lenslet pitches from the on-axis lenslet
 POSITIONS = ((0.0, 0.0), (0.17, 0.0), (0.4, -0.27))
+
+
+def make_optics(name: str, n_lenslets: int):
+    """The optics of ``wave_reference.SCOPES`` or :data:`EXTRA_SCOPES`."""
+    if name in EXTRA_SCOPES:
+        wave_reference.SCOPES[name] = EXTRA_SCOPES[name]
+    return wave_reference.make_optics(name, n_lenslets)
 
 
 def diffraction_scales(optics) -> dict:
@@ -115,13 +127,20 @@ def wave_bank(optics, depths, s: int, oversample, threshold: float, builder: str
 
         from recon import psf_wave
 
-        ws = psf_wave.default_wave_sampling(optics, s)
+        ws = psf_wave.default_wave_sampling(optics)
         if oversample:
             ws = replace(ws, oversample=int(oversample))
         bank = psf_wave.compute_wave_psf_bank(
-            optics, depths, s, sampling=ws, threshold=threshold, cache_dir=""
+            optics,
+            depths,
+            s,
+            sampling=ws if oversample else None,
+            threshold=threshold,
+            cache_dir="",
         )
-        return bank, f"recon.psf_wave, oversample {ws.oversample}"
+        return bank, f"recon.psf_wave, oversample {ws.oversample}" + (
+            "" if oversample else " (its default)"
+        )
     from lfsim.wave import WaveSampling, pattern_stack
     from recon.psf import pattern_radius_lenslets
 
@@ -133,6 +152,28 @@ def wave_bank(optics, depths, s: int, oversample, threshold: float, builder: str
         radii.append(h)
     bank = sparse_bank(optics, depths, s, stacks, radii, threshold)
     return bank, f"lfsim.wave.pattern_stack, oversample {ws.oversample}"
+
+
+def stored(folder, kind: str, key, compute):
+    """``compute()`` (a pair), or its result stored in ``folder`` under a hash of ``key``
+    (``folder`` None: always computed)."""
+    if folder is None:
+        return compute()
+    import hashlib
+    import pickle
+
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+    path = Path(folder) / f"{kind}_{digest}.pkl"
+    if path.is_file():
+        with open(path, "rb") as fh:
+            return pickle.load(fh)
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as fh:
+        pickle.dump(result, fh)
+    tmp.replace(path)
+    return result
 
 
 def localise(vol: np.ndarray, grid, truth_xyz, z1: float) -> np.ndarray:
@@ -200,8 +241,13 @@ def run_scope(name: str, args) -> dict:
         **diffraction_scales(optics),
     }
     t = time.perf_counter()
-    ref, _, hist = converged_light_field(
-        optics, src, WaveSampling(oversample=args.oversample, batch=2), tol=args.tol
+    ref, hist = stored(
+        args.store,
+        "reference",
+        [optics.to_dict(), src.tolist(), args.oversample, args.tol],
+        lambda: converged_light_field(
+            optics, src, WaveSampling(oversample=args.oversample, batch=2), tol=args.tol
+        )[::2],
     )
     out["history"] = hist
     out["seconds_reference"] = time.perf_counter() - t
@@ -221,7 +267,12 @@ def run_scope(name: str, args) -> dict:
     )
     out["seconds_ray_bank"] = time.perf_counter() - t
     t = time.perf_counter()
-    wave, builder = wave_bank(optics, depths, args.s, args.bank_oversample, 1e-3, args.wave_builder)
+    wave, builder = stored(
+        args.store,
+        "wavebank",
+        [optics.to_dict(), depths.tolist(), args.s, args.bank_oversample, args.wave_builder],
+        lambda: wave_bank(optics, depths, args.s, args.bank_oversample, 1e-3, args.wave_builder),
+    )
     out["seconds_wave_bank"] = time.perf_counter() - t
     out["wave_bank_builder"] = builder
     print(
@@ -310,7 +361,7 @@ def markdown(r: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scopes", nargs="+", default=list(SCOPES), choices=list(SCOPES))
+    ap.add_argument("--scopes", nargs="+", default=list(SCOPES), choices=[*SCOPES, *EXTRA_SCOPES])
     ap.add_argument("--lenslets", type=int, default=7, help="sensor width in lenslets (odd)")
     ap.add_argument("-s", type=int, default=3, help="voxels per lenslet")
     ap.add_argument("--z-step", type=float, default=0.25, help="depth step (z₁)")
@@ -341,6 +392,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5, help="noise seeds per source")
     ap.add_argument("--photons", type=float, default=1e4, help="scale of the clean images")
     ap.add_argument("--cache", default="", help="ray-bank cache folder ('' = none)")
+    ap.add_argument(
+        "--store", type=Path, help="keep the references and wave banks here (reruns reuse them)"
+    )
     ap.add_argument("--quick", action="store_true", help="depths 0, 1, -2 z₁ and one position")
     ap.add_argument("--json", type=Path, help="write the numbers here")
     ap.add_argument("--markdown", type=Path, help="write the tables here")
