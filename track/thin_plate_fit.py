@@ -97,6 +97,7 @@ class _ThinPlateFit:
         self._log_s = math.log(self._r2_scale)
         self._floor32 = np.float32(max(_R2_FLOOR / self._r2_scale, 1e-37))
         self._W_sum = self._W.sum(axis=0)
+        self._W32 = self._W.astype(np.float32)  # the grid's product (:meth:`on_grid`)
         self.sigma = self._noise(sigma)
 
     # -- noise -------------------------------------------------------------------------------
@@ -362,7 +363,10 @@ class _ThinPlateFit:
         """Values, exact gradients and (``with_std``) standard uncertainties on a grid.
 
         One single-precision ``log r`` block per chunk of nodes (:meth:`_logs`) gives values
-        and gradients and, on the nodes of the sub-grid, the uncertainties: they keep the modes
+        and gradients, its product with the weights ``W`` in single precision too (the
+        values and gradients within about 1e-5 of the field's magnitude of the
+        double-precision product: benchmarks/README.md, ``bench_fields.py``), and, on the
+        nodes of the sub-grid, the uncertainties: they keep the modes
         above :data:`STD_GRID_MODE_CUTOFF`, are computed on every ``stride``-th node along each
         axis (the last node always; default :meth:`_std_stride`) and interpolated (trilinear)
         at the other nodes.
@@ -388,13 +392,13 @@ class _ThinPlateFit:
             for s in range(0, first.size, _BLOCK_ROWS):
                 idx = first[s : s + _BLOCK_ROWS]
                 logs = self._logs(pts[idx])
-                M[idx] = self._log_r_product(logs[1], self._W, self._W_sum)
+                M[idx] = self._log_r_product(logs[1], self._W32, self._W_sum)
                 u_sd[s : s + _BLOCK_ROWS], G_sd[s : s + _BLOCK_ROWS] = self._std_from_logs(
                     logs, setup
                 )
         for s in range(0, rest.size, _BLOCK_ROWS):
             idx = rest[s : s + _BLOCK_ROWS] if with_std else slice(s, s + _BLOCK_ROWS)
-            M[idx] = self._log_r_product(self._logs(pts[idx])[1], self._W, self._W_sum)
+            M[idx] = self._log_r_product(self._logs(pts[idx])[1], self._W32, self._W_sum)
         # values and gradients of all nodes at once (:meth:`_value_gradient`)
         u, G = self._from_products(pts - self.basis.centre, M)
         u, G = u.reshape(*shape, nc), G.reshape(*shape, nc, 3)
