@@ -225,6 +225,17 @@ def to_json(obj: Any, *, indent: int | None = 2) -> str:
         raise InputError(f"cannot write as JSON: {exc}") from None
 
 
+def rename_keys(obj: Any, names: Mapping[str, str]) -> Any:
+    """``obj`` (plain JSON: dicts, lists, values) with every dict key found in ``names``
+    renamed to ``names[key]``, at any depth (the fingerprints hash their entries under fixed
+    names, docs/conventions.md §3)."""
+    if isinstance(obj, dict):
+        return {names.get(k, k): rename_keys(v, names) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [rename_keys(v, names) for v in obj]
+    return obj
+
+
 def write_json(path: str | os.PathLike, obj: Any, *, overwrite: bool = False) -> Path:
     """Write ``obj`` as indented JSON (trailing newline), atomically; see :func:`to_json`."""
     try:
@@ -416,6 +427,7 @@ __all__ = [
     "file_record",
     "guard_output",
     "read_json",
+    "rename_keys",
     "sha256_file",
     "to_json",
     "verify_record",

@@ -354,10 +354,12 @@ class Experiment:
         module), plus ``lfsim.__version__``. Moving the files elsewhere keeps the
         fingerprint; editing any of them changes it.
         """
+        from hrvbase.io import rename_keys
+
         from . import __version__
         from .io import sha256_file
 
-        d = _fingerprint_keys(self.to_dict())
+        d = rename_keys(self.to_dict(), FINGERPRINT_KEYS)
         del d["experiment"]["scene"]
         if self.particles.kind == "csv":
             d["particles"]["csv"] = "sha256:" + sha256_file(self.particles.csv)
@@ -372,15 +374,6 @@ class Experiment:
         }
         text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
         return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _fingerprint_keys(obj):
-    """``obj`` (plain JSON) with the keys of :data:`FINGERPRINT_KEYS` renamed, at any depth."""
-    if isinstance(obj, dict):
-        return {FINGERPRINT_KEYS.get(k, k): _fingerprint_keys(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_fingerprint_keys(v) for v in obj]
-    return obj
 
 
 def _fail(where: str, section: str, exc: Exception) -> ConfigError:

@@ -157,13 +157,19 @@ def test_keys_named_without_their_order_are_refused_naming_the_new_key(tmp_path,
     assert f"{key!r} is named {want!r}" in msg and "rename the key" in msg
 
 
-def test_fingerprint_hashes_the_keys_under_fixed_names(tmp_path):
-    from lfsim.experiment import FINGERPRINT_KEYS, _fingerprint_keys
+def test_fingerprint_hashes_the_keys_under_fixed_names(tmp_path, monkeypatch):
+    from hrvbase.io import rename_keys
+    from lfsim.experiment import FINGERPRINT_KEYS
 
-    d = _fingerprint_keys(load_experiment(write_toml(tmp_path)).to_dict())
+    d = rename_keys(load_experiment(write_toml(tmp_path)).to_dict(), FINGERPRINT_KEYS)
     assert d["motion"]["center_um"] == [0.0, 0.0, 200.0] and "center_xyz_um" not in d["motion"]
     assert d["particles"]["box_um"] == [[-150.0, 150.0], [-150.0, 150.0], [100.0, 300.0]]
     assert set(FINGERPRINT_KEYS) == {"center_xyz_um", "bounds_xyz_um"}
+    # the fingerprint hashes those names: without them it would be another
+    exp = load_experiment(write_toml(tmp_path))
+    fixed = exp.fingerprint()
+    monkeypatch.setattr("lfsim.experiment.FINGERPRINT_KEYS", {})
+    assert exp.fingerprint() != fixed
 
 
 def test_unknown_camera_key(tmp_path):
