@@ -1,6 +1,6 @@
 """The plugin in a real napari viewer under Xvfb: discovery, ``viewer.open`` of a study, the
 placement of every layer, a screenshot against the truth, the run widget, and the OME-Zarr
-round trip through napari-ome-zarr."""
+round trip (OME-NGFF 0.4, and 0.5 on Zarr format 3) through the plugin and napari-ome-zarr."""
 
 from __future__ import annotations
 
@@ -120,8 +120,9 @@ def test_run_widget_tracks_a_folder_and_opens_the_results(viewer, study_report, 
     viewer.window.remove_dock_widget(dock)
 
 
-def _zarr_copy(study_report, tmp_path):
-    """The study's volumes written as OME-Zarr by ``recon run``'s writer."""
+def _zarr_copy(study_report, tmp_path, ngff: str = "0.4"):
+    """The study's volumes written as OME-Zarr by ``recon run``'s writer (OME-NGFF 0.4), or
+    that image as OME-NGFF 0.5 on Zarr format 3 (``ngff="0.5"``)."""
     from hrvbase.formats.geometry import VolumeGeometry
     from recon.volume_store import make_writer
     from track.volumes import read_volume, scan_volumes
@@ -133,11 +134,17 @@ def _zarr_copy(study_report, tmp_path):
     writer.prepare(len(vols), VolumeGeometry(v.shape, v.voxel_size_um, v.origin_xyz_um))
     for k, info in enumerate(vols):
         writer.write(k, read_volume(info), {})
+    if ngff == "0.5":
+        from ..recon.zarr_v3 import as_ngff05
+
+        return as_ngff05(out, tmp_path / "volumes_v3.zarr")
     return out
 
 
-def test_an_ome_zarr_series_opens_in_place_with_the_plugin(viewer, study_report, tmp_path):
-    store = _zarr_copy(study_report, tmp_path)
+@pytest.mark.parametrize("ngff", ["0.4", "0.5"])
+def test_an_ome_zarr_series_opens_in_place_with_the_plugin(viewer, study_report, tmp_path, ngff):
+    store = _zarr_copy(study_report, tmp_path, ngff)
+    assert (store / "zarr.json").is_file() == (ngff == "0.5")
     (layer,) = viewer.open(store, plugin="hrvptm")
     x0, y0, z0 = ORIGIN_XYZ_UM
     assert layer.data.shape == (N_FRAMES, *SHAPE)
@@ -153,33 +160,53 @@ def _placed_origin(layer) -> np.ndarray:
     return np.asarray(layer.data_to_world((0, 0, 0, 0)))[1:]
 
 
+def test_napari_ome_zarr_opens_our_store_with_its_voxels_scale_and_axes(
+    viewer, study_report, tmp_path
+):
+    store = _zarr_copy(study_report, tmp_path)
+    (layer,) = viewer.open(store, plugin="napari-ome-zarr")
+    assert layer.data.shape == (N_FRAMES, *SHAPE) and np.allclose(layer.scale, (1, *VOXEL_UM))
+    assert tuple(layer.axis_labels) == ("t", "z", "y", "x")
+    assert [str(u) for u in layer.units[1:]] == ["micrometer"] * 3
+    tif = viewer.open(study_report / "mismatched" / "volumes", plugin="hrvptm")[0]
+    for t in range(N_FRAMES):
+        assert np.array_equal(np.asarray(layer.data[t]), np.asarray(tif.data[t]))
+
+
 @pytest.mark.xfail(
     strict=True,
     reason="napari-ome-zarr 0.10.0 composes only the first coordinate transformation of a "
-    "dataset (the scale); NGFF 0.4/0.5 require scale then translation there, so the origin "
-    "of a valid store is dropped (see test_ome_zarr_origin_at_the_multiscales_level)",
+    "dataset (the scale); NGFF 0.4 requires scale then translation there, so the origin of "
+    "a valid store is dropped (see test_ome_zarr_origin_at_the_multiscales_level)",
 )
 def test_napari_ome_zarr_places_our_store_at_its_origin(viewer, study_report, tmp_path):
     store = _zarr_copy(study_report, tmp_path)
     (layer,) = viewer.open(store, plugin="napari-ome-zarr")
-    assert np.allclose(layer.scale, (1, *VOXEL_UM))
     x0, y0, z0 = ORIGIN_XYZ_UM
     assert np.allclose(_placed_origin(layer), (z0, y0, x0))
 
 
 def test_ome_zarr_origin_at_the_multiscales_level(viewer, study_report, tmp_path):
     """The one layout napari-ome-zarr 0.10.0 places right: the dataset's scale, and the
-    translation alone in the multiscales' own ``coordinateTransformations``. NGFF 0.5 wants
-    a scale first there too (ome-zarr-models refuses it); track's reader reads it right."""
+    translation alone in the multiscales' own ``coordinateTransformations``. NGFF 0.4 wants a
+    scale first there too (the NGFF 0.4 models refuse it, hence not written); track's reader
+    reads it right."""
+    import zarr
+    from ome_zarr_models.v04 import Image
+    from pydantic import ValidationError
+
     from track.volumes import scan_zarr
 
     store = _zarr_copy(study_report, tmp_path)
-    meta = json.loads((store / "zarr.json").read_text())
-    ms = meta["attributes"]["ome"]["multiscales"][0]
+    Image.from_zarr(zarr.open_group(str(store), mode="r"))  # as written: valid
+    meta = json.loads((store / ".zattrs").read_text())
+    ms = meta["multiscales"][0]
     scale, translation = ms["datasets"][0]["coordinateTransformations"]
     ms["datasets"][0]["coordinateTransformations"] = [scale]
     ms["coordinateTransformations"] = [translation]
-    (store / "zarr.json").write_text(json.dumps(meta))
+    (store / ".zattrs").write_text(json.dumps(meta))
+    with pytest.raises(ValidationError, match="scale"):
+        Image.from_zarr(zarr.open_group(str(store), mode="r"))
     (layer,) = viewer.open(store, plugin="napari-ome-zarr")
     x0, y0, z0 = ORIGIN_XYZ_UM
     assert np.allclose(layer.scale, (1, *VOXEL_UM))
