@@ -604,11 +604,11 @@ def test_zarr_records_camera_numbers_and_times(
     assert [(f["number"], f["time_s"], f["output"]["t"]) for f in frames] == [
         (n, n / 100, k) for k, n in enumerate(numbers)
     ]
-    attrs = json.loads((store / "zarr.json").read_text())["attributes"]
+    attrs = json.loads((store / ".zattrs").read_text())
     assert attrs["recon"]["frames"] == [
         {"t": k, "number": n, "time_s": n / 100} for k, n in enumerate(numbers)
     ]
-    multiscale = attrs["ome"]["multiscales"][0]
+    multiscale = attrs["multiscales"][0]
     assert multiscale["axes"][0].get("unit") == unit
     scale, translation = multiscale["datasets"][0]["coordinateTransformations"]
     assert scale["scale"][0] == pytest.approx(dt)
