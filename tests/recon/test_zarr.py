@@ -255,6 +255,7 @@ def test_a_zarr_format_3_store_resized_in_its_format_or_replaced_in_format_2(tmp
     other.prepare(3, geometry, [0.0, 0.5, 1.0], overwrite=True)
     assert not list(store.rglob("zarr.json")) and other.zarr_format() == 2
     assert other.indices() == [] and other.record_extra()["zarr"]["ngff_version"] == "0.4"
+    assert np.isnan(other.read(1)).all()  # a frame not written yet reads as NaN
     for k in range(3):
         other.write(k, vols[k], {})
     assert other.indices() == [0, 1, 2] and (store / "0" / "2" / "0" / "0" / "0").is_file()
