@@ -141,6 +141,7 @@ RENAMED_KEYS: dict[str, tuple[str, str]] = {
     "center_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
     "centre_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
     "box_um": ("bounds_xyz_um", "the (lo, hi) ranges in x, y, z order, µm"),
+    "roi_px": ("roi_xy_px", "(x0, x1, y0, y1): the x range then the y range in pixels"),
 }
 
 

@@ -112,9 +112,12 @@ class ReconModel:
             raise InputError(f"{path} lacks {missing or 'a JSON object'} (not a recon record)")
         try:
             known = {f.name for f in fields(ReconSettings)}
-            st = {k: v for k, v in rec["settings"].items() if k in known}
-            if st.get("roi_px") is not None:
-                st["roi_px"] = tuple(st["roi_px"])
+            # a record of the older layout names the region roi_px
+            older = {"roi_px": "roi_xy_px"}
+            st = {older.get(k, k): v for k, v in rec["settings"].items()}
+            st = {k: v for k, v in st.items() if k in known}
+            if st.get("roi_xy_px") is not None:
+                st["roi_xy_px"] = tuple(st["roi_xy_px"])
             return cls(
                 optics=Optics.from_dict(rec["optics"]),
                 grid=LensletGrid.from_dict(rec["calibration"]),

@@ -451,7 +451,7 @@ def _check_recon_scene(where: str, study: Study) -> None:
             f"immersion_ior = {optics.immersion_ior:g}, no cover glass)"
         )
     grid = study.track.series.grid
-    if study.study.kind != "series" or grid.spacing_um is None or study.recon.roi_px is not None:
+    if study.study.kind != "series" or grid.spacing_um is None or study.recon.roi_xy_px is not None:
         return
     try:
         depths = study.recon.resolved(optics).depths_um

@@ -687,11 +687,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         ReconSettings,
         args,
         RUN_SETTINGS,
-        extra={**z, "roi_px": _parse_roi(args.roi), **threads},
+        extra={**z, "roi_xy_px": _parse_roi(args.roi), **threads},
         names={
             "z_min_um": "--z-range",
             "z_max_um": "--z-range",
-            "roi_px": "--roi",
+            "roi_xy_px": "--roi",
             "threads": "--threads",
         },
     )

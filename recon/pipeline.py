@@ -164,8 +164,17 @@ def rectified_optics(optics, n: int):
     return replace(optics, pixel_um=optics.mla_pitch_um / n, axis_px=None, sensor_px=(n, n))
 
 
+#: Names under which the fingerprint hashes the entries named otherwise in the API
+#: (docs/conventions.md §3): it identifies what a series produces, and an entry's name does not
+#: change that, so the volumes already reconstructed are resumed.
+FINGERPRINT_KEYS = {"roi_xy_px": "roi_px"}
+
+
 def _fingerprint(payload: dict) -> str:
-    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    from hrvbase.io import rename_keys
+
+    text = json.dumps(rename_keys(payload, FINGERPRINT_KEYS), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 @dataclass
@@ -260,7 +269,7 @@ def reconstruct_series(
     n, ropt = _rectified(optics, grid)
     depths = st.depths_um
 
-    first, geom = _first_frame(refs[0], grid, pp, n, st.roi_px)
+    first, geom = _first_frame(refs[0], grid, pp, n, st.roi_xy_px)
     nx, ny = geom.n_lenslets_xy
     check_depths_resolvable(optics, depths, (nx, ny))
 
@@ -362,7 +371,7 @@ def _identity(st, pp, optics, grid, key, solver) -> dict:
     return identity
 
 
-def _first_frame(ref, grid, pp, n, roi_px):
+def _first_frame(ref, grid, pp, n, roi_xy_px):
     """The first frame (checked against the calibration's image size and the dark frame) and
     its rectification geometry, which every frame of the series shares."""
     from .rectify import rectify
@@ -375,7 +384,7 @@ def _first_frame(ref, grid, pp, n, roi_px):
         )
     if pp.dark is not None:
         check_dark(first, pp.dark, frame=f"frame {ref.label!r}", dark_name=pp.dark_name)
-    _, geom = _rectify_roi(rectify, first, grid, n, roi_px)
+    _, geom = _rectify_roi(rectify, first, grid, n, roi_xy_px)
     return first, geom
 
 
@@ -622,7 +631,7 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
         check_dark(raw, pp.dark, frame=f"frame {ref.label!r}", dark_name=pp.dark_name)
     modelled = st.background_model == "model"
     img, pinfo = prepare_image(raw, model.preprocess, subtract_background=not modelled)
-    rect, _ = _rectify_roi(rectify, img, model.grid, model.n, st.roi_px)
+    rect, _ = _rectify_roi(rectify, img, model.grid, model.n, st.roi_xy_px)
     res = model.solver(
         rect,
         model.projector,

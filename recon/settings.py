@@ -81,8 +81,9 @@ class ReconSettings:
         lenslet's diffraction spot is wider than :data:`recon.psf_wave.WAVE_SPOT_PX` sensor
         pixels, rays otherwise (:func:`recon.psf_wave.choose_psf_model`; rays for the paper's
         optics). ``recon.json`` records the model used.
-    roi_px : tuple of int or None
-        ``(x0, x1, y0, y1)``: reconstruct only lenslets whose images lie inside these pixels.
+    roi_xy_px : tuple of int or None
+        ``(x0, x1, y0, y1)``, the x range then the y range in pixels: reconstruct only
+        lenslets whose images lie inside these pixels.
     projector : {"auto", "gather", "sparse"}
         ``"auto"``: the fastest for the backend (:func:`recon.projector.make_projector`).
     background_model : {"subtract", "model"}
@@ -110,7 +111,7 @@ class ReconSettings:
     stop_rel_change: float | None = None
     rays_per_pattern: int = 200_000
     psf_model: str = "auto"
-    roi_px: tuple | None = None
+    roi_xy_px: tuple | None = None
     projector: str = "auto"
     background_model: str = "subtract"
     threads: int | None = None
@@ -172,11 +173,11 @@ class ReconSettings:
             object.__setattr__(
                 self, "threads", _wrap(validate.int_in_range, self.threads, "threads", 1)
             )
-        if self.roi_px is not None:
-            roi = tuple(int(v) for v in self.roi_px)
+        if self.roi_xy_px is not None:
+            roi = tuple(int(v) for v in self.roi_xy_px)
             if len(roi) != 4 or roi[0] >= roi[1] or roi[2] >= roi[3] or min(roi) < 0:
-                raise InputError(f"roi_px must be (x0, x1, y0, y1) with x0 < x1, y0 < y1: {roi}")
-            object.__setattr__(self, "roi_px", roi)
+                raise InputError(f"roi_xy_px must be (x0, x1, y0, y1) with x0 < x1, y0 < y1: {roi}")
+            object.__setattr__(self, "roi_xy_px", roi)
 
     @property
     def is_resolved(self) -> bool:
@@ -215,7 +216,7 @@ class ReconSettings:
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d["roi_px"] = list(self.roi_px) if self.roi_px else None
+        d["roi_xy_px"] = list(self.roi_xy_px) if self.roi_xy_px else None
         return d
 
     def result_dict(self) -> dict:

@@ -395,7 +395,7 @@ for cid, text, needle in [
     ),
     ("track-mode-a-table", "[track.mode]\nname = 'incremental'\n", "[track] mode must be"),
     ("track-axial-method-a-table", "[track.axial.method]\nname = 'x'\n", "method must be"),
-    ("recon-roi-a-table", "[recon.roi_px]\nx = 1\n", "roi_px must be"),
+    ("recon-roi-a-table", "[recon.roi_xy_px]\nx = 1\n", "roi_xy_px must be"),
 ]:
     case(
         f"hrvptm-study-key-{cid}",
