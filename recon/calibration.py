@@ -200,7 +200,7 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
     Returns
     -------
     LensletGrid
-        With ``origin_px`` at the lenslet nearest the image centre and the fit diagnostics.
+        With ``origin_xy_px`` at the lenslet nearest the image centre and the fit diagnostics.
 
     Raises
     ------
@@ -220,7 +220,7 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
     result = LensletGrid(
         pitch_px=grid.pitch_px,
         rotation_deg=grid.rotation_deg,
-        origin_px=grid.origin_px,
+        origin_xy_px=grid.origin_xy_px,
         image_shape=(h, w),
         rms_residual_px=rms,
         n_lenslets_used=n_used,
@@ -230,7 +230,7 @@ def calibrate_white(image: Any, *, expected_pitch_px: float | None = None) -> Le
         "%d lenslets used (%d dark, %d rejected), residual %.3f px RMS",
         result.pitch_px,
         result.rotation_deg,
-        *result.origin_px,
+        *result.origin_xy_px,
         n_used,
         n_dark,
         n_measured - n_dark - n_used,

@@ -540,7 +540,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if not getattr(args, "quiet", False):
         sys.stdout.write(
             f"wrote {out}: pitch {grid.pitch_px:.4f} px, rotation {grid.rotation_deg:+.4f} "
-            f"deg, origin ({grid.origin_px[0]:.3f}, {grid.origin_px[1]:.3f}) px, "
+            f"deg, origin ({grid.origin_xy_px[0]:.3f}, {grid.origin_xy_px[1]:.3f}) px, "
             f"{grid.n_lenslets_used} lenslets, residual {grid.rms_residual_px:.3f} px RMS\n"
         )
     return 0

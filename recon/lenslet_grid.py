@@ -35,11 +35,14 @@ from .errors import InputError, recon_input_errors
 _GRID_KEYS = (
     "pitch_px",
     "rotation_deg",
-    "origin_px",
+    "origin_xy_px",
     "image_shape",
     "rms_residual_px",
     "n_lenslets_used",
 )
+
+#: Keys of the grids of the older layout (calibration files, recon.json) → their names.
+_OLDER_GRID_KEYS = {"origin_px": "origin_xy_px"}
 
 
 def pair(value: Any, name: str, kind: type) -> tuple:
@@ -101,7 +104,7 @@ class LensletGrid:
     rotation_deg : float
         Angle ``θ`` of the grid's first axis from the image x axis towards +y (degrees),
         in ``[−45, 45]``.
-    origin_px : tuple of float
+    origin_xy_px : tuple of float
         ``(x, y)`` of the centre of lenslet ``(0, 0)``;
         :func:`~recon.calibration.calibrate_white` picks the lenslet nearest the image centre.
     image_shape : tuple of int
@@ -115,7 +118,7 @@ class LensletGrid:
 
     pitch_px: float
     rotation_deg: float
-    origin_px: tuple[float, float]
+    origin_xy_px: tuple[float, float]
     image_shape: tuple[int, int]
     rms_residual_px: float = 0.0
     n_lenslets_used: int = 0
@@ -135,7 +138,7 @@ class LensletGrid:
             )
         object.__setattr__(self, "pitch_px", pitch)
         object.__setattr__(self, "rotation_deg", rot)
-        object.__setattr__(self, "origin_px", pair(self.origin_px, "origin_px", float))
+        object.__setattr__(self, "origin_xy_px", pair(self.origin_xy_px, "origin_xy_px", float))
         object.__setattr__(self, "image_shape", pair(self.image_shape, "image_shape", int))
         object.__setattr__(self, "rms_residual_px", rms)
         object.__setattr__(self, "n_lenslets_used", n)
@@ -169,7 +172,7 @@ class LensletGrid:
         uv = np.asarray(indices, dtype=float)
         if uv.ndim != 2 or uv.shape[1] != 2:
             raise InputError(f"indices must have shape (K, 2), got {uv.shape}")
-        return np.asarray(self.origin_px) + uv @ self.basis_px
+        return np.asarray(self.origin_xy_px) + uv @ self.basis_px
 
     def lenslet_index(self, xy: Any) -> np.ndarray:
         """Fractional lenslet indices ``(u, v)`` of points ``(x, y)``.
@@ -188,7 +191,7 @@ class LensletGrid:
         if pts.shape[-1:] != (2,):
             raise InputError(f"xy must have shape (..., 2), got {pts.shape}")
         b = self.basis_px
-        return (pts - np.asarray(self.origin_px)) @ b.T / self.pitch_px**2
+        return (pts - np.asarray(self.origin_xy_px)) @ b.T / self.pitch_px**2
 
     def all_centers(self) -> tuple[np.ndarray, np.ndarray]:
         """Every lenslet whose centre lies inside the image ``[0, W) × [0, H)``.
@@ -217,7 +220,7 @@ class LensletGrid:
         return {
             "pitch_px": self.pitch_px,
             "rotation_deg": self.rotation_deg,
-            "origin_px": list(self.origin_px),
+            "origin_xy_px": list(self.origin_xy_px),
             "image_shape": list(self.image_shape),
             "rms_residual_px": self.rms_residual_px,
             "n_lenslets_used": self.n_lenslets_used,
@@ -225,9 +228,14 @@ class LensletGrid:
 
     @classmethod
     def from_dict(cls, data: Any) -> LensletGrid:
-        """Inverse of :meth:`to_dict`; unknown or missing keys are an error naming them."""
+        """Inverse of :meth:`to_dict`; unknown or missing keys are an error naming them. A
+        grid of the older layout, whose origin is ``origin_px``, is read too."""
         if not isinstance(data, dict):
             raise InputError(f"a lenslet grid must be a JSON object, got {type(data).__name__}")
+        for older, name in _OLDER_GRID_KEYS.items():
+            if older in data and name in data:
+                raise InputError(f"a lenslet grid has both {older!r} and {name!r}; keep {name!r}")
+        data = {_OLDER_GRID_KEYS.get(k, k): v for k, v in data.items()}
         unknown = sorted(set(data) - set(_GRID_KEYS))
         if unknown:
             raise InputError(f"unknown lenslet-grid keys {unknown}; expected {list(_GRID_KEYS)}")
@@ -281,7 +289,7 @@ def grid_from_similarity(p, theta_rad, origin, shape, **diag) -> LensletGrid:
     return LensletGrid(
         pitch_px=float(p),
         rotation_deg=deg,
-        origin_px=(float(origin[0]), float(origin[1])),
+        origin_xy_px=(float(origin[0]), float(origin[1])),
         image_shape=shape,
         **diag,
     )
@@ -294,7 +302,7 @@ def recenter(grid: LensletGrid) -> tuple[LensletGrid, np.ndarray]:
     new = LensletGrid(
         pitch_px=grid.pitch_px,
         rotation_deg=grid.rotation_deg,
-        origin_px=grid.center(*shift),
+        origin_xy_px=grid.center(*shift),
         image_shape=grid.image_shape,
         rms_residual_px=grid.rms_residual_px,
         n_lenslets_used=grid.n_lenslets_used,

@@ -167,7 +167,7 @@ def rectified_optics(optics, n: int):
 #: Names under which the fingerprint hashes the entries named otherwise in the API
 #: (docs/conventions.md §3): it identifies what a series produces, and an entry's name does not
 #: change that, so the volumes already reconstructed are resumed.
-FINGERPRINT_KEYS = {"roi_xy_px": "roi_px"}
+FINGERPRINT_KEYS = {"roi_xy_px": "roi_px", "origin_xy_px": "origin_px"}
 
 
 def _fingerprint(payload: dict) -> str:
@@ -675,8 +675,8 @@ def _rectify_roi(rectify, image, grid, n, roi):
     h, w = image.shape
     if x1 > w or y1 > h:
         raise InputError(f"region of interest {roi} exceeds the {w} × {h} px image")
-    ox, oy = grid.origin_px
-    sub = replace(grid, origin_px=(ox - x0, oy - y0), image_shape=(y1 - y0, x1 - x0))
+    ox, oy = grid.origin_xy_px
+    sub = replace(grid, origin_xy_px=(ox - x0, oy - y0), image_shape=(y1 - y0, x1 - x0))
     rect, geom = rectify(image[y0:y1, x0:x1], sub, n)
     return rect, geom
 

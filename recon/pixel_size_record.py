@@ -121,7 +121,7 @@ def nominal_grid(optics, image_shape: tuple[int, int]):
     return LensletGrid(
         pitch_px=optics.px_per_lenslet,
         rotation_deg=0.0,
-        origin_px=tuple(optics.axis_px),
+        origin_xy_px=tuple(optics.axis_px),
         image_shape=tuple(image_shape),
     )
 

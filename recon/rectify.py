@@ -165,7 +165,7 @@ def _sample_points(
     ev = np.array([-math.sin(t), math.cos(t)])
     p = grid.pitch_px
     s = p / n
-    corner = np.asarray(grid.origin_px) + p * ((first[0] - 0.5) * eu + (first[1] - 0.5) * ev)
+    corner = np.asarray(grid.origin_xy_px) + p * ((first[0] - 0.5) * eu + (first[1] - 0.5) * ev)
     cu = (np.asarray(cols, float) * s)[None, :, None] * eu
     rv = (np.asarray(rows, float) * s)[:, None, None] * ev
     return corner + cu + rv

@@ -717,8 +717,8 @@ for cid, make, needle in [
     ("negative-pitch", lambda e: e.calib(lambda d: d["grid"].update(pitch_px=-15.0)), "pitch_px"),
     (
         "origin-wrong-length",
-        lambda e: e.calib(lambda d: d["grid"].update(origin_px=[1.0])),
-        "origin_px",
+        lambda e: e.calib(lambda d: d["grid"].update(origin_xy_px=[1.0])),
+        "origin_xy_px",
     ),
     (
         "image-shape-text",

@@ -40,7 +40,7 @@ def synthetic_white(
     ----------
     shape : tuple of int
         ``(height, width)`` in pixels.
-    grid : LensletGrid or object with ``pitch_px``, ``rotation_deg``, ``origin_px``
+    grid : LensletGrid or object with ``pitch_px``, ``rotation_deg``, ``origin_xy_px``
         The lenslet grid (continuous pixel coordinates, see :mod:`recon.lenslet_grid`).
     disc_fraction : float
         Disc diameter / pitch, in ``(0, 1.5]``.
@@ -69,9 +69,9 @@ def synthetic_white(
         with recon_input_errors():
             p = finite_float(grid.pitch_px, "grid.pitch_px")
             theta = math.radians(finite_float(grid.rotation_deg, "grid.rotation_deg"))
-        x0, y0 = pair(grid.origin_px, "grid.origin_px", float)
+        x0, y0 = pair(grid.origin_xy_px, "grid.origin_xy_px", float)
     except AttributeError as exc:
-        raise InputError(f"grid must have pitch_px, rotation_deg and origin_px: {exc}") from None
+        raise InputError(f"grid must have pitch_px, rotation_deg and origin_xy_px: {exc}") from None
     if p < 2:
         raise InputError(f"grid.pitch_px must be at least 2, got {p!r}")
     checks = (

@@ -79,7 +79,7 @@ def test_acceptance_synthetic(shape, pitch, rot, offset, seed):
     assert 0.8 * n_inside < fit.n_lenslets_used < 0.96 * n_inside
     assert 0.02 < fit.rms_residual_px < 0.1
     # Origin: the lenslet nearest the image centre.
-    cx, cy = fit.origin_px
+    cx, cy = fit.origin_xy_px
     assert math.hypot(cx - w / 2, cy - h / 2) <= pitch / math.sqrt(2) + 1e-6
     assert fit.image_shape == shape
 
@@ -90,7 +90,7 @@ def test_expected_pitch_gives_the_same_grid():
     free = calibrate_white(img)
     hinted = calibrate_white(img, expected_pitch_px=15.0)
     assert hinted.pitch_px == pytest.approx(free.pitch_px, abs=1e-9)
-    assert hinted.origin_px == pytest.approx(free.origin_px, abs=1e-9)
+    assert hinted.origin_xy_px == pytest.approx(free.origin_xy_px, abs=1e-9)
 
 
 @pytest.mark.parametrize("disc_fraction", [0.8, 0.95, 1.02])
@@ -262,8 +262,8 @@ def test_grid_load_errors(tmp_path):
         ({"pitch_px": 1.0}, "pitch_px"),
         ({"pitch_px": float("inf")}, "pitch_px"),
         ({"rotation_deg": 50.0}, "rotation_deg"),
-        ({"origin_px": (1.0,)}, "origin_px"),
-        ({"origin_px": (1.0, float("nan"))}, "origin_px"),
+        ({"origin_xy_px": (1.0,)}, "origin_xy_px"),
+        ({"origin_xy_px": (1.0, float("nan"))}, "origin_xy_px"),
         ({"image_shape": (0, 10)}, "image_shape"),
         ({"image_shape": (10.5, 10)}, "image_shape"),
         ({"rms_residual_px": -1.0}, "rms_residual_px"),
@@ -272,9 +272,24 @@ def test_grid_load_errors(tmp_path):
     ],
 )
 def test_grid_validation(kw, match):
-    base = {"pitch_px": 15.0, "rotation_deg": 0.0, "origin_px": (1.0, 2.0), "image_shape": (9, 9)}
+    base = {
+        "pitch_px": 15.0,
+        "rotation_deg": 0.0,
+        "origin_xy_px": (1.0, 2.0),
+        "image_shape": (9, 9),
+    }
     with pytest.raises(InputError, match=match):
         LensletGrid(**{**base, **kw})
+
+
+def test_grid_of_the_older_layout_is_read():
+    grid = LensletGrid(15.0, 0.5, (1.0, 2.0), (9, 9))
+    d = grid.to_dict()
+    assert d["origin_xy_px"] == [1.0, 2.0] and "origin_px" not in d
+    older = {("origin_px" if k == "origin_xy_px" else k): v for k, v in d.items()}
+    assert LensletGrid.from_dict(older) == grid
+    with pytest.raises(InputError, match="both 'origin_px' and 'origin_xy_px'"):
+        LensletGrid.from_dict({**d, "origin_px": [1.0, 2.0]})
 
 
 # -- the synthetic generator ---------------------------------------------------------------------

@@ -59,9 +59,9 @@ def test_rotated_non_integer_pitch_recalibrates_to_n():
     assert again.pitch_px == pytest.approx(15.0, abs=0.01)
     assert abs(again.rotation_deg) < 0.02
     # block centres: ((U + 0.5) n, (V + 0.5) n) in the rectified image
-    u, v = np.rint(again.lenslet_index(np.array(again.origin_px))).astype(int)
+    u, v = np.rint(again.lenslet_index(np.array(again.origin_xy_px))).astype(int)
     assert (u, v) == (0, 0)
-    ox, oy = again.origin_px
+    ox, oy = again.origin_xy_px
     assert ox % 15 == pytest.approx(7.5, abs=0.05)
     assert oy % 15 == pytest.approx(7.5, abs=0.05)
     # every block holds a whole lenslet: the samples all lie inside the raw image
