@@ -234,7 +234,7 @@ def phase_scan(configs, zsets, phases_um, diameter_um, cache):
         bank = compute_psf_bank(o, depths, 5, rays_per_pattern=50_000, cache_dir=cache)
         proj = make_projector(bank, (20, 20), "auto")
         filt = DepthFilter.for_optics(o, depths, 5)
-        origin = (-o.axis_px[0] * o.object_pixel_um, -o.axis_px[1] * o.object_pixel_um)
+        origin = (-o.axis_xy_px[0] * o.object_pixel_um, -o.axis_xy_px[1] * o.object_pixel_um)
         grid = ReconGrid(o.lenslet_object_um, depths, 5, (20, 20), origin)
         xs, ys, zz, vx = grid.x_um(), grid.y_um(), np.asarray(depths), grid.voxel_um
         err: dict[float, list] = {}

@@ -82,7 +82,7 @@ def microscopes(n_lenslets: int = 12) -> dict[str, Microscope]:
     """The paper's optics and a 10×/0.3 one on ``n_lenslets²``-lenslet sensors."""
     from lfsim.optics import Optics, paper_optics
 
-    paper = paper_optics(sensor_px=(15 * n_lenslets, 15 * n_lenslets))
+    paper = paper_optics(sensor_xy_px=(15 * n_lenslets, 15 * n_lenslets))
     # 10×/0.3: image-side NA 0.03 matched by f/16.7 lenslets of 150 µm; 11 px per lenslet
     ten = Optics(
         na=0.3,
@@ -91,7 +91,7 @@ def microscopes(n_lenslets: int = 12) -> dict[str, Microscope]:
         mla_pitch_um=150.0,
         mla_focal_um=2500.0,
         pixel_um=150.0 / 11.0,
-        sensor_px=(11 * n_lenslets, 11 * n_lenslets),
+        sensor_xy_px=(11 * n_lenslets, 11 * n_lenslets),
     )
     return {
         "paper": Microscope("paper", paper, 15.0, (150.0, 250.0), (60.0, 340.0)),
@@ -106,7 +106,7 @@ def seed_particles(m: Microscope, n: int, seed: int) -> np.ndarray:
 
     o = m.optics
     p = o.lenslet_object_um
-    nx = o.sensor_px[0] / o.px_per_lenslet
+    nx = o.sensor_xy_px[0] / o.px_per_lenslet
     half = 0.5 * nx * p - 2.0 * p
     # the lateral spacing matters (the axial images are long): spread in x, y, then draw z
     xy = poisson_disc_cloud(n, [(-half, half), (-half, half), (0.0, 1e-3)], 3.0 * p, seed=seed)
@@ -124,7 +124,7 @@ def _projector(o, depths, s):
     key = (repr(o), tuple(depths), s)
     if key not in _BANKS:
         bank = compute_psf_bank(o, depths, s, rays_per_pattern=20_000)
-        n = round(o.sensor_px[0] / o.px_per_lenslet)
+        n = round(o.sensor_xy_px[0] / o.px_per_lenslet)
         _BANKS[key] = make_projector(bank, (n, n))
     return _BANKS[key]
 
@@ -165,8 +165,8 @@ def reconstruct_image(m: Microscope, image, iterations, s, z_step_um, depth_filt
     img, _ = prepare_image(image)
     filt = DepthFilter.for_optics(o, depths, s) if depth_filter else None
     vol = richardson_lucy(img, proj, iterations, depth_filter=filt, track_kl=False).volume
-    n = round(o.sensor_px[0] / o.px_per_lenslet)
-    origin = (-o.axis_px[0] * o.object_pixel_um, -o.axis_px[1] * o.object_pixel_um)
+    n = round(o.sensor_xy_px[0] / o.px_per_lenslet)
+    origin = (-o.axis_xy_px[0] * o.object_pixel_um, -o.axis_xy_px[1] * o.object_pixel_um)
     grid = ReconGrid(o.lenslet_object_um, depths, s, (n, n), origin)
     return (
         np.asarray(vol, dtype=np.float32),

@@ -70,7 +70,7 @@ def make_optics(name: str, n_lenslets: int):
     m, na, n = SCOPES[name]
     side = n_lenslets * PN
     if name == "4x":
-        return paper_optics(sensor_px=(side, side))
+        return paper_optics(sensor_xy_px=(side, side))
     return Optics(
         na=na,
         f_objective_um=F_TUBE / m,
@@ -78,7 +78,7 @@ def make_optics(name: str, n_lenslets: int):
         mla_pitch_um=PITCH,
         mla_focal_um=m * PITCH / (2 * na),
         pixel_um=PITCH / PN,
-        sensor_px=(side, side),
+        sensor_xy_px=(side, side),
         medium_ior=n,
         immersion_ior=n,
     )
@@ -99,7 +99,7 @@ def pyolaf_light_fields(optics, depths, q: int, guard: int) -> dict[str, np.ndar
     if q % PN or q % 2 == 0:
         # pyolaf makes its samples per lenslet odd (an even count becomes one more)
         raise SystemExit(f"--pyolaf-px must be an odd multiple of {PN}")
-    n_sensor = optics.sensor_px[0] // PN
+    n_sensor = optics.sensor_xy_px[0] // PN
     r = n_sensor // 2 + guard
     cfg = {
         "gridType": "reg",
@@ -195,7 +195,7 @@ def run_scope(name: str, args) -> dict:
         "n": optics.medium_ior,
         "f_lenslet_um": optics.mla_focal_um,
         "z1_um": z1,
-        "sensor_px": optics.sensor_px,
+        "sensor_xy_px": optics.sensor_xy_px,
         "oversample": ws.oversample,
         "history": hist,
         "seconds_ours": t_ours,
@@ -208,7 +208,7 @@ def run_scope(name: str, args) -> dict:
 def report(r: dict) -> str:
     lines = [
         f"\n== {r['scope']}: M {r['M']:g}, NA {r['NA']:g}, n {r['n']:g}, lenslets "
-        f"{PITCH:g} µm / f {r['f_lenslet_um']:g} µm, sensor {r['sensor_px'][0]} px, "
+        f"{PITCH:g} µm / f {r['f_lenslet_um']:g} µm, sensor {r['sensor_xy_px'][0]} px, "
         f"z1 = {r['z1_um']:.4g} µm ==",
         "lfsim.wave convergence (oversample, change): "
         + ", ".join(f"({o}, {c:.2g})" for o, c in r["history"])

@@ -142,6 +142,8 @@ RENAMED_KEYS: dict[str, tuple[str, str]] = {
     "centre_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
     "box_um": ("bounds_xyz_um", "the (lo, hi) ranges in x, y, z order, µm"),
     "roi_px": ("roi_xy_px", "(x0, x1, y0, y1): the x range then the y range in pixels"),
+    "sensor_px": ("sensor_xy_px", "the sensor's (width, height) in pixels"),
+    "axis_px": ("axis_xy_px", "the optical axis on the sensor, (column, row) in pixels"),
 }
 
 

@@ -459,7 +459,7 @@ def _check_recon_scene(where: str, study: Study) -> None:
         raise StudyConfigError(f"{where}: [recon] {exc}") from None
     # A lower bound of the volumes' size (x, y, z): rectification keeps at least the whole
     # lenslets but two, less one voxel.
-    whole = np.floor(np.asarray(optics.sensor_px) / optics.px_per_lenslet) - 3
+    whole = np.floor(np.asarray(optics.sensor_xy_px) / optics.px_per_lenslet) - 3
     lower = [*(np.maximum(whole, 0) * optics.lenslet_object_um), depths[-1] - depths[0]]
     if grid.spacing_um < max(lower):  # the single-cell check needs the exact size: later
         try:

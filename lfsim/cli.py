@@ -73,6 +73,8 @@ def _option_names(exc: ConfigError, names: dict[str, str]) -> ConfigError:
 
 def _parse_set(items: list[str]) -> dict:
     """``KEY=VALUE`` strings → Optics keyword arguments of the right types."""
+    from hrvbase.validate import renamed_key_message
+
     from .optics import Optics
 
     types = {f.name: f.type for f in fields(Optics)}
@@ -82,14 +84,17 @@ def _parse_set(items: list[str]) -> dict:
         key, value = key.strip(), value.strip()
         if not sep or not key:
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
+        renamed = renamed_key_message(key, types)
+        if renamed is not None:
+            raise ConfigError(f"--set: {renamed}")
         if key not in types:
             raise ConfigError(
                 f"--set: unknown optics key {key!r}; allowed keys: {', '.join(sorted(types))}"
             )
         try:
-            if key in ("sensor_px", "axis_px"):
+            if key in ("sensor_xy_px", "axis_xy_px"):
                 parts = value.replace("x", ",").replace("×", ",").split(",")
-                conv = int if key == "sensor_px" else float
+                conv = int if key == "sensor_xy_px" else float
                 out[key] = tuple(conv(p) for p in parts if p.strip())
             elif key == "mla_kind":
                 out[key] = value
@@ -453,7 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--set",
         action="append",
         metavar="KEY=VALUE",
-        help="override an Optics field in its unit (µm), e.g. na=0.3 or sensor_px=640,400 "
+        help="override an Optics field in its unit (µm), e.g. na=0.3 or sensor_xy_px=640,400 "
         "(repeatable; default: none)",
     )
     output(s, "scene file to write", "OUT.xml")

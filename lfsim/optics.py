@@ -53,7 +53,7 @@ REQUIRED = (
     "mla_pitch_um",
     "mla_focal_um",
     "pixel_um",
-    "sensor_px",
+    "sensor_xy_px",
 )
 
 
@@ -61,6 +61,13 @@ def _positive(name: str, value: float) -> None:
     if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
         raise ConfigError(f"{name} must be a positive finite number, got {value!r}")
 
+
+#: Names under which the fingerprints and cache keys hash the fields named otherwise in the
+#: API (docs/conventions.md §3), which are also the names of the files of the older layout:
+#: a field's name does not change what the optics image.
+FINGERPRINT_KEYS = {"sensor_xy_px": "sensor_px", "axis_xy_px": "axis_px"}
+#: The older names → the fields' (:meth:`Optics.from_dict`).
+OLDER_KEYS = {v: k for k, v in FINGERPRINT_KEYS.items()}
 
 #: Largest sensor (pixels) the tracers can index: Dr.Jit arrays hold at most 2³² entries and
 #: the film keeps several arrays of the sensor's size.
@@ -75,7 +82,7 @@ PAPER_OPTICS = {
     "mla_pitch_um": 100.0,
     "mla_focal_um": 1000.0,
     "pixel_um": 100.0 / 15.0,
-    "sensor_px": (1280, 800),
+    "sensor_xy_px": (1280, 800),
 }
 
 
@@ -97,7 +104,7 @@ class Optics:
         Lenslet pitch and focal length of the square microlens array.
     pixel_um : float
         Sensor pixel size referred to the lenslets' back focal plane.
-    sensor_px : tuple of int
+    sensor_xy_px : tuple of int
         Sensor size ``(width, height)`` in pixels.
     wavelength_um : float
         Emission wavelength (used by the diffraction blur).
@@ -126,7 +133,7 @@ class Optics:
         specimen past its near surface (the cover glass's far face); negative when the
         nominal focal plane lies in front of the specimen. Used only where the specimen has an
         interface (:attr:`has_interfaces`).
-    axis_px : tuple of float, optional
+    axis_xy_px : tuple of float, optional
         Sensor position ``(column, row)`` of the optical axis in continuous pixel coordinates
         (pixel ``i`` spans ``[i, i + 1)``). Default: the centre of the lenslet nearest to the
         sensor centre, so that lenslet borders fall on pixel borders when the pitch is an
@@ -139,7 +146,7 @@ class Optics:
     mla_pitch_um: float
     mla_focal_um: float
     pixel_um: float
-    sensor_px: tuple[int, int]
+    sensor_xy_px: tuple[int, int]
     wavelength_um: float = 0.605
     mla_kind: str = "ideal"
     mla_ior: float = 1.5
@@ -150,7 +157,7 @@ class Optics:
     coverslip_ior: float = 1.523
     coverslip_corrected_um: float = 0.0
     focus_depth_um: float = 0.0
-    axis_px: tuple[float, float] | None = field(default=None)
+    axis_xy_px: tuple[float, float] | None = field(default=None)
 
     def __post_init__(self) -> None:
         for name in ("medium_ior", "immersion_ior", "coverslip_ior"):
@@ -185,13 +192,15 @@ class Optics:
             raise ConfigError(f"mla_kind must be one of {MLA_KINDS}, got {self.mla_kind!r}")
         if not (1.0 < self.mla_ior < 4.0):
             raise ConfigError(f"mla_ior must lie in (1, 4), got {self.mla_ior!r}")
-        sp = tuple(self.sensor_px)
+        sp = tuple(self.sensor_xy_px)
         if len(sp) != 2 or any(int(v) != v or v < 1 for v in sp):
-            raise ConfigError(f"sensor_px must be two positive integers, got {self.sensor_px!r}")
-        object.__setattr__(self, "sensor_px", (int(sp[0]), int(sp[1])))
+            raise ConfigError(
+                f"sensor_xy_px must be two positive integers, got {self.sensor_xy_px!r}"
+            )
+        object.__setattr__(self, "sensor_xy_px", (int(sp[0]), int(sp[1])))
         if sp[0] * sp[1] > MAX_SENSOR_PIXELS:
             raise ConfigError(
-                f"sensor_px {sp[0]} × {sp[1]} is too large: at most {MAX_SENSOR_PIXELS:,} "
+                f"sensor_xy_px {sp[0]} × {sp[1]} is too large: at most {MAX_SENSOR_PIXELS:,} "
                 "pixels can be simulated"
             )
         if self.px_per_lenslet < 3:
@@ -212,19 +221,19 @@ class Optics:
                     f"mla_thickness_um={self.mla_thickness_um} must exceed the lenslet sag "
                     f"{self.lenslet_sag_um:.3g} µm"
                 )
-        if self.axis_px is None:
-            w, h = self.sensor_px
+        if self.axis_xy_px is None:
+            w, h = self.sensor_xy_px
             p = self.px_per_lenslet
             axis = (
                 math.floor(w / p / 2) * p + p / 2,
                 math.floor(h / p / 2) * p + p / 2,
             )
-            object.__setattr__(self, "axis_px", axis)
+            object.__setattr__(self, "axis_xy_px", axis)
         else:
-            ax = tuple(float(v) for v in self.axis_px)
+            ax = tuple(float(v) for v in self.axis_xy_px)
             if len(ax) != 2 or not all(math.isfinite(v) for v in ax):
-                raise ConfigError(f"axis_px must be two finite numbers, got {self.axis_px!r}")
-            object.__setattr__(self, "axis_px", ax)
+                raise ConfigError(f"axis_xy_px must be two finite numbers, got {self.axis_xy_px!r}")
+            object.__setattr__(self, "axis_xy_px", ax)
 
     # -- derived quantities -------------------------------------------------------------
     @property
@@ -409,13 +418,13 @@ class Optics:
     @property
     def sensor_um(self) -> tuple[float, float]:
         """Sensor extent ``(width, height)`` in the sensor plane."""
-        return (self.sensor_px[0] * self.pixel_um, self.sensor_px[1] * self.pixel_um)
+        return (self.sensor_xy_px[0] * self.pixel_um, self.sensor_xy_px[1] * self.pixel_um)
 
     @property
     def field_of_view_um(self) -> tuple[float, float, float, float]:
         """Object-space field of view ``(x_min, x_max, y_min, y_max)`` seen by the sensor."""
-        w, h = self.sensor_px
-        cx, cy = self.axis_px
+        w, h = self.sensor_xy_px
+        cx, cy = self.axis_xy_px
         s = self.object_pixel_um
         return ((0 - cx) * s, (w - cx) * s, (0 - cy) * s, (h - cy) * s)
 
@@ -465,9 +474,9 @@ class Optics:
     @property
     def n_lenslets_xy(self) -> tuple[int, int]:
         """Number of whole or partial lenslets across the sensor ``(nx, ny)``."""
-        w, h = self.sensor_px
+        w, h = self.sensor_xy_px
         p = self.px_per_lenslet
-        cx, cy = self.axis_px
+        cx, cy = self.axis_xy_px
         nx = math.floor((w - cx) / p + 0.5) + math.floor(cx / p + 0.5) + 1
         ny = math.floor((h - cy) / p + 0.5) + math.floor(cy / p + 0.5) + 1
         return nx, ny
@@ -490,13 +499,26 @@ class Optics:
     def to_dict(self) -> dict:
         """Plain-JSON representation (all fields, lengths in µm)."""
         d = asdict(self)
-        d["sensor_px"] = list(self.sensor_px)
-        d["axis_px"] = list(self.axis_px)
+        d["sensor_xy_px"] = list(self.sensor_xy_px)
+        d["axis_xy_px"] = list(self.axis_xy_px)
         return d
+
+    def fingerprint_dict(self) -> dict:
+        """:meth:`to_dict` with the keys named as the fingerprints and cache keys hash them
+        (:data:`FINGERPRINT_KEYS`)."""
+        from hrvbase.io import rename_keys
+
+        return rename_keys(self.to_dict(), FINGERPRINT_KEYS)
 
     @classmethod
     def from_dict(cls, data: dict) -> Optics:
-        """Inverse of :meth:`to_dict`; unknown keys are an error naming them."""
+        """Inverse of :meth:`to_dict`; unknown keys are an error naming them. The optics of
+        the files of the older layout (calibration files, ``recon.json``, PSF banks), whose
+        sensor and axis are ``sensor_px`` and ``axis_px``, are read too."""
+        for older, name in OLDER_KEYS.items():
+            if name in data and older in data:
+                raise ConfigError(f"optics have both {older!r} and {name!r}; keep {name!r}")
+        data = {OLDER_KEYS.get(k, k): v for k, v in data.items()}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -505,7 +527,7 @@ class Optics:
         if missing:
             raise ConfigError(f"optics keys {missing} are missing (no built-in microscope)")
         kw = dict(data)
-        for key in ("sensor_px", "axis_px"):
+        for key in ("sensor_xy_px", "axis_xy_px"):
             if key in kw and kw[key] is not None:
                 kw[key] = tuple(kw[key])
         return cls(**kw)
@@ -519,4 +541,4 @@ def paper_optics(**overrides) -> Optics:
 
 def small_optics(**overrides) -> Optics:
     """Paper optics on a 20 × 20-lenslet sensor (300 × 300 px) for fast tests."""
-    return paper_optics(**{"sensor_px": (300, 300), **overrides})
+    return paper_optics(**{"sensor_xy_px": (300, 300), **overrides})

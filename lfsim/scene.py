@@ -51,7 +51,7 @@ UM_PER_MM = 1000.0
 
 #: Optics fields written as ``<default>`` entries, with their XML names.
 _SCALAR_FIELDS = [
-    f.name for f in fields(Optics) if f.name not in ("sensor_px", "axis_px", "mla_kind")
+    f.name for f in fields(Optics) if f.name not in ("sensor_xy_px", "axis_xy_px", "mla_kind")
 ]
 
 
@@ -103,8 +103,8 @@ def sensor_rect_mm(optics: Optics) -> tuple[float, float, float, float]:
     Pixel column ``c`` sits at ``X = (axis_x − c) · pixel`` (the 4f image is inverted; reading
     columns along −X makes object +x run along +columns), rows likewise along −Y.
     """
-    w, h = optics.sensor_px
-    ax, ay = optics.axis_px
+    w, h = optics.sensor_xy_px
+    ax, ay = optics.axis_xy_px
     p = optics.pixel_um / UM_PER_MM
     return ((ax - w / 2) * p, (ay - h / 2) * p, w / 2 * p, h / 2 * p)
 
@@ -150,8 +150,8 @@ def lenslet_mesh_name(optics: Optics) -> str:
         (
             optics.mla_pitch_um,
             optics.lenslet_radius_of_curvature_um,
-            optics.sensor_px,
-            optics.axis_px,
+            optics.sensor_xy_px,
+            optics.axis_xy_px,
             optics.pixel_um,
             MESH_FACETS,
         )
@@ -205,10 +205,10 @@ def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "
     for name in _SCALAR_FIELDS:
         ET.SubElement(root, "default", name=name, value=_fmt(getattr(optics, name)))
     ET.SubElement(root, "default", name="mla_kind", value=optics.mla_kind)
-    ET.SubElement(root, "default", name="sensor_width_px", value=str(optics.sensor_px[0]))
-    ET.SubElement(root, "default", name="sensor_height_px", value=str(optics.sensor_px[1]))
-    ET.SubElement(root, "default", name="axis_x_px", value=_fmt(optics.axis_px[0]))
-    ET.SubElement(root, "default", name="axis_y_px", value=_fmt(optics.axis_px[1]))
+    ET.SubElement(root, "default", name="sensor_width_px", value=str(optics.sensor_xy_px[0]))
+    ET.SubElement(root, "default", name="sensor_height_px", value=str(optics.sensor_xy_px[1]))
+    ET.SubElement(root, "default", name="axis_x_px", value=_fmt(optics.axis_xy_px[0]))
+    ET.SubElement(root, "default", name="axis_y_px", value=_fmt(optics.axis_xy_px[1]))
 
     r_obj, r_tube = _radii_mm(optics)
     fo = optics.f_objective_um / UM_PER_MM
@@ -251,8 +251,8 @@ def write_scene(optics: Optics, path: str | os.PathLike, *, description: str = "
     _bsdf(
         s,
         "lfm_sensor",
-        width_px=int(optics.sensor_px[0]),
-        height_px=int(optics.sensor_px[1]),
+        width_px=int(optics.sensor_xy_px[0]),
+        height_px=int(optics.sensor_xy_px[1]),
         pixel_um=optics.pixel_um,
         wavelength_nm=optics.wavelength_um * 1000.0,
     )
@@ -348,9 +348,9 @@ def read_optics(path: str | os.PathLike) -> Optics:
         for name in _SCALAR_FIELDS:
             if name in defaults:
                 kw[name] = float(defaults[name])
-        kw["sensor_px"] = (int(defaults["sensor_width_px"]), int(defaults["sensor_height_px"]))
+        kw["sensor_xy_px"] = (int(defaults["sensor_width_px"]), int(defaults["sensor_height_px"]))
         if "axis_x_px" in defaults:
-            kw["axis_px"] = (float(defaults["axis_x_px"]), float(defaults["axis_y_px"]))
+            kw["axis_xy_px"] = (float(defaults["axis_x_px"]), float(defaults["axis_y_px"]))
     except (TypeError, ValueError) as exc:
         raise SceneError(f"{path}: a <default> optics value is not a number: {exc}") from exc
     kw["mla_kind"] = defaults["mla_kind"]
@@ -408,10 +408,18 @@ def _check_elements(path: Path, root: ET.Element, optics: Optics) -> None:
     _check(path, "sensor", "z (mm)", _z(sensor), lay.sensor_z)
     _check(path, "sensor", "pixel_um", _prop(path, sensor, "sensor", "pixel_um"), optics.pixel_um)
     _check(
-        path, "sensor", "width_px", _prop(path, sensor, "sensor", "width_px"), optics.sensor_px[0]
+        path,
+        "sensor",
+        "width_px",
+        _prop(path, sensor, "sensor", "width_px"),
+        optics.sensor_xy_px[0],
     )
     _check(
-        path, "sensor", "height_px", _prop(path, sensor, "sensor", "height_px"), optics.sensor_px[1]
+        path,
+        "sensor",
+        "height_px",
+        _prop(path, sensor, "sensor", "height_px"),
+        optics.sensor_xy_px[1],
     )
     _check_specimen(path, root, optics, lay)
     mla = _shape(path, root, "mla")

@@ -350,8 +350,8 @@ class _Film:
         import mitsuba as mi
 
         self.dr, self.mi = dr, mi
-        self.w, self.h = optics.sensor_px
-        self.ax, self.ay = optics.axis_px
+        self.w, self.h = optics.sensor_xy_px
+        self.ax, self.ay = optics.axis_xy_px
         self.pix = optics.pixel_um
         self.photons = settings.mode == "photons"
         dtype = mi.UInt32 if self.photons else mi.Float

@@ -38,7 +38,7 @@ scalar waves of vacuum wavelength ``wavelength_um``:
 
 Coordinates are those of the sensor read-out (conventions §2): object ``+x`` runs along
 increasing columns, a source at ``(x, y)`` images at ``(M x, M y)`` from the optical axis
-``axis_px``. A source at ``z > 0`` (away from the objective) images in front of the array.
+``axis_xy_px``. A source at ``z > 0`` (away from the objective) images in front of the array.
 
 A light field is sampled on the sensor's pixel grid with ``oversample`` samples per pixel
 per axis; :func:`converged_light_field` doubles the sampling until the light field changes by
@@ -316,8 +316,8 @@ def _grid(optics, sampling: WaveSampling):
 
     os_ = int(sampling.oversample)
     pix = optics.pixel_um
-    w, h = optics.sensor_px
-    ax, ay = optics.axis_px
+    w, h = optics.sensor_xy_px
+    ax, ay = optics.axis_xy_px
     g = math.ceil(sampling.guard_lenslets * optics.px_per_lenslet)
     dx = pix / os_
     # the transfer function's chirp is sampled without aliasing for N ≥ λ d / dx²
@@ -376,7 +376,7 @@ def light_field(
         raise ConfigError("sources_xyz_um must be finite positions (µm)")
     x, y, dx, g = _grid(optics, sampling)
     os_ = int(sampling.oversample)
-    w, h = optics.sensor_px
+    w, h = optics.sensor_xy_px
     lam, m = optics.wavelength_um, optics.magnification
     na_img = _image_na(optics)
     xs, ys = src[:, 0] * m, src[:, 1] * m
@@ -496,7 +496,7 @@ def pattern_stack(
         raise ConfigError(f"s must be a positive integer, got {s!r}")
     hwin = int(radius_lenslets)
     win = (2 * hwin + 1) * n
-    wopt = replace(optics, sensor_px=(win, win), axis_px=(hwin * n + n / 2, hwin * n + n / 2))
+    wopt = replace(optics, sensor_xy_px=(win, win), axis_xy_px=(hwin * n + n / 2, hwin * n + n / 2))
     p_obj = optics.lenslet_object_um
     sub = ((np.arange(s) + 0.5) / s - 0.5) * p_obj
     gx, gy = np.meshgrid(sub, sub, indexing="xy")

@@ -64,7 +64,7 @@ def calibrate_white_file(
 
     image = read_white(white)
     h, w = image.shape
-    sw, sh = optics.sensor_px
+    sw, sh = optics.sensor_xy_px
     if (w, h) != (sw, sh):
         raise InputError(
             f"white image {str(white)!r} is {w} × {h} px but the sensor of scene "
@@ -156,8 +156,8 @@ def check_optics(optics, grid, recorded, *, scene: Path, source: str, allow: boo
 
     diffs = [] if recorded is None else optics_differences(optics, recorded)
     h, w = grid.image_shape
-    sw, sh = optics.sensor_px
-    if (w, h) != (sw, sh) and not any(d.startswith("sensor_px") for d in diffs):
+    sw, sh = optics.sensor_xy_px
+    if (w, h) != (sw, sh) and not any(d.startswith("sensor_xy_px") for d in diffs):
         diffs.append(f"sensor {sw} × {sh} px (scene) vs {w} × {h} px images (calibration)")
     if recorded is None:
         log.info("%s records no optics; only its image size was checked against %s", source, scene)

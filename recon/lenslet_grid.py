@@ -1,6 +1,6 @@
 """The lenslet grid on the sensor: :class:`LensletGrid`, its JSON files, and input images.
 
-Pixel coordinates (shared with :mod:`lfsim`, whose ``Optics.axis_px`` uses them): the image is
+Pixel coordinates (shared with :mod:`lfsim`, whose ``Optics.axis_xy_px`` uses them): the image is
 an array ``(y, x)`` = ``(row, column)``; pixel ``(row i, column j)`` covers the square
 ``[j, j + 1) × [i, i + 1)`` of the continuous plane, so its centre is ``(x, y) = (j + 0.5,
 i + 0.5)``. All positions and lengths here are in pixels of that plane.

@@ -95,7 +95,14 @@ def check_depths_resolvable(optics, depths_um, n_lenslets_xy: tuple[int, int]) -
 #: which the lenslet grid does not depend on and ``recon pixel-size`` measures (a scene with the
 #: measured magnification differs from the calibration's nominal one exactly there). Nor is
 #: the lenslet kind (glass or ideal): both model the same microscope.
-OPTICS_MATCH_FIELDS = ("na", "mla_pitch_um", "mla_focal_um", "pixel_um", "sensor_px", "axis_px")
+OPTICS_MATCH_FIELDS = (
+    "na",
+    "mla_pitch_um",
+    "mla_focal_um",
+    "pixel_um",
+    "sensor_xy_px",
+    "axis_xy_px",
+)
 
 #: Relative tolerance of :func:`optics_differences`.
 OPTICS_RTOL = 1e-6
@@ -161,19 +168,21 @@ def model_optics(optics):
 
 def rectified_optics(optics, n: int):
     """The optics as seen in a rectified image with exactly ``n`` pixels per lenslet."""
-    return replace(optics, pixel_um=optics.mla_pitch_um / n, axis_px=None, sensor_px=(n, n))
+    return replace(optics, pixel_um=optics.mla_pitch_um / n, axis_xy_px=None, sensor_xy_px=(n, n))
 
 
 #: Names under which the fingerprint hashes the entries named otherwise in the API
 #: (docs/conventions.md §3): it identifies what a series produces, and an entry's name does not
 #: change that, so the volumes already reconstructed are resumed.
+#: The optics' own (``lfsim.optics.FINGERPRINT_KEYS``) are added to these.
 FINGERPRINT_KEYS = {"roi_xy_px": "roi_px", "origin_xy_px": "origin_px"}
 
 
 def _fingerprint(payload: dict) -> str:
     from hrvbase.io import rename_keys
+    from lfsim.optics import FINGERPRINT_KEYS as OPTICS_KEYS
 
-    text = json.dumps(rename_keys(payload, FINGERPRINT_KEYS), sort_keys=True)
+    text = json.dumps(rename_keys(payload, {**FINGERPRINT_KEYS, **OPTICS_KEYS}), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -684,10 +693,10 @@ def _rectify_roi(rectify, image, grid, n, roi):
 def _object_origin(grid, geom, optics) -> tuple[float, float]:
     """Object-space (x, y) of the corner of rectified lenslet (0, 0).
 
-    The optical axis (``optics.axis_px`` on the sensor) is the object origin; lenslet
+    The optical axis (``optics.axis_xy_px`` on the sensor) is the object origin; lenslet
     indices are converted with the calibrated grid and the object-space lenslet pitch.
     """
-    ua, va = grid.lenslet_index(np.asarray([optics.axis_px], dtype=np.float64))[0]
+    ua, va = grid.lenslet_index(np.asarray([optics.axis_xy_px], dtype=np.float64))[0]
     u0, v0 = geom.first_lenslet_xy
     p = optics.lenslet_object_um
     return ((u0 - ua - 0.5) * p, (v0 - va - 0.5) * p)

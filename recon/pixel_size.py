@@ -255,11 +255,11 @@ def _check_grid(grid, img: np.ndarray, optics):
     """The lenslet grid of the micrometer image: ``grid`` (calibrated on images of its size)
     or, when None, the scene's nominal grid (for an image of the scene's sensor size)."""
     if grid is None:
-        if (img.shape[1], img.shape[0]) != tuple(optics.sensor_px):
+        if (img.shape[1], img.shape[0]) != tuple(optics.sensor_xy_px):
             raise InputError(
                 f"the micrometer image is {img.shape[1]} × {img.shape[0]} px but the scene's "
-                f"sensor is {optics.sensor_px[0]} × {optics.sensor_px[1]} px: give the lenslet "
-                "grid of this camera (recon calibrate on a white image of the same size)"
+                f"sensor is {optics.sensor_xy_px[0]} × {optics.sensor_xy_px[1]} px: give the "
+                "lenslet grid of this camera (recon calibrate on a white image of the same size)"
             )
         return nominal_grid(optics, img.shape)
     if tuple(grid.image_shape) != tuple(img.shape):

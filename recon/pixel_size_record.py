@@ -115,13 +115,13 @@ class PixelSizeResult:
 
 def nominal_grid(optics, image_shape: tuple[int, int]):
     """The lenslet grid the scene's optics imply: pitch ``px_per_lenslet``, no rotation, a
-    lenslet centred on the optical axis ``axis_px``."""
+    lenslet centred on the optical axis ``axis_xy_px``."""
     from .calibration import LensletGrid
 
     return LensletGrid(
         pitch_px=optics.px_per_lenslet,
         rotation_deg=0.0,
-        origin_xy_px=tuple(optics.axis_px),
+        origin_xy_px=tuple(optics.axis_xy_px),
         image_shape=tuple(image_shape),
     )
 

@@ -136,7 +136,7 @@ class PSFBank:
 def bank_key(optics, depths_um, s: int, rays_per_pattern: int, seed: int, threshold: float) -> str:
     payload = json.dumps(
         {
-            "optics": optics.to_dict(),
+            "optics": optics.fingerprint_dict(),
             "depths": [round(float(d), 9) for d in depths_um],
             "s": int(s),
             "rays": int(rays_per_pattern),
@@ -244,7 +244,7 @@ def compute_psf_bank(
         z = depths[k]
         h = pattern_radius_lenslets(optics, z)
         win = (2 * h + 1) * n
-        wopt = replace(optics, sensor_px=(win, win), axis_px=(h * n + n / 2, h * n + n / 2))
+        wopt = replace(optics, sensor_xy_px=(win, win), axis_xy_px=(h * n + n / 2, h * n + n / 2))
         gx, gy = np.meshgrid(sub, sub, indexing="xy")  # a along x fastest, then b along y
         centers = np.c_[gx.ravel(), gy.ravel(), np.full(s * s, z)]
         stack = trace_paraxial(

@@ -106,7 +106,7 @@ def wave_bank_key(optics, depths_um, s: int, sampling, threshold: float) -> str:
     payload = json.dumps(
         {
             "model": "wave",
-            "optics": optics.to_dict(),
+            "optics": optics.fingerprint_dict(),
             "depths": [round(float(d), 9) for d in depths_um],
             "s": int(s),
             "sampling": asdict(sampling),
@@ -266,7 +266,7 @@ def _unfold(computed: dict, s: int) -> np.ndarray:
 def _window_optics(optics, h: int, n: int):
     """The optics on a window of ``2h + 1`` lenslets whose centre lenslet holds the axis."""
     win = (2 * h + 1) * n
-    return replace(optics, sensor_px=(win, win), axis_px=(h * n + n / 2, h * n + n / 2))
+    return replace(optics, sensor_xy_px=(win, win), axis_xy_px=(h * n + n / 2, h * n + n / 2))
 
 
 def _transfer(ny: int, nx: int, dx: float, distance: float, lam: float) -> np.ndarray:

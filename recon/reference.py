@@ -110,7 +110,7 @@ def render_reference(
     if pos.ndim != 2 or pos.shape[1] != 3 or not np.all(np.isfinite(pos)):
         raise InputError(f"positions must be a finite (N, 3) array (x, y, z µm), got {pos.shape}")
     ropt = model_optics(optics)
-    h, w = ropt.sensor_px[1], ropt.sensor_px[0]
+    h, w = ropt.sensor_xy_px[1], ropt.sensor_xy_px[0]
     if len(pos) == 0:
         return np.full((h, w), st.black_level, dtype=np.float32)
     if backend_info() is None:

@@ -165,7 +165,7 @@ def build_base(tmp_path_factory) -> Base:
     scene = root / "scene" / "small.xml"
     shutil.copyfile(SMALL, scene)
     scene_na025 = write_scene(small_optics(na=0.25), root / "scene" / "na025.xml")
-    scene_200 = write_scene(small_optics(sensor_px=(200, 200)), root / "scene" / "s200.xml")
+    scene_200 = write_scene(small_optics(sensor_xy_px=(200, 200)), root / "scene" / "s200.xml")
     scene_pitch = write_scene(small_optics(mla_pitch_um=125.0), root / "scene" / "p125.xml")
     (root / "exp").mkdir()
     exp = root / "exp" / "exp.toml"

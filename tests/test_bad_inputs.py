@@ -113,13 +113,13 @@ for cid, item, needle in [
     ("negative-pixel", "pixel_um=-6.6", "pixel_um"),
     ("inf-tube-focal", "f_tube_um=inf", "f_tube_um"),
     ("nan-objective-focal", "f_objective_um=nan", "f_objective_um"),
-    ("huge-sensor", "sensor_px=100000,100000", "sensor_px"),
-    ("zero-sensor", "sensor_px=0,0", "sensor_px"),
-    ("sensor-one-value", "sensor_px=300", "sensor_px"),
-    ("sensor-fractional", "sensor_px=300.5,300", "sensor_px"),
+    ("huge-sensor", "sensor_xy_px=100000,100000", "sensor_xy_px"),
+    ("zero-sensor", "sensor_xy_px=0,0", "sensor_xy_px"),
+    ("sensor-one-value", "sensor_xy_px=300", "sensor_xy_px"),
+    ("sensor-fractional", "sensor_xy_px=300.5,300", "sensor_xy_px"),
     ("bad-mla-kind", "mla_kind=plastic", "mla_kind"),
     ("bad-mla-ior", "mla_ior=0.5", "mla_ior"),
-    ("axis-nan", "axis_px=nan,150", "axis_px"),
+    ("axis-nan", "axis_xy_px=nan,150", "axis_xy_px"),
     ("wavelength-negative", "wavelength_um=-0.6", "wavelength_um"),
 ]:
     case(f"scene-set-{cid}", "lfsim", lambda e, i=item: scene_argv(e, "--set", i), needle)

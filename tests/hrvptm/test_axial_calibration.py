@@ -175,7 +175,7 @@ TEN_X = (
     "mla_pitch_um=150",
     "mla_focal_um=2500",
     "pixel_um=13.636363636",
-    "sensor_px=330,264",
+    "sensor_xy_px=330,264",
 )
 TEN_X_STUDY = """
 [experiment]

@@ -71,7 +71,7 @@ def test_specimen_as_air_reconstructs_the_first_variants_frames_without_the_spec
     assert air.medium_ior == air.immersion_ior == 1.0 and air.coverslip_thickness_um == 0
     assert not air.has_interfaces and air.axial_scale == 1.0
     # everything else is the same microscope
-    for f in ("na", "mla_pitch_um", "pixel_um", "sensor_px", "axis_px", "mla_kind"):
+    for f in ("na", "mla_pitch_um", "pixel_um", "sensor_xy_px", "axis_xy_px", "mla_kind"):
         assert getattr(air, f) == getattr(gel, f), f
 
 

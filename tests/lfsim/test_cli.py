@@ -69,13 +69,13 @@ def test_scene(tmp_path, capsys):
     out = tmp_path / "s.xml"
     assert main(["-q", "scene", "--preset", "small", "--set", "na=0.3", "-o", str(out)]) == 0
     optics = read_optics(out)
-    assert optics.na == 0.3 and optics.sensor_px == (300, 300) and optics.mla_kind == "ideal"
-    args = ["scene", "--preset", "paper_4x", "--set", "sensor_px=640,400", "-o", str(out)]
+    assert optics.na == 0.3 and optics.sensor_xy_px == (300, 300) and optics.mla_kind == "ideal"
+    args = ["scene", "--preset", "paper_4x", "--set", "sensor_xy_px=640,400", "-o", str(out)]
     before = out.read_bytes()
     assert main(["-q", *args]) == 2
     assert "s.xml" in error_line(capsys) and out.read_bytes() == before
     assert main(["-q", *args, "--overwrite"]) == 0
-    assert read_optics(out).sensor_px == (640, 400)
+    assert read_optics(out).sensor_xy_px == (640, 400)
     assert (
         main(["-q", "scene", "--preset", "small", "--set", "nA=0.3", "-o", str(tmp_path / "t.xml")])
         == 2
@@ -83,6 +83,18 @@ def test_scene(tmp_path, capsys):
     line = error_line(capsys)
     assert "'nA'" in line and "na" in line
     assert not (tmp_path / "t.xml").exists()
+    older = [
+        "scene",
+        "--preset",
+        "small",
+        "--set",
+        "sensor_px=640,400",
+        "-o",
+        str(tmp_path / "u.xml"),
+    ]
+    assert main(["-q", *older]) == 2
+    assert "'sensor_px' is named 'sensor_xy_px'" in error_line(capsys)
+    assert not (tmp_path / "u.xml").exists()
 
 
 def test_render(backend, tmp_path, particles_csv):

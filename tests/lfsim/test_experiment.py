@@ -70,9 +70,9 @@ def test_example_loads(path):
     assert Experiment.from_dict(json.loads(json.dumps(d))) == exp
     assert len(exp.fingerprint()) == 64
     if path.stem.endswith("_test") or path.stem.startswith("demo_"):
-        assert exp.optics.sensor_px == (600, 450)  # scenes/medium*.xml
+        assert exp.optics.sensor_xy_px == (600, 450)  # scenes/medium*.xml
     else:
-        assert exp.optics.sensor_px == (1280, 800)
+        assert exp.optics.sensor_xy_px == (1280, 800)
         assert exp.render.rays_per_particle == 100_000
 
 

@@ -20,8 +20,8 @@ def test_paper_optics_derived_quantities():
     assert x1 - x0 == pytest.approx(1280 * o.object_pixel_um)  # ≈ 2100 µm (paper §4)
     assert y1 - y0 == pytest.approx(800 * o.object_pixel_um)  # ≈ 1300 µm
     # The axis sits on a lenslet centre and lenslet borders fall on pixel borders.
-    assert (o.axis_px[0] - 7.5) % 15 == pytest.approx(0)
-    assert (o.axis_px[1] - 7.5) % 15 == pytest.approx(0)
+    assert (o.axis_xy_px[0] - 7.5) % 15 == pytest.approx(0)
+    assert (o.axis_xy_px[1] - 7.5) % 15 == pytest.approx(0)
     # Diffraction widths: 0.21 λ / NA at the image plane and behind a lenslet (≈ 2.5 µm).
     assert o.sigma_mla_um == pytest.approx(0.21 * 0.605 / o.image_na)
     assert o.sigma_sensor_um == pytest.approx(0.21 * 0.605 / o.lenslet_na)
@@ -42,6 +42,18 @@ def test_dict_round_trip():
     assert Optics.from_dict(o.to_dict()) == o
 
 
+def test_optics_of_the_older_layout_are_read_and_hashed_under_fixed_names():
+    o = small_optics(na=0.25)
+    d = o.to_dict()
+    assert d["sensor_xy_px"] == [300, 300] and d["axis_xy_px"] == list(o.axis_xy_px)
+    older = o.fingerprint_dict()
+    assert older["sensor_px"] == [300, 300] and "sensor_xy_px" not in older
+    assert older["axis_px"] == d["axis_xy_px"] and "axis_xy_px" not in older
+    assert Optics.from_dict(older) == o
+    with pytest.raises(ConfigError, match="both 'sensor_px' and 'sensor_xy_px'"):
+        Optics.from_dict({**d, "sensor_px": [300, 300]})
+
+
 @pytest.mark.parametrize(
     ("key", "value"),
     [
@@ -52,7 +64,7 @@ def test_dict_round_trip():
         ("mla_pitch_um", -100.0),
         ("pixel_um", float("nan")),
         ("mla_focal_um", float("inf")),
-        ("sensor_px", (0, 10)),
+        ("sensor_xy_px", (0, 10)),
         ("mla_kind", "plastic"),
         ("wavelength_um", -0.5),
     ],
@@ -64,12 +76,12 @@ def test_non_physical_values_rejected_by_name(key, value):
 
 def test_no_built_in_microscope():
     """`Optics(na=0.5, mla_pitch_um=150)` once kept the paper's sensor and objective."""
-    with pytest.raises(TypeError, match="sensor_px"):
+    with pytest.raises(TypeError, match="sensor_xy_px"):
         Optics(na=0.5, mla_pitch_um=150.0)
     with pytest.raises(ConfigError, match="missing"):
         Optics.from_dict({"na": 0.5, "mla_pitch_um": 150.0})
     with pytest.raises(ConfigError, match="too large"):
-        paper_optics(sensor_px=(200_000, 200_000))
+        paper_optics(sensor_xy_px=(200_000, 200_000))
 
 
 def test_unknown_keys_rejected():

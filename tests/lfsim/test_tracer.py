@@ -69,7 +69,7 @@ def test_in_focus_point_fills_one_lenslet_disc(paper):
     slope = np.tan(np.arcsin(o.image_na))
     assert diameter == pytest.approx(2 * o.mla_focal_um * slope / o.pixel_um, rel=0.02)
     # Centred on the lenslet on the axis, and (up to the diffraction blur) inside its cell.
-    ax, ay = o.axis_px
+    ax, ay = o.axis_xy_px
     assert mx + 0.5 == pytest.approx(ax, abs=0.05)
     assert my + 0.5 == pytest.approx(ay, abs=0.05)
     c0, r0 = int(ax - 7.5), int(ay - 7.5)
@@ -90,7 +90,7 @@ def test_defocused_point_makes_spot_grid_with_lenslet_spacing(paper, z):
     assert predicted == pytest.approx(15 * (1 + np.sign(z) * 1000 / (16 * 300)))
     assert len(cx) >= 20  # the 5 x 5 grid (corners may be faint)
     # Fully illuminated lenslets: the 3 x 3 spots nearest the pattern centre.
-    ax, ay = o.axis_px[0] - 0.5, o.axis_px[1] - 0.5
+    ax, ay = o.axis_xy_px[0] - 0.5, o.axis_xy_px[1] - 0.5
     near = np.hypot(cx - ax, cy - ay) < 1.5 * predicted
     assert near.sum() == 9
     kx = np.round((cx[near] - ax) / predicted)

@@ -31,7 +31,7 @@ def _low_na(**kw):
         f_objective_um=20_000.0,
         f_tube_um=200_000.0,
         mla_focal_um=5000.0,
-        sensor_px=(135, 135),
+        sensor_xy_px=(135, 135),
     )
     base.update(kw)
     return paper_optics(**base)
@@ -127,7 +127,7 @@ def test_propagation_conserves_energy_and_is_reversible():
 
 
 def _small_paper():
-    return paper_optics(sensor_px=(135, 135))
+    return paper_optics(sensor_xy_px=(135, 135))
 
 
 def test_light_field_keeps_the_light_and_follows_the_axes():
@@ -155,7 +155,7 @@ def test_light_field_keeps_the_light_and_follows_the_axes():
 
 
 def test_convergence_check_doubles_until_the_tolerance():
-    o = paper_optics(sensor_px=(45, 45))
+    o = paper_optics(sensor_xy_px=(45, 45))
     _img, ws, hist = converged_light_field(o, [[0, 0, 30.0]], WaveSampling(oversample=1), tol=0.03)
     assert hist[-1][1] < 0.03
     assert len(hist) >= 2  # oversample 1 is aliased
@@ -169,7 +169,7 @@ def test_convergence_check_doubles_until_the_tolerance():
 
 
 def test_pattern_stack_matches_the_bank_layout():
-    o = paper_optics(sensor_px=(75, 75))
+    o = paper_optics(sensor_xy_px=(75, 75))
     stack = pattern_stack(o, [50.0], 3, 2, WaveSampling(oversample=2))
     assert stack.shape == (9, 75, 75)
     # sub-lenslet position a along x: the pattern of a = 2 is that of a = 0 moved right
@@ -186,7 +186,7 @@ def test_sampling_is_validated():
     with pytest.raises(ConfigError, match="oversample"):
         WaveSampling(oversample=0)
     with pytest.raises(ConfigError, match="ideal"):
-        light_field(paper_optics(sensor_px=(45, 45), mla_kind="glass"), [[0, 0, 0]])
+        light_field(paper_optics(sensor_xy_px=(45, 45), mla_kind="glass"), [[0, 0, 0]])
 
 
 def test_gibson_lanni_phase_reduces_to_debye_for_a_corrected_cover_glass():

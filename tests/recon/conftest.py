@@ -41,7 +41,7 @@ def small_grid(small_optics_, small_bank):
         small_bank.depths_um,
         small_bank.s,
         (20, 20),
-        origin_xy_um=(-o.axis_px[0] * o.object_pixel_um, -o.axis_px[1] * o.object_pixel_um),
+        origin_xy_um=(-o.axis_xy_px[0] * o.object_pixel_um, -o.axis_xy_px[1] * o.object_pixel_um),
     )
 
 

@@ -21,7 +21,9 @@ def test_modelled_background_is_the_rectified_level_at_a_non_integer_pitch(backe
 
     optics = small_optics()
     b = 40.0
-    grid = LensletGrid(14.7, 0.0, (optics.axis_px[0] - 2.2, optics.axis_px[1] - 1.9), (300, 300))
+    grid = LensletGrid(
+        14.7, 0.0, (optics.axis_xy_px[0] - 2.2, optics.axis_xy_px[1] - 1.9), (300, 300)
+    )
     image = np.full((300, 300), b)
     rect, geom = rectify(image, grid, 15)
     assert geom.flux_scale == pytest.approx((14.7 / 15) ** 2)

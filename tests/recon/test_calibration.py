@@ -117,14 +117,14 @@ def test_dark_offset_and_integer_image():
 
 def test_lfsim_white(backend):
     """A white image traced by lfsim through the small test scene (300 × 300 px,
-    15 px per lenslet): lenslet centres at ``axis_px + 15 (i, j)``, rotation 0."""
+    15 px per lenslet): lenslet centres at ``axis_xy_px + 15 (i, j)``, rotation 0."""
     from lfsim.render import render_white
     from lfsim.scene import load_scene
 
     scene = load_scene(ROOT / "scenes" / "small.xml")
     optics = scene.optics
     img = render_white(scene, rays_per_lenslet=5000, seed=1)
-    truth = LensletGrid(optics.px_per_lenslet, 0.0, optics.axis_px, img.shape)
+    truth = LensletGrid(optics.px_per_lenslet, 0.0, optics.axis_xy_px, img.shape)
     fit = calibrate_white(img, expected_pitch_px=optics.px_per_lenslet)
     err = centre_errors(fit, truth)
     rms = float(np.sqrt(np.mean(err**2)))

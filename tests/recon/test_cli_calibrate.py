@@ -47,7 +47,7 @@ def test_calibrate_writes_calibration(tmp_path, capsys, white_tif):
     assert rec["tool"]["version"] == __version__
     assert rec["white_image"]["path"] == str(white_tif.resolve())
     assert rec["white_image"]["sha256"] == hashlib.sha256(white_tif.read_bytes()).hexdigest()
-    assert rec["optics"]["sensor_px"] == [300, 300]
+    assert rec["optics"]["sensor_xy_px"] == [300, 300]
     assert rec["nominal_pitch_px"] == pytest.approx(15.0)
     grid = LensletGrid.load(out)
     assert grid == LensletGrid.from_dict(rec["grid"])

@@ -118,7 +118,7 @@ def test_fine_divisions(backend, nominal, error, rotation):
 def test_coarse_divisions_over_a_wide_field(backend, nominal, error, rotation):
     """100 µm divisions (4 lenslets): each line lights one column of lenslets; the scale comes
     from the vernier of 16 lines against the lenslets."""
-    wide = replace(nominal, sensor_px=(1200, 300), axis_px=None)
+    wide = replace(nominal, sensor_xy_px=(1200, 300), axis_xy_px=None)
     true = true_optics(wide, error)
     res = measure_pixel_size(micrometer(true, 100.0, rotation), wide, 100.0)
     assert res.um_per_px == pytest.approx(true.object_pixel_um, rel=0.005)
@@ -185,7 +185,7 @@ def test_apply_pixel_size(nominal):
     out = apply_pixel_size(nominal, record)
     assert out.object_pixel_um == pytest.approx(1.7, rel=1e-12)
     assert out.magnification == pytest.approx(nominal.pixel_um / 1.7, rel=1e-12)
-    same = ("f_objective_um", "na", "pixel_um", "mla_pitch_um", "mla_focal_um", "axis_px")
+    same = ("f_objective_um", "na", "pixel_um", "mla_pitch_um", "mla_focal_um", "axis_xy_px")
     assert all(getattr(out, k) == getattr(nominal, k) for k in same)
     assert out.px_per_lenslet == nominal.px_per_lenslet
     with pytest.raises(InputError, match="another camera"):

@@ -38,7 +38,7 @@ FAST = WaveSampling(oversample=3, guard_lenslets=1.0)
 
 def _optics():
     """The paper's 4×/0.2 optics on a 5 × 5-lenslet sensor."""
-    return paper_optics(sensor_px=(75, 75))
+    return paper_optics(sensor_xy_px=(75, 75))
 
 
 def water_60x() -> Optics:
@@ -50,7 +50,7 @@ def water_60x() -> Optics:
         mla_pitch_um=100.0,
         mla_focal_um=2500.0,
         pixel_um=100.0 / 15,
-        sensor_px=(150, 150),
+        sensor_xy_px=(150, 150),
         medium_ior=1.333,
         immersion_ior=1.333,
     )
@@ -124,7 +124,7 @@ def test_cache_hit_is_identical_and_other_optics_or_model_miss(tmp_path):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     assert b.optics == o.to_dict()
     # other optics: another bank
-    o2 = paper_optics(sensor_px=(75, 75), mla_focal_um=1100.0)
+    o2 = paper_optics(sensor_xy_px=(75, 75), mla_focal_um=1100.0)
     compute_wave_psf_bank(o2, [0.0, 50.0], 1, sampling=FAST, cache_dir=tmp_path)
     assert len(list(tmp_path.glob("psf_*.npz"))) == 2
     # the model and the sampling are in the key: the ray bank's key and another sampling's

@@ -14,7 +14,7 @@ from .synthetic import synthetic_white as white
 
 def test_identity_crop_odd_pitch():
     """lfsim-like geometry: pitch 15 px, rotation 0, lenslet centres on pixel centres
-    (``axis_px = 157.5``): rectifying with n = 15 is an exact crop, whatever the content."""
+    (``axis_xy_px = 157.5``): rectifying with n = 15 is an exact crop, whatever the content."""
     rng = np.random.default_rng(0)
     image = rng.integers(0, 4096, size=(300, 310)).astype(np.uint16)
     grid = LensletGrid(15.0, 0.0, (157.5, 142.5), (300, 310))

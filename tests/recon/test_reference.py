@@ -40,6 +40,6 @@ def test_checksum_follows_positions_and_settings():
 def test_empty_frame_is_the_black_level_and_bad_positions_are_refused():
     optics = read_optics(SCENES / "medium_glass.xml")  # modelled with ideal lenslets
     img = render_reference(np.zeros((0, 3)), optics, ReferenceSettings(black_level=7.0))
-    assert img.shape == optics.sensor_px[::-1] and img.dtype == np.float32 and np.all(img == 7.0)
+    assert img.shape == optics.sensor_xy_px[::-1] and img.dtype == np.float32 and np.all(img == 7.0)
     with pytest.raises(InputError, match=r"finite \(N, 3\)"):
         render_reference(np.array([[0.0, 0.0]]), optics)

@@ -51,8 +51,11 @@ def scene_with(tmp_path: Path, name: str, **changes) -> Path:
         ({"na": 0.25}, "na 0.25 (scene) vs 0.2 (calibration)"),
         ({"mla_focal_um": 1100.0}, "mla_focal_um 1100 (scene) vs 1000 (calibration)"),
         ({"pixel_um": 100 / 15 * (1 + 1e-4)}, "pixel_um"),
-        ({"sensor_px": (330, 300)}, "sensor_px [330, 300] (scene) vs [300, 300] (calibration)"),
-        ({"axis_px": (142.5, 157.5)}, "axis_px [142.5, 157.5] (scene)"),
+        (
+            {"sensor_xy_px": (330, 300)},
+            "sensor_xy_px [330, 300] (scene) vs [300, 300] (calibration)",
+        ),
+        ({"axis_xy_px": (142.5, 157.5)}, "axis_xy_px [142.5, 157.5] (scene)"),
     ],
 )
 def test_scene_other_than_the_calibrations_is_refused(
@@ -118,7 +121,7 @@ def test_calibration_of_another_sensor_is_refused(base_frame, backend, tmp_path,
     tifffile.imwrite(big, base_frame.repeat(3, axis=0)[:800].repeat(5, axis=1)[:, :1280])
     out = tmp_path / "v"
     rc, stdout, err = run(capsys, "run", big, "--scene", SCENE, "--calib", calib, *FAST, "-o", out)
-    refused(rc, stdout, err, "sensor_px [300, 300] (scene) vs [1280, 800] (calibration)")
+    refused(rc, stdout, err, "sensor_xy_px [300, 300] (scene) vs [1280, 800] (calibration)")
     assert not out.exists()
     # A bare grid file (no optics): its image size is still checked against the sensor.
     bare = tmp_path / "grid.json"

@@ -31,7 +31,7 @@ def test_a_custom_solver_is_called_and_its_volume_is_written(backend, tmp_path):
     from recon.pipeline import ReconSettings, reconstruct_series
 
     optics = small_optics()
-    grid = LensletGrid(15.0, 0.0, tuple(optics.axis_px), (300, 300))
+    grid = LensletGrid(15.0, 0.0, tuple(optics.axis_xy_px), (300, 300))
     frame = tmp_path / "frame.tif"
     tifffile.imwrite(frame, np.full((300, 300), 100, np.uint16))
     settings = ReconSettings(

@@ -22,8 +22,8 @@ def _peak_depths(vol: np.ndarray, depths: np.ndarray, s: int, optics) -> np.ndar
     """Depth of each point's peak (parabola through the brightest plane and its neighbours)."""
     out = []
     lateral = optics.lenslet_object_um / s
-    x0 = -optics.axis_px[0] * optics.object_pixel_um
-    y0 = -optics.axis_px[1] * optics.object_pixel_um
+    x0 = -optics.axis_xy_px[0] * optics.object_pixel_um
+    y0 = -optics.axis_xy_px[1] * optics.object_pixel_um
     dz = depths[1] - depths[0]
     for x, y, _z in POINTS:
         j, i = round((y - y0) / lateral - 0.5), round((x - x0) / lateral - 0.5)
