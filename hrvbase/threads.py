@@ -67,9 +67,10 @@ def one_blas_thread() -> Iterator[None]:
     so a result that must not depend on the process it was computed in (a Dask worker, whose
     nanny sets ``OPENBLAS_NUM_THREADS=1``, or this one) is computed on one BLAS thread. Uses
     `threadpoolctl <https://github.com/joblib/threadpoolctl>`_; the limits are set back after.
-    SciPy's linear algebra is imported first, so that its BLAS is loaded and limited too. A
-    block nested in another on the same thread changes nothing (the outer one has limited
-    them; finding the loaded libraries again takes milliseconds).
+    Only the libraries loaded when the block starts are limited: a caller that uses SciPy's
+    linear algebra imports it first (``track.increments`` does). A block nested in another on
+    the same thread changes nothing (the outer one has limited them; finding the loaded
+    libraries again takes milliseconds).
     """
     depth = getattr(_blas_limited, "depth", 0)
     if depth:
@@ -79,7 +80,6 @@ def one_blas_thread() -> Iterator[None]:
         finally:
             _blas_limited.depth = depth
         return
-    import scipy.linalg  # noqa: F401  (loads SciPy's BLAS before the limits are set)
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):

@@ -5,6 +5,7 @@ process or on Dask workers (:func:`_increments`), and cumulated in order as they
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg  # noqa: F401  (its BLAS loaded before one_blas_thread limits the loaded ones)
 
 from hrvbase.threads import heap_kept, one_blas_thread
 
