@@ -135,7 +135,7 @@ class DisplacementInterpolant:
 
         The fit is linear in the particle displacements ``d`` for its λ, ``u(q) = W(q) d``
         per axis, so ``var u_i(q) = Σ_j W_ij(q)² σ_ij²`` with the particles' σ
-        (``sigma_um`` of :func:`fit_displacement`, else the noise level GCV's residuals
+        (``sigma_xyz_um`` of :func:`fit_displacement`, else the noise level GCV's residuals
         imply, ``RSS / tr((I − A)²)``, per axis); the same through ``∂/∂x_j`` for the gradient.
         Axes and particles are taken as independent.
 
@@ -143,7 +143,7 @@ class DisplacementInterpolant:
         -------
         u_std : ndarray, shape (P, 3)
             µm. NaN for an axis whose noise is unknown (``smoothing=0`` without
-            ``sigma_um``).
+            ``sigma_xyz_um``).
         G_std : ndarray, shape (P, 3, 3) or None
             Of ``∂u_i/∂x_j``; None unless ``gradient``.
 
@@ -244,7 +244,7 @@ def fit_displacement(
     displacement_um: np.ndarray,
     settings: GridSettings | None = None,
     *,
-    sigma_um: np.ndarray | None = None,
+    sigma_xyz_um: np.ndarray | None = None,
 ) -> DisplacementInterpolant:
     """Fit a continuous displacement field to scattered particle displacements.
 
@@ -255,7 +255,7 @@ def fit_displacement(
     displacement_um : ndarray, shape (N, 3)
         Their displacements (µm).
     settings : GridSettings, optional
-    sigma_um : ndarray, shape (N, 3), optional
+    sigma_xyz_um : ndarray, shape (N, 3), optional
         Standard uncertainty of each displacement (µm, x, y, z), e.g. a link table's
         per-match uncertainty; default: estimated per axis from the smoothing residuals
         (:meth:`DisplacementInterpolant.std`). Only the uncertainties use it.
@@ -280,7 +280,7 @@ def fit_displacement(
     from scipy.spatial import ConvexHull, QhullError, cKDTree
 
     settings = settings or GridSettings()
-    X, U, sig = _fit_inputs(positions_um, displacement_um, sigma_um)
+    X, U, sig = _fit_inputs(positions_um, displacement_um, sigma_xyz_um)
     tree = cKDTree(X)
     if settings.method == "linear":
         radius = 0.0
@@ -314,7 +314,7 @@ def fit_displacement(
     )
 
 
-def _fit_inputs(positions_um, displacement_um, sigma_um):
+def _fit_inputs(positions_um, displacement_um, sigma_xyz_um):
     """:func:`fit_displacement`'s positions (N, 3), displacements (N, 3) and σ ((N, 3) or
     None), checked."""
     X = _points(positions_um, "positions_um")
@@ -324,11 +324,11 @@ def _fit_inputs(positions_um, displacement_um, sigma_um):
     if X.shape[0] < 4:
         raise InputError(f"a displacement field needs at least 4 particles, got {X.shape[0]}")
     sig = None
-    if sigma_um is not None:
-        sig = np.asarray(sigma_um, dtype=float)
+    if sigma_xyz_um is not None:
+        sig = np.asarray(sigma_xyz_um, dtype=float)
         if sig.shape != X.shape or not np.all(np.isfinite(sig)) or np.any(sig < 0):
             raise InputError(
-                f"sigma_um must be finite, >= 0 and of shape {X.shape} (x, y, z µm per "
+                f"sigma_xyz_um must be finite, >= 0 and of shape {X.shape} (x, y, z µm per "
                 f"particle), got shape {sig.shape}"
             )
     return X, U, sig
@@ -494,7 +494,7 @@ def gridded_field(
     settings: GridSettings | None = None,
     *,
     axes: GridAxes | None = None,
-    sigma_um: np.ndarray | None = None,
+    sigma_xyz_um: np.ndarray | None = None,
 ) -> GridField:
     """Grid scattered particle displacements and compute ``F``, ``E``, ``e`` on the grid.
 
@@ -508,7 +508,7 @@ def gridded_field(
     axes : GridAxes, optional
         Grid to use; default :func:`grid_axes` over the particles' bounding box with
         :func:`grid_spacing_um` / ``settings.target_nodes``.
-    sigma_um : ndarray, shape (N, 3), optional
+    sigma_xyz_um : ndarray, shape (N, 3), optional
         Standard uncertainty of each displacement (µm), see :func:`fit_displacement`.
 
     Returns
@@ -524,7 +524,7 @@ def gridded_field(
     if axes is None:
         h = grid_spacing_um(positions_um, settings)
         axes = grid_axes(positions_um, h, target_nodes=settings.target_nodes)
-    interp = fit_displacement(positions_um, displacement_um, settings, sigma_um=sigma_um)
+    interp = fit_displacement(positions_um, displacement_um, settings, sigma_xyz_um=sigma_xyz_um)
     return field_on_grid(interp, axes)
 
 

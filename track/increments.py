@@ -37,7 +37,7 @@ def _fit_job(pts, pair: PairResult, settings: SeriesSettings):
 
 def _fit(pts, pair: PairResult, settings: SeriesSettings) -> DisplacementInterpolant:
     ref, disp, sigma = _fit_job(pts, pair, settings)
-    return fit_displacement(ref, disp, settings.grid, sigma_um=sigma)
+    return fit_displacement(ref, disp, settings.grid, sigma_xyz_um=sigma)
 
 
 class _NotFitted:
@@ -52,7 +52,7 @@ def _grid_increment(job, grid: GridSettings, axes: GridAxes):
     the fit refuses the data), with BLAS on one thread (:func:`one_blas_thread`)."""
     with one_blas_thread():
         try:
-            interp = fit_displacement(job[0], job[1], grid, sigma_um=job[2])
+            interp = fit_displacement(job[0], job[1], grid, sigma_xyz_um=job[2])
         except InputError as exc:
             return _NotFitted(str(exc))
         return interp, field_on_grid(interp, axes)

@@ -29,7 +29,7 @@ def _field(sigma=True):
     if not sigma:
         return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0, uncertainty=False))
     s = np.broadcast_to([0.2, 0.3, 2.0], X.shape)
-    return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0), sigma_um=s)
+    return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0), sigma_xyz_um=s)
 
 
 def test_particles_round_trip_exactly_with_frame_and_row(tmp_path):

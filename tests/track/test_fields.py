@@ -479,7 +479,7 @@ def test_std_is_the_propagated_particle_noise():
     sigma = rng.uniform(0.1, 2.0, X.shape)
     Y = _smooth(X) + rng.normal(0, 1, X.shape) * sigma
     lam = 300.0
-    fit = fit_displacement(X, Y, GridSettings(smoothing=lam), sigma_um=sigma)
+    fit = fit_displacement(X, Y, GridSettings(smoothing=lam), sigma_xyz_um=sigma)
     ax = grid_axes(X, 40.0)
     Q = ax.points()[::7]
     W, Wg = _unit_fits(X, lam, Q)
@@ -531,7 +531,7 @@ def test_std_coverage_on_known_noise(case, smoothing):
         U = X @ A.T + rng.normal(0, 1, X.shape) * sigma
         given = None if case == "sigma estimated" else sigma
         settings = GridSettings(target_nodes=2000, smoothing=smoothing)
-        g = gridded_field(X, U, settings, sigma_um=given)
+        g = gridded_field(X, U, settings, sigma_xyz_um=given)
         m = g.mask
         P = g.axes.points().reshape(*g.shape, 3)[m]
         z = np.abs(g.u[m] - P @ A.T) / g.u_std[m]
@@ -559,7 +559,7 @@ def test_grid_std_on_a_sub_grid_is_close_to_every_node():
     sigma = rng.uniform(0.2, 1.0, X.shape)
     Y = _smooth(X) + rng.normal(0, 1, X.shape) * sigma
     s = GridSettings(nodes_per_spacing=2.0)
-    fit = fit_displacement(X, Y, s, sigma_um=sigma)
+    fit = fit_displacement(X, Y, s, sigma_xyz_um=sigma)
     ax = grid_axes(X, grid_spacing_um(X, s))
     assert fit._tps._std_stride(ax) == 2
     g = field_on_grid(fit, ax)

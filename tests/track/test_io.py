@@ -313,7 +313,7 @@ def test_io_facade_re_exports_the_three_modules():
 def _field_with_std():
     X = np.random.default_rng(0).uniform([0, 10, -5], [100, 80, 60], (80, 3))
     sigma = np.broadcast_to([0.2, 0.3, 2.0], X.shape)
-    return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0), sigma_um=sigma)
+    return gridded_field(X, X @ _A.T, GridSettings(spacing_um=12.0), sigma_xyz_um=sigma)
 
 
 def test_field_npz_round_trip_with_uncertainties(tmp_path):
