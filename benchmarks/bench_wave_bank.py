@@ -154,15 +154,22 @@ def case_pyolaf(p: dict) -> dict:
             False,
             imgSize=np.array(IMAGE_PX),
         )
-        H, _ = LFM_computeLFMatrixOperators(camera, res, centers)
+        H, Ht = LFM_computeLFMatrixOperators(camera, res, centers)
         wall = time.perf_counter() - t
     u = _usage()
+    op_bytes = 0
+    for m in (*np.asarray(H, dtype=object).flat, *np.asarray(Ht, dtype=object).flat):
+        if hasattr(m, "indptr"):  # scipy.sparse
+            op_bytes += m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
+        elif isinstance(m, np.ndarray):
+            op_bytes += m.nbytes
     return {
         "planes": len(res["depths"]),
         "seconds": wall,
         "cpu_s": u["cpu_s"] - c0,
         "peak_rss_mb": u["peak_rss_mb"],
         "psf_image_px": list(H[0, 0, 0].shape),
+        "operator_mb": op_bytes / 2**20,
     }
 
 
@@ -257,6 +264,8 @@ def fmt(row: dict, planes_all: int) -> str:
     scale = planes_all / n
     star = "*" if n < planes_all else " "
     extra = f" os {row['oversample']}" if "oversample" in row else ""
+    if "operator_mb" in row:
+        extra += f" operators {row['operator_mb']:.0f} MB"
     if "pattern_sum" in row:
         lo, hi = row["pattern_sum"]
         extra += f", pattern sums {lo:.4f}–{hi:.4f}, {row['bank_mb']:.0f} MB bank"

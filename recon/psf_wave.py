@@ -50,10 +50,13 @@ log = logging.getLogger(__name__)
 PSF_MODELS = ("auto", "ray", "wave")
 
 #: ``auto`` chooses the wave-optics bank where a lenslet's diffraction spot ``λ f_l / p`` is
-#: wider than this many sensor pixels (:func:`lenslet_spot_px`). Set from the ray bank's
-#: localisation error against converged wave-optics references (benchmarks/README.md,
-#: "wave_bank.py — the wave-optics PSF bank", section "The auto rule").
-WAVE_SPOT_PX = 1.35
+#: wider than this many sensor pixels (:func:`lenslet_spot_px`). Set between the microscopes
+#: where the ray bank's localisation error on converged wave-optics point sources stays at
+#: the wave bank's (the paper's 4×/0.2, 0.91 px) and where it exceeds it by more than the
+#: noise (20×/0.5, 40×/0.8 W, 60×/1.2 W: 1.81–2.27 px), at their geometric mean: measured by
+#: benchmarks/ray_bank_error.py, see benchmarks/README.md, "bench_wave_bank.py", "The auto
+#: rule".
+WAVE_SPOT_PX = 1.3
 
 #: Bytes of complex fields one batch of propagated sources may hold.
 BATCH_BYTES = 256 << 20
@@ -325,10 +328,13 @@ def _dense_patterns(optics, depths, s, n, radii, sampling, progress):
 
     lam = optics.wavelength_um
     na_img = optics.medium_ior * math.sin(optics.emission_half_angle) / optics.magnification
-    # one radial grid for every depth: out to the far corner of the largest window, plus the
+    # one radial grid for every depth: out to the farthest corner of the windows' grids (a
+    # small window's grid may reach further: padded to the propagation's sampling), plus the
     # farthest sub-lenslet shift
-    x, y, _, _ = sample_grid(_window_optics(optics, int(radii.max()), n), sampling)
-    far = math.hypot(abs(x).max(), abs(y).max()) + optics.mla_pitch_um
+    far = optics.mla_pitch_um
+    for h in set(radii.tolist()):
+        x, y, _, _ = sample_grid(_window_optics(optics, int(h), n), sampling)
+        far = max(far, math.hypot(abs(x).max(), abs(y).max()) + optics.mla_pitch_um)
     dr = sampling.radial_step * lam / na_img
     r = np.arange(0.0, far + 2 * dr, dr)
     radial = native_field(optics, r, depths, sampling)  # (nz, nr) complex128
