@@ -26,12 +26,13 @@ objective (``f_l = M p / (2 NA)``) and 15 px per lenslet — on a small sensor o
    positions.
 4. **Noise.** The wave references with the paper's noise model
    (:func:`lfsim.noise.add_gaussian_noise`, ``--snr``, 8 bits), ``--seeds`` seeds,
-   reconstructed with the wave bank (black level as the known background); σ is the RMS
-   spread of the localisations about their mean (lateral: in the plane; axial: along z),
-   pooled over the lateral positions.
+   reconstructed with both banks (black level as the known background). σ is the RMS
+   spread of the wave bank's localisations about their mean (lateral: in the plane; axial:
+   along z), pooled over the lateral positions; "noisy" errors are each bank's RMS error
+   against the truth over positions and seeds (spread and the bias the noise adds).
 
-A markdown table per microscope: depth (µm and z₁), ray-bank error lateral / axial, wave-bank
-error lateral / axial, noise σ lateral / axial, and the ratios ray / wave. Beside it, the
+A markdown table per microscope: depth (µm and z₁), the noise-free errors of the ray and wave
+banks lateral / axial and their ratios, noise σ lateral / axial and the noisy errors. Beside it, the
 optics' diffraction scales: the lenslet's diffraction spot on the sensor ``λ f_l / p``
 (``λ N``, ``N`` its f-number; its Airy radius is 1.22× that) in pixels, and the objective's
 Airy radius at the array (``0.61 λ M / NA``) in lenslet pitches.
@@ -238,13 +239,14 @@ def run_scope(name: str, args) -> dict:
         "n_depths": len(depths),
         "iterations": rs.iterations,
         "snr": args.snr,
+        "seeds": args.seeds,
         **diffraction_scales(optics),
     }
     t = time.perf_counter()
     ref, hist = stored(
         args.store,
         "reference",
-        [optics.to_dict(), src.tolist(), args.oversample, args.tol],
+        [name, nl, src.tolist(), args.oversample, args.tol],
         lambda: converged_light_field(
             optics, src, WaveSampling(oversample=args.oversample, batch=2), tol=args.tol
         )[::2],
@@ -270,7 +272,7 @@ def run_scope(name: str, args) -> dict:
     wave, builder = stored(
         args.store,
         "wavebank",
-        [optics.to_dict(), depths.tolist(), args.s, args.bank_oversample, args.wave_builder],
+        [name, nl, depths.tolist(), args.s, args.bank_oversample, args.wave_builder],
         lambda: wave_bank(optics, depths, args.s, args.bank_oversample, 1e-3, args.wave_builder),
     )
     out["seconds_wave_bank"] = time.perf_counter() - t
@@ -282,8 +284,8 @@ def run_scope(name: str, args) -> dict:
     )
     filt = DepthFilter.for_optics(optics, depths, args.s, rs.lanczos_a) if rs.lanczos_a else None
     origin = (
-        -optics.axis_px[0] * optics.object_pixel_um,
-        -optics.axis_px[1] * optics.object_pixel_um,
+        -optics.axis_xy_px[0] * optics.object_pixel_um,
+        -optics.axis_xy_px[1] * optics.object_pixel_um,
     )
     grid = ReconGrid(p_obj, depths, args.s, (nl, nl), origin)
     projs = {k: SparseProjector(b, (nl, nl)) for k, b in (("ray", ray), ("wave", wave))}
@@ -296,16 +298,17 @@ def run_scope(name: str, args) -> dict:
 
     scale = args.photons  # photons emitted into the cone per source (noise-free images)
     loc = {k: np.empty((len(src), 3)) for k in projs}
-    noisy = np.empty((len(src), args.seeds, 3))
+    noisy = {k: np.empty((len(src), args.seeds, 3)) for k in projs}
     for q, (img, truth) in enumerate(zip(ref, src, strict=True)):
         for k, proj in projs.items():
             loc[k][q] = localise(recon(img * scale, proj), grid, truth, z1)
         for seed in range(args.seeds):
             dn, info = add_gaussian_noise(img, args.snr, 1000 * q + seed)
-            vol = recon(dn.astype(np.float32), projs["wave"], background=info["offset_dn"])
-            noisy[q, seed] = localise(vol, grid, truth, z1)
+            for k, proj in projs.items():
+                vol = recon(dn.astype(np.float32), proj, background=info["offset_dn"])
+                noisy[k][q, seed] = localise(vol, grid, truth, z1)
     rows = []
-    nd, npos = len(args.depths), len(args.positions)
+    npos = len(args.positions)
     for a, u in enumerate(args.depths):
         sl = slice(a * npos, (a + 1) * npos)
         truth = src[sl]
@@ -315,16 +318,16 @@ def run_scope(name: str, args) -> dict:
             row[f"{k}_lat"] = float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2)))
             row[f"{k}_ax"] = float(np.sqrt(np.mean(d[:, 2] ** 2)))
             row[f"{k}_ax_mean"] = float(np.mean(d[:, 2]))
-        spread = noisy[sl] - noisy[sl].mean(axis=1, keepdims=True)
+            d = noisy[k][sl] - truth[:, None, :]
+            row[f"noisy_{k}_lat"] = float(np.sqrt(np.mean(d[..., 0] ** 2 + d[..., 1] ** 2)))
+            row[f"noisy_{k}_ax"] = float(np.sqrt(np.mean(d[..., 2] ** 2)))
+        spread = noisy["wave"][sl] - noisy["wave"][sl].mean(axis=1, keepdims=True)
         row["noise_lat"] = float(np.sqrt(np.mean(spread[..., 0] ** 2 + spread[..., 1] ** 2)))
         row["noise_ax"] = float(np.sqrt(np.mean(spread[..., 2] ** 2)))
-        bias = noisy[sl].mean(axis=1) - truth
-        row["noisy_bias_lat"] = float(np.sqrt(np.mean(bias[:, 0] ** 2 + bias[:, 1] ** 2)))
-        row["noisy_bias_ax"] = float(np.sqrt(np.mean(bias[:, 2] ** 2)))
         rows.append(row)
-    assert len(rows) == nd
     out["rows"] = rows
     out["localisations"] = {k: v.tolist() for k, v in loc.items()}
+    out["noisy_localisations"] = {k: v.tolist() for k, v in noisy.items()}
     out["sources"] = src.tolist()
     return out
 
@@ -342,20 +345,33 @@ def markdown(r: dict) -> str:
         f"Airy radius {r['objective_airy_lenslets']:.3f} p; reference oversampling "
         + ", ".join(f"({o}, {c:.2g})" for o, c in r["history"])
         + f"; {r['lenslets']}×{r['lenslets']} lenslets, s {r['s']}, {r['n_depths']} planes every "
-        f"{r['z_step_um']:.4g} µm, {r['iterations']} RL iterations; noise: SNR {r['snr']:g})\n\n"
+        f"{r['z_step_um']:.4g} µm, {r['iterations']} RL iterations; wave bank "
+        f"{r['wave_bank_builder']}; noise: SNR {r['snr']:g}, {r['seeds']} seeds; errors in µm)"
+        "\n\n"
     )
     lines = [
-        "| z µm | z / z₁ | ray lat µm | ray ax µm | wave lat µm | wave ax µm | noise σ lat µm "
-        "| noise σ ax µm | ray / wave lat | ray / wave ax |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| z µm | z / z₁ | ray lat | ray ax | wave lat | wave ax | ray / wave lat "
+        "| ray / wave ax | noise σ lat | noise σ ax | noisy ray lat | noisy ray ax "
+        "| noisy wave lat | noisy wave ax |",
+        "|---" * 14 + "|",
     ]
     for w in sorted(r["rows"], key=lambda w: w["z_units"]):
-        lines.append(
-            f"| {w['z_um']:.3g} | {w['z_units']:g} | {w['ray_lat']:.3g} | {w['ray_ax']:.3g} "
-            f"| {w['wave_lat']:.3g} | {w['wave_ax']:.3g} | {w['noise_lat']:.3g} "
-            f"| {w['noise_ax']:.3g} | {_ratio(w['ray_lat'], w['wave_lat'])} "
-            f"| {_ratio(w['ray_ax'], w['wave_ax'])} |"
-        )
+        vals = [w[k] for k in ("ray_lat", "ray_ax", "wave_lat", "wave_ax")]
+        ratios = [_ratio(w["ray_lat"], w["wave_lat"]), _ratio(w["ray_ax"], w["wave_ax"])]
+        vals2 = [
+            w[k]
+            for k in (
+                "noise_lat",
+                "noise_ax",
+                "noisy_ray_lat",
+                "noisy_ray_ax",
+                "noisy_wave_lat",
+                "noisy_wave_ax",
+            )
+        ]
+        cells = [f"{w['z_um']:.3g}", f"{w['z_units']:g}"]
+        cells += [f"{v:.3g}" for v in vals] + ratios + [f"{v:.3g}" for v in vals2]
+        lines.append("| " + " | ".join(cells) + " |")
     return head + "\n".join(lines) + "\n"
 
 
@@ -393,7 +409,10 @@ def main(argv=None) -> int:
     ap.add_argument("--photons", type=float, default=1e4, help="scale of the clean images")
     ap.add_argument("--cache", default="", help="ray-bank cache folder ('' = none)")
     ap.add_argument(
-        "--store", type=Path, help="keep the references and wave banks here (reruns reuse them)"
+        "--store",
+        type=Path,
+        help="keep the references and wave banks here, keyed by microscope name and sampling "
+        "(reruns reuse them; empty it after changing lfsim.wave or recon.psf_wave)",
     )
     ap.add_argument("--quick", action="store_true", help="depths 0, 1, -2 z₁ and one position")
     ap.add_argument("--json", type=Path, help="write the numbers here")
