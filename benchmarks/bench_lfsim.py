@@ -45,7 +45,7 @@ def run_case(name: str, repeats: int, threads: int | None) -> dict:
     info = init_backend(threads=threads)
     scene = load_scene(ROOT / "scenes" / scene_file)
     rng = np.random.default_rng(1)
-    x0, x1, y0, y1 = scene.optics.field_of_view_um
+    x0, x1, y0, y1 = scene.optics.field_of_view_xy_um
     centers = np.c_[
         rng.uniform(x0 + 50, x1 - 50, 60),
         rng.uniform(y0 + 50, y1 - 50, 60),

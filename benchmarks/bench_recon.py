@@ -80,7 +80,7 @@ def case_render(p: dict) -> dict:
     optics = paper_optics()
     rng = np.random.default_rng(p["seed"])
     n = p["particles"]
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     centers = np.c_[
         rng.uniform(x0 + 50, x1 - 50, n),
         rng.uniform(y0 + 50, y1 - 50, n),

@@ -83,7 +83,7 @@ def problem(case: str, cache: Path):
         o = paper_optics()
         n_lenslets, s, depths = (60, 40), 5, depth_range(100, 300, 5)
         rng = np.random.default_rng(5)
-        x0, x1, y0, y1 = o.field_of_view_um  # about half of them land in the crop
+        x0, x1, y0, y1 = o.field_of_view_xy_um  # about half of them land in the crop
         pts = np.c_[
             rng.uniform(x0 + 60, x1 - 60, 60),
             rng.uniform(y0 + 60, y1 - 60, 60),

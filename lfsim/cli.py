@@ -163,7 +163,7 @@ def cmd_scene(args) -> int:
         desc += ", " + ", ".join(args.set)
     # Write next to the destination, then move into place without clobbering.
     write_scene(optics, out, description=desc.replace("--", "- -"))
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     log.info(
         "wrote %s: field x ∈ [%.1f, %.1f] µm, y ∈ [%.1f, %.1f] µm, %.4g µm/px",
         out,

@@ -268,7 +268,7 @@ def render_frame(k: int, model: _RenderModel) -> dict:
         img, info = apply_noise(clean, experiment.noise_for_frame(k), n_rng)
     except ConfigError as exc:
         raise ConfigError(f"experiment {experiment.name!r}, frame {k}: {exc}") from exc
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     p = particles.positions_um
     inside = int(np.sum((p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)))
     meta = {

@@ -416,13 +416,14 @@ class Optics:
         return self.mla_pitch_um / self.magnification
 
     @property
-    def sensor_um(self) -> tuple[float, float]:
+    def sensor_xy_um(self) -> tuple[float, float]:
         """Sensor extent ``(width, height)`` in the sensor plane."""
         return (self.sensor_xy_px[0] * self.pixel_um, self.sensor_xy_px[1] * self.pixel_um)
 
     @property
-    def field_of_view_um(self) -> tuple[float, float, float, float]:
-        """Object-space field of view ``(x_min, x_max, y_min, y_max)`` seen by the sensor."""
+    def field_of_view_xy_um(self) -> tuple[float, float, float, float]:
+        """Object-space field of view ``(x_min, x_max, y_min, y_max)`` seen by the sensor: the
+        x range, then the y range (µm)."""
         w, h = self.sensor_xy_px
         cx, cy = self.axis_xy_px
         s = self.object_pixel_um
@@ -513,7 +514,7 @@ class Optics:
     @classmethod
     def from_dict(cls, data: dict) -> Optics:
         """Inverse of :meth:`to_dict`; unknown keys are an error naming them. The optics of
-        the files of the older layout (calibration files, ``recon.json``, PSF banks), whose
+        the files of the older layout (calibration files, ``recon.json``), whose
         sensor and axis are ``sensor_px`` and ``axis_px``, are read too."""
         for older, name in OLDER_KEYS.items():
             if name in data and older in data:

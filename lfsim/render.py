@@ -44,10 +44,10 @@ def max_depth_um(optics) -> float:
     object-space diameter ``2 |z| a tan θ`` (θ the acceptance half-angle in the immersion
     medium, ``a`` the ratio of apparent to true depth in the specimen: ``2 |z| tan(asin NA)``
     in air); beyond the depth where that disc is as wide as the narrower side of the field of
-    view (``Optics.field_of_view_um``), a particle is no longer imaged, only a faint uniform
+    view (``Optics.field_of_view_xy_um``), a particle is no longer imaged, only a faint uniform
     background.
     """
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     width = min(x1 - x0, y1 - y0)
     return width / (2.0 * math.tan(optics.theta_max) * optics.axial_scale)
 
@@ -81,10 +81,10 @@ def check_depths(optics, positions_um: np.ndarray, ids=None, what: str = "partic
 def check_in_field(optics, positions_um: np.ndarray, ids=None, what: str = "particles") -> None:
     """Raise :class:`ConfigError` if any point lies outside the object-space field of view.
 
-    The field is the sensor's footprint in object space, ``Optics.field_of_view_um``, and the
+    The field is the sensor's footprint in object space, ``Optics.field_of_view_xy_um``, and the
     depth range of :func:`check_depths`.
     """
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     p = np.asarray(positions_um)
     check_depths(optics, p, ids, what)
     out = (p[:, 0] < x0) | (p[:, 0] > x1) | (p[:, 1] < y0) | (p[:, 1] > y1)
@@ -141,7 +141,7 @@ def white_sources(optics, thickness_um: float = 2.0, margin_um: float | None = N
     """
     if thickness_um <= 0:
         raise ConfigError(f"thickness_um must be > 0, got {thickness_um!r}")
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     step = optics.lenslet_object_um
     if margin_um is None:
         margin_um = 2 * step
@@ -245,7 +245,7 @@ def micrometer_sources(
             f"z_um {z_um:g} µm puts the reticle outside the imaged depth range "
             f"|z| <= {max_depth_um(optics):.0f} µm (µm from the native focal plane)"
         )
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     other = (y1 - y0) if axis == "x" else (x1 - x0)
     t = np.radians(rotation_deg)
     c, s = np.cos(t), np.sin(t)

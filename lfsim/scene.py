@@ -89,7 +89,7 @@ class Layout:
 
 def _radii_mm(optics: Optics) -> tuple[float, float]:
     """Clear radii of objective and tube lens that pass the whole field without vignetting."""
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     field_r = math.hypot(max(abs(x0), abs(x1)), max(abs(y0), abs(y1))) / UM_PER_MM
     stop_r = optics.stop_radius_um / UM_PER_MM
     r_obj = 1.2 * (field_r + stop_r) + 1.0

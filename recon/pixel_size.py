@@ -336,7 +336,7 @@ def _check_division(optics, division_um: float) -> None:
             f"(λ / 2NA = {finest:.2f} µm at NA {optics.na:g}): give the micrometer's division "
             "in µm"
         )
-    x0, x1, y0, y1 = optics.field_of_view_um
+    x0, x1, y0, y1 = optics.field_of_view_xy_um
     field_um = max(x1 - x0, y1 - y0)
     if division_um > field_um / 2:
         raise InputError(

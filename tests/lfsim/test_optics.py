@@ -16,7 +16,7 @@ def test_paper_optics_derived_quantities():
     assert o.object_pixel_um == pytest.approx(100 / 15 / 4)  # ≈ 1.67 µm (paper: 1.64 measured)
     assert o.lenslet_object_um == pytest.approx(25.0)
     assert o.cone_fraction == pytest.approx((1 - math.sqrt(1 - 0.04)) / 2)
-    x0, x1, y0, y1 = o.field_of_view_um
+    x0, x1, y0, y1 = o.field_of_view_xy_um
     assert x1 - x0 == pytest.approx(1280 * o.object_pixel_um)  # ≈ 2100 µm (paper §4)
     assert y1 - y0 == pytest.approx(800 * o.object_pixel_um)  # ≈ 1300 µm
     # The axis sits on a lenslet centre and lenslet borders fall on pixel borders.
