@@ -151,7 +151,7 @@ def main() -> int:
     bank = compute_psf_bank(model, depths, args.s, rays_per_pattern=100_000, progress=True)
     proj = LightFieldProjector(bank, (20, 20))
     filt = DepthFilter.for_optics(model, depths, args.s)
-    origin = (-o.axis_px[0] * o.object_pixel_um, -o.axis_px[1] * o.object_pixel_um)
+    origin = (-o.axis_xy_px[0] * o.object_pixel_um, -o.axis_xy_px[1] * o.object_pixel_um)
     grid = ReconGrid(o.lenslet_object_um, depths, args.s, (20, 20), origin)
     rng = np.random.default_rng(7)
     print(
