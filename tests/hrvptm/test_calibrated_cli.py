@@ -157,3 +157,32 @@ def test_voldir_missing_or_a_file_is_named_as_such(tmp_path, capsys, kind):
     what = "does not exist" if kind == "missing" else "is a file"
     assert f"volumes {vol} {what}" in lines[0] and "recon.json" not in lines[0], lines[0]
     assert not (tmp_path / "res").exists()
+
+
+def test_a_recon_record_of_the_older_layout_gives_the_same_model(tmp_path):
+    from hrvbase.io import rename_keys
+    from hrvptm.calibrated import ReconModel
+    from lfsim.optics import small_optics
+    from recon.lenslet_grid import LensletGrid
+    from recon.settings import ReconSettings
+
+    optics = small_optics(na=0.25)
+    grid = LensletGrid(15.0, 0.2, (157.5, 152.0), (300, 300))
+    settings = ReconSettings(
+        z_min_um=-40.0, z_max_um=40.0, z_step_um=10.0, roi_xy_px=(0, 90, 15, 80)
+    )
+    record = {
+        "optics": optics.to_dict(),
+        "calibration": grid.to_dict(),
+        "settings": settings.to_dict(),
+    }
+    (tmp_path / "new").mkdir()
+    (tmp_path / "new" / "recon.json").write_text(json.dumps(record))
+    older = rename_keys(record, {"sensor_xy_px": "sensor_px", "axis_xy_px": "axis_px"})
+    older = rename_keys(older, {"origin_xy_px": "origin_px", "roi_xy_px": "roi_px"})
+    assert "roi_px" in older["settings"] and "origin_px" in older["calibration"]
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "recon.json").write_text(json.dumps(older))
+    new = ReconModel.from_record(tmp_path / "new")
+    assert new == ReconModel(optics, grid, settings)
+    assert ReconModel.from_record(tmp_path / "old") == new
