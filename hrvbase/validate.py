@@ -134,9 +134,10 @@ def per_axis(value: Any, name: str, *, positive: bool = True) -> tuple[float, fl
     return (z, y, x)
 
 
-#: Keys of the files users write whose names say the order of their values, by the name that
-#: does not (docs/conventions.md §3): such a key is refused with a message naming the key to
-#: write instead, so that no value is read in an order its file did not state.
+#: Keys of the files users write whose names do not say the order of their values → the key
+#: to write instead, whose name does, and what it holds (docs/conventions.md §3). Such a key is
+#: refused with a message naming the new one, so that no value is read in an order its file
+#: did not state.
 RENAMED_KEYS: dict[str, tuple[str, str]] = {
     "center_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
     "centre_um": ("center_xyz_um", "the centre (x, y, z) in µm"),
