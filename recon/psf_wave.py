@@ -90,15 +90,16 @@ def default_wave_sampling(optics):
     """The :class:`lfsim.wave.WaveSampling` of a wave bank for these optics.
 
     ``oversample``: the fewest samples per pixel with a step of at most
-    ``λ / (4 (NA_image + NA_lenslet))`` (the intensity behind the lenslets sampled at its
-    Nyquist rate). ``guard_lenslets`` 1: the light crossing the
+    ``λ / (5 (NA_image + NA_lenslet))``: the intensity behind the lenslets, whose spatial
+    frequencies reach ``2 (NA_image + NA_lenslet) / λ``, sampled at 1.25× its Nyquist rate
+    (benchmarks/README.md measures the patterns' convergence). ``guard_lenslets`` 1: the light crossing the
     window's edge between the array and the sensor spreads less than a lenslet
     (``(NA_image + NA_lenslet) f_l < p`` for matched lenslets).
     """
     from lfsim.wave import WaveSampling
 
     na_img = optics.medium_ior * math.sin(optics.emission_half_angle) / optics.magnification
-    step = optics.wavelength_um / (4.0 * (na_img + optics.lenslet_na))
+    step = optics.wavelength_um / (5.0 * (na_img + optics.lenslet_na))
     os_min = max(1, math.ceil(optics.pixel_um / step))
     return WaveSampling(oversample=os_min, guard_lenslets=1.0)
 
