@@ -92,8 +92,8 @@ def default_wave_sampling(optics):
     ``oversample``: the fewest samples per pixel with a step of at most
     ``λ / (5 (NA_image + NA_lenslet))``: the intensity behind the lenslets, whose spatial
     frequencies reach ``2 (NA_image + NA_lenslet) / λ``, sampled at 1.25× its Nyquist rate
-    (benchmarks/README.md measures the patterns' convergence). ``guard_lenslets`` 1: the light crossing the
-    window's edge between the array and the sensor spreads less than a lenslet
+    (benchmarks/README.md measures the patterns' convergence). ``guard_lenslets`` 1: the light
+    crossing the window's edge between the array and the sensor spreads less than a lenslet
     (``(NA_image + NA_lenslet) f_l < p`` for matched lenslets).
     """
     from lfsim.wave import WaveSampling
