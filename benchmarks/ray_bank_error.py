@@ -60,9 +60,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import wave_reference
 from wave_reference import PN, SCOPES, z_unit
 
-#: microscopes between the paper's and 20×/0.5 (dry, lenslets matched as in wave_reference),
-#: name: (M, NA, n); their lenslet spots λ f_l / p are 1.13 and 1.51 px
-EXTRA_SCOPES = {"10x-0.4": (10.0, 0.4, 1.0), "10x-0.3": (10.0, 0.3, 1.0)}
+#: more microscopes (lenslets matched as in wave_reference), name: (M, NA, n): two dry ones
+#: between the paper's and 20×/0.5 (lenslet spots λ f_l / p of 1.13 and 1.51 px), and two
+#: water objectives that separate the lenslet spot from the objective's aperture angle
+#: (40×/1.2 W: 1.51 px at sin θ = 0.9; 60×/0.8 W: 3.40 px at sin θ = 0.6)
+EXTRA_SCOPES = {
+    "10x-0.4": (10.0, 0.4, 1.0),
+    "10x-0.3": (10.0, 0.3, 1.0),
+    "40xW-1.2": (40.0, 1.2, wave_reference.WATER),
+    "60xW-0.8": (60.0, 0.8, wave_reference.WATER),
+}
 
 #: source depths in units of z₁
 DEPTHS = (0.0, 0.5, 1.0, 2.0, 3.0, -0.5, -1.0, -2.0, -3.0)
