@@ -11,6 +11,11 @@ Set-ups (``--setup``):
   index 1.35 on a 170 µm glass bottom, focused 300 µm into it; glass lenslets rendered
   through Mitsuba, ideal lenslets reconstructed (no inverse crime); true depths 50–600 µm. The
   same frames are also reconstructed as if the gel were air (``--as-air``).
+- ``gel_focus_in_glass``: the same gel, with the objective focused 150 µm into the 170 µm
+  glass bottom, so that the native plane lies 123 µm in front of the gel and every particle on
+  one side of it, beyond the native-plane artefacts; depths 50–600 µm below the gel's surface
+  (``--depths`` are then depths below the surface too), the volume from the surface to 760 µm
+  beyond it.
 - ``water40``: a 40×/0.8 water objective into water behind a 170 µm cover glass it is
   corrected for, lenslets matched to its NA (f/25, 100 µm), true depths −15 … 15 µm.
 - ``air``: the paper's optics in air, true depths 50–600 µm (the baseline of the pipeline).
@@ -38,6 +43,16 @@ SETUPS = {
         },
         "depths": np.arange(50.0, 601.0, 50.0),
         "z_range": (0.0, 660.0, 5.0),
+    },
+    "gel_focus_in_glass": {
+        "optics": {
+            "medium_ior": 1.35,
+            "coverslip_thickness_um": 170.0,
+            "coverslip_ior": 1.523,
+            "focus_depth_um": -150.0,
+        },
+        "depths_below_surface": np.arange(50.0, 601.0, 50.0),
+        "z_range_from_surface": (0.0, 760.0, 5.0),
     },
     "air": {"optics": {}, "depths": np.arange(50.0, 601.0, 50.0), "z_range": (0.0, 660.0, 5.0)},
     "water40": {
@@ -145,6 +160,12 @@ def main() -> int:
     model = replace(o, mla_kind="ideal")
     if args.as_air:
         model = replace(model, medium_ior=model.immersion_ior, coverslip_thickness_um=0.0)
+    # Depths below the specimen's surface where the set-up gives them so: z = surface + depth.
+    z_surface = o.surface_z_um if "depths_below_surface" in setup else 0.0
+    if "z_range_from_surface" in setup:
+        r0, r1, rdz = setup["z_range_from_surface"]
+        first = np.ceil(z_surface / rdz) * rdz
+        setup = {**setup, "z_range": (first + r0, first + r1, rdz)}
     z0, z1, dz = args.z_range or setup["z_range"]
     depths = depth_range(z0, z1, dz)
     t0 = time.perf_counter()
@@ -164,7 +185,8 @@ def main() -> int:
     print(f"{'true z µm':>9s} {'ax mean':>8s} {'ax max':>7s} {'lat max':>8s}")
     true_z, found_z = [], []
     half = 0.35 * min(np.ptp(grid.x_um()), np.ptp(grid.y_um()))
-    for z in args.depths or setup["depths"]:
+    given = args.depths or setup.get("depths_below_surface", setup.get("depths"))
+    for z in z_surface + np.asarray(given, float):
         corners = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]], float) * half / 2
         xy = corners + rng.uniform(-0.5, 0.5, corners.shape) * o.lenslet_object_um
         pts = np.c_[xy, np.full(len(xy), z)]
