@@ -51,15 +51,13 @@ import dataclasses
 import json
 import logging
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _common import add_baseline_arguments, print_table, run_baseline_worker
 
-ROOT = Path(__file__).resolve().parents[1]
 GRIDS = ["default", "box", "particles", "particles-nostd"]
 
 
@@ -216,20 +214,11 @@ def run_baseline(rev, frames, n, field, step, seed, grid="default"):
 
     The series is imported from ``track.fields`` and ``track.series``, the paths every
     revision has."""
-    with tempfile.TemporaryDirectory(prefix="bench-fields-baseline-") as tmp:
-        archive = subprocess.run(
-            ["git", "archive", rev, "track", "hrvbase"], cwd=ROOT, capture_output=True, check=True
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        for name in ("synthetic.py", "link_score.py"):  # today's series (and what it imports)
-            (Path(tmp) / "track" / name).write_bytes((ROOT / "track" / name).read_bytes())
-        out = Path(tmp) / "row.json"
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--_worker", str(out)]
-        cmd += ["--frames", str(frames), "--n", str(n), "--field", field]
-        cmd += ["--step", str(step), "--seed", str(seed), "--grid", grid]
-        env = dict(os.environ, PYTHONPATH=tmp)
-        subprocess.run(cmd, cwd=tmp, env=env, check=True)
-        return json.loads(out.read_text())
+    args = ["--frames", str(frames), "--n", str(n), "--field", field]
+    args += ["--step", str(step), "--seed", str(seed), "--grid", grid]
+    # today's series (and what it imports)
+    today = ("synthetic.py", "link_score.py")
+    return run_baseline_worker(__file__, rev, args, today, "bench-fields-baseline-")
 
 
 def _fmt(r, label):
@@ -273,7 +262,7 @@ def main(argv=None) -> None:
         default=[1],
         help="Dask workers of the new code's fields, one row each (default 1: in process)",
     )
-    ap.add_argument("--baseline", metavar="REV", help="also run track of this git revision")
+    add_baseline_arguments(ap)
     ap.add_argument(
         "--baseline-frames", type=int, help="frames of the baseline run (default --frames)"
     )
@@ -283,8 +272,6 @@ def main(argv=None) -> None:
         choices=GRIDS,
         help="grid of the baseline run (default: default)",
     )
-    ap.add_argument("--json", metavar="PATH", help="write all rows to this JSON file")
-    ap.add_argument("--_worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args._worker:
@@ -306,9 +293,7 @@ def main(argv=None) -> None:
     head += ["(f+w)/link", "(f+w+t)/pairs", "load", "E_rmse_all", "E_rmse_last", "u_rmse"]
     head += ["cover1/2"]
     table = [_fmt(r, label) for label, r in rows]
-    widths = [max(len(x[i]) for x in [head, *table]) for i in range(len(head))]
-    for x in [head, *table]:
-        print("  ".join(v.ljust(w) for v, w in zip(x, widths, strict=True)))
+    print_table(head, table)
     print(
         "times: wall/CPU seconds; (f+w)/link: (fields + write) / (link + tracks); "
         "(f+w+t)/pairs: (fields + write + tracks) / link; wall/CPU"

@@ -37,15 +37,12 @@ import argparse
 import json
 import logging
 import os
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
+from _common import add_baseline_arguments, print_table, run_baseline_worker
 
 
 def run_cases(fields, sizes, amplitudes, seed):
@@ -97,32 +94,9 @@ def run_cases(fields, sizes, amplitudes, seed):
 
 def run_baseline(rev, fields, sizes, amplitudes, seed):
     """The same cases with ``track`` of git revision ``rev`` (and today's synthetic.py)."""
-    with tempfile.TemporaryDirectory(prefix="bench-baseline-") as tmp:
-        archive = subprocess.run(
-            ["git", "archive", rev, "track", "hrvbase"], cwd=ROOT, capture_output=True, check=True
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        (Path(tmp) / "track" / "synthetic.py").write_bytes(
-            (ROOT / "track" / "synthetic.py").read_bytes()
-        )
-        out = Path(tmp) / "rows.json"
-        cmd = [
-            sys.executable,
-            str(Path(__file__).resolve()),
-            "--_worker",
-            str(out),
-            "--fields",
-            *fields,
-            "--sizes",
-            *map(str, sizes),
-            "--amplitudes",
-            *map(str, amplitudes),
-            "--seed",
-            str(seed),
-        ]
-        env = dict(os.environ, PYTHONPATH=tmp)
-        subprocess.run(cmd, cwd=tmp, env=env, check=True)
-        return json.loads(out.read_text())
+    args = ["--fields", *fields, "--sizes", *map(str, sizes)]
+    args += ["--amplitudes", *map(str, amplitudes), "--seed", str(seed)]
+    return run_baseline_worker(__file__, rev, args, ("synthetic.py",), "bench-baseline-")
 
 
 def main(argv=None) -> None:
@@ -133,9 +107,7 @@ def main(argv=None) -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10_000])
     ap.add_argument("--amplitudes", type=float, nargs="+", default=[0.5, 1.0, 1.5])
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--baseline", metavar="REV", help="also run track of this git revision")
-    ap.add_argument("--json", metavar="PATH", help="write all rows to this JSON file")
-    ap.add_argument("--_worker", help=argparse.SUPPRESS)
+    add_baseline_arguments(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args._worker:
@@ -182,9 +154,7 @@ def main(argv=None) -> None:
                 else [""] * 4
             )
         table.append(line)
-    widths = [max(len(x[i]) for x in [head, *table]) for i in range(len(head))]
-    for x in [head, *table]:
-        print("  ".join(v.ljust(w) for v, w in zip(x, widths, strict=True)))
+    print_table(head, table)
     print(
         "ratio/face: correct links / particles in both frames (all / within 1 spacing of a "
         "face); excess, fld: mean spacings; FAIL: ratio < 0.99, wrong > 0.5 % or excess > 0.01"
