@@ -11,6 +11,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from hrvbase.validate import points_xyz
+
 from .errors import ConfigError
 
 
@@ -25,17 +27,7 @@ def _vec3(name: str, value) -> tuple[float, float, float]:
 
 
 def _check_points(X) -> np.ndarray:
-    try:
-        a = np.asarray(X, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(
-            f"reference positions X_um must be a numeric (N, 3) array: {exc}"
-        ) from exc
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ConfigError(f"reference positions X_um must have shape (N, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ConfigError("reference positions X_um must be finite")
-    return a
+    return points_xyz(X, "reference positions X_um", error=ConfigError)
 
 
 def _check_frame(frame) -> float | int:
