@@ -339,6 +339,16 @@ def case_adder(cases: list[Case]) -> Callable[..., None]:
     return case
 
 
+def study_argv(e: Env, toml: Path, out=None, *extra) -> list:
+    """``hrvptm study TOML -o OUT *extra`` (``out`` default: a fresh output path)."""
+    return ["study", toml, "-o", out or e.o("rep"), *extra]
+
+
+def collect_argv(e: Env, *reports, out=None, extra=()) -> list:
+    """``hrvptm collect REPORT... -o OUT *extra`` (default: the shared report, a fresh page)."""
+    return ["collect", *(reports or [e.b.report]), "-o", out or e.o("page.md"), *extra]
+
+
 def params(cases: list[Case]) -> list:
     """``pytest.param`` of each case, with its id and marks."""
     import pytest

@@ -46,10 +46,12 @@ from tests.corpus import (  # noqa: F401
     Case,
     Env,
     case_adder,
+    collect_argv,
     mutate,
     params,
     run_case,
     snapshot,
+    study_argv,
     toml_text,
     write_cloud,
 )
@@ -1163,10 +1165,6 @@ for prog in ("lfsim", "recon", "track", "hrvptm"):
 
 
 # ---- hrvptm study ----
-def study_argv(e: Env, toml: Path, out=None, *extra) -> list:
-    return ["study", toml, "-o", out or e.o("rep"), *extra]
-
-
 for cid, make, needle in [
     ("missing", lambda e: e.inp / "nope.toml", "nope.toml"),
     ("empty", lambda e: e.w("empty.toml", ""), "[experiment]"),
@@ -1334,10 +1332,6 @@ case("demo-output-missing", "hrvptm", lambda e: ["demo"], "--output")
 
 
 # ---- hrvptm collect ----
-def collect_argv(e: Env, *reports, out=None, extra=()) -> list:
-    return ["collect", *(reports or [e.b.report]), "-o", out or e.o("page.md"), *extra]
-
-
 def _summary(text: str | bytes):
     def edit(d: Path) -> None:
         p = d / "summary.json"

@@ -19,9 +19,11 @@ from tests.corpus import (
     Case,
     Env,
     case_adder,
+    collect_argv,
     mutate,
     params,
     run_case,
+    study_argv,
     toml_text,
 )
 
@@ -177,10 +179,6 @@ def _page_folder_file(e: Env, rel: str, data: bytes = b"the user's own file") ->
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_bytes(data)
     return p
-
-
-def collect_argv(e: Env, *reports, out=None, extra=()) -> list:
-    return ["collect", *(reports or [e.b.report]), "-o", out or e.o("page.md"), *extra]
 
 
 def _user_plot(e: Env, *extra) -> list:
@@ -345,10 +343,6 @@ def _study_text(e: Env, top: str = "", drop: tuple = (), changes: dict | None = 
     for name in drop:
         sections.pop(name)
     return e.w("study.toml", top + toml_text(sections))
-
-
-def study_argv(e: Env, toml: Path, *extra) -> list:
-    return ["study", toml, "-o", e.o("rep"), *extra]
 
 
 for cid, top, drop, needle in [
