@@ -14,10 +14,10 @@ objective (``f_l = M p / (2 NA)``) and 15 px per lenslet — on a small sensor o
 2. **Reconstruction.** Each image is reconstructed by Richardson–Lucy (``recon``'s default
    settings: ``ReconSettings().iterations`` iterations, its depth filter) with (a) the ray
    bank, :func:`recon.psf.compute_psf_bank`, and (b) a wave bank of the same depths and
-   ``s``, the reference's own operator: :func:`lfsim.wave.pattern_stack` at
-   ``--bank-oversample`` (4) samples per pixel, sparsified as the ray bank, or with
-   ``--wave-builder library`` :func:`recon.psf_wave.compute_wave_psf_bank` (its default
-   sampling unless ``--bank-oversample`` is given). Depth planes every ``--z-step`` z₁
+   ``s``, the reference's own operator: :func:`recon.psf_wave.compute_wave_psf_bank` (its
+   default sampling unless ``--bank-oversample`` is given), or with ``--wave-builder local``
+   :func:`lfsim.wave.pattern_stack` at ``--bank-oversample`` (4) samples per pixel,
+   sparsified as the ray bank. Depth planes every ``--z-step`` z₁
    over ``±--z-range`` z₁.
 3. **Localisation.** The brightest voxel within one lenslet pitch laterally and 1.5 z₁
    axially of the source, then the background-subtracted weighted centroid
@@ -41,7 +41,8 @@ Usage::
 
     nice python benchmarks/ray_bank_error.py                         # all four microscopes
     nice python benchmarks/ray_bank_error.py --scopes 4x --quick  # a minute: 3 depths, 1 position
-    nice python benchmarks/ray_bank_error.py --json out.json --markdown out.md
+    nice python benchmarks/ray_bank_error.py --json out.json --markdown out.md --store DIR
+    nice python benchmarks/ray_bank_error.py --scopes 4x --store DIR -s 5 --z-step 0.08
 """
 
 from __future__ import annotations
@@ -407,9 +408,9 @@ def main(argv=None) -> int:
     )
     ap.add_argument(
         "--wave-builder",
-        choices=("local", "library"),
-        default="local",
-        help="wave bank from lfsim.wave.pattern_stack here, or recon.psf_wave's builder",
+        choices=("library", "local"),
+        default="library",
+        help="wave bank from recon.psf_wave, or from lfsim.wave.pattern_stack here",
     )
     ap.add_argument("--snr", type=float, default=17.0, help="SNR of the noisy copies")
     ap.add_argument("--seeds", type=int, default=5, help="noise seeds per source")
