@@ -241,8 +241,9 @@ RUN_SETTINGS = (
         "psf_model",
         ("--psf-model",),
         "PSF bank: ray-traced, wave optics, or auto (wave optics where a lenslet's diffraction "
-        "spot is wider than recon.psf_wave.WAVE_SPOT_PX pixels; rays at the paper's optics); "
-        "recon.json records the model used",
+        "spot is wider than 1.3 pixels or the aperture angle's sine in the specimen exceeds "
+        "0.75, recon.psf_wave.choose_psf_model; rays at the paper's optics); recon.json "
+        "records the model used",
         choices=PSF_MODELS,
     ),
     SettingOption(

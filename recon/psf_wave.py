@@ -50,13 +50,15 @@ log = logging.getLogger(__name__)
 PSF_MODELS = ("auto", "ray", "wave")
 
 #: ``auto`` chooses the wave-optics bank where a lenslet's diffraction spot ``λ f_l / p`` is
-#: wider than this many sensor pixels (:func:`lenslet_spot_px`). Set between the microscopes
-#: where the ray bank's localisation error on converged wave-optics point sources stays at
-#: the wave bank's (the paper's 4×/0.2, 0.91 px) and where it exceeds it by more than the
-#: noise (20×/0.5, 40×/0.8 W, 60×/1.2 W: 1.81–2.27 px), at their geometric mean: measured by
-#: benchmarks/ray_bank_error.py, see benchmarks/README.md, "bench_wave_bank.py", "The auto
-#: rule".
+#: wider than this many sensor pixels (:func:`lenslet_spot_px`): between the 10×/0.4's
+#: 1.13 px, where the ray bank localises point sources as well as the wave bank, and the
+#: 10×/0.3's 1.51 px, where it does worse by more than the noise (benchmarks/README.md,
+#: "ray_bank_error.py — where the ray PSF bank stops being enough").
 WAVE_SPOT_PX = 1.3
+#: ... or where the aperture angle in the specimen has ``sin θ`` above this
+#: (:func:`aperture_sin`): between 0.6, where the ray bank's axial error is 1.2–1.6× the wave
+#: bank's, and 0.9, where it is 2–5× (same measurement).
+WAVE_SIN_THETA = 0.75
 
 #: Bytes of complex fields one batch of propagated sources may hold.
 BATCH_BYTES = 256 << 20
@@ -68,12 +70,20 @@ def lenslet_spot_px(optics) -> float:
     return optics.wavelength_um * optics.mla_focal_um / (optics.mla_pitch_um * optics.pixel_um)
 
 
+def aperture_sin(optics) -> float:
+    """``sin θ`` of the aperture angle in the specimen, ``min(NA, n) / n`` (0.2 for the paper's
+    optics, 0.9 for a 1.2 NA water objective into water)."""
+    return math.sin(optics.emission_half_angle)
+
+
 def choose_psf_model(optics, model: str = "auto") -> str:
     """The PSF model (``"ray"`` or ``"wave"``) a reconstruction with ``psf_model=model`` uses.
 
-    ``"auto"`` is ``"wave"`` where :func:`lenslet_spot_px` exceeds :data:`WAVE_SPOT_PX`: where
-    a lenslet's diffraction spot spans more than about a pixel the ray bank's Gaussian blur no
-    longer stands in for diffraction; ``"ray"`` otherwise.
+    ``"auto"`` is ``"wave"`` where :func:`lenslet_spot_px` exceeds :data:`WAVE_SPOT_PX` (a
+    lenslet's diffraction spot spans more than about a pixel: the ray bank's Gaussian blur no
+    longer stands in for it) or :func:`aperture_sin` exceeds :data:`WAVE_SIN_THETA` (the
+    high-angle rays, whose diffraction the ray bank blurs with the paraxial width); ``"ray"``
+    otherwise.
     """
     from hrvbase import validate
 
@@ -83,7 +93,8 @@ def choose_psf_model(optics, model: str = "auto") -> str:
         validate.one_of(model, "psf_model", PSF_MODELS)
     if model != "auto":
         return model
-    return "wave" if lenslet_spot_px(optics) > WAVE_SPOT_PX else "ray"
+    wave = lenslet_spot_px(optics) > WAVE_SPOT_PX or aperture_sin(optics) > WAVE_SIN_THETA
+    return "wave" if wave else "ray"
 
 
 def default_wave_sampling(optics):
@@ -408,7 +419,9 @@ def _propagate_sources(prof, r, positions, win: _Window, os_: int, n_win: int) -
 __all__ = [
     "BATCH_BYTES",
     "PSF_MODELS",
+    "WAVE_SIN_THETA",
     "WAVE_SPOT_PX",
+    "aperture_sin",
     "choose_psf_model",
     "compute_wave_psf_bank",
     "default_wave_sampling",

@@ -79,8 +79,10 @@ class ReconSettings:
         The PSF bank: ray-traced (:func:`recon.psf.compute_psf_bank`) or wave optics
         (:func:`recon.psf_wave.compute_wave_psf_bank`). ``"auto"``: wave optics where a
         lenslet's diffraction spot is wider than :data:`recon.psf_wave.WAVE_SPOT_PX` sensor
-        pixels, rays otherwise (:func:`recon.psf_wave.choose_psf_model`; rays for the paper's
-        optics). ``recon.json`` records the model used.
+        pixels or the aperture angle's sine in the specimen exceeds
+        :data:`recon.psf_wave.WAVE_SIN_THETA`, rays otherwise
+        (:func:`recon.psf_wave.choose_psf_model`; rays for the paper's optics).
+        ``recon.json`` records the model used.
     roi_xy_px : tuple of int or None
         ``(x0, x1, y0, y1)``, the x range then the y range in pixels: reconstruct only
         lenslets whose images lie inside these pixels.

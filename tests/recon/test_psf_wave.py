@@ -14,7 +14,9 @@ from lfsim.wave import WaveSampling, pattern_stack
 from recon.errors import InputError
 from recon.psf import pattern_radius_lenslets
 from recon.psf_wave import (
+    WAVE_SIN_THETA,
     WAVE_SPOT_PX,
+    aperture_sin,
     choose_psf_model,
     compute_wave_psf_bank,
     default_wave_sampling,
@@ -169,12 +171,24 @@ def test_default_sampling_resolves_the_light_behind_the_lenslets():
 
 
 def test_auto_keeps_rays_at_the_papers_optics_and_picks_waves_at_60x_water():
-    assert lenslet_spot_px(paper_optics()) == pytest.approx(0.605 * 10 / (100 / 15))
-    assert lenslet_spot_px(paper_optics()) < WAVE_SPOT_PX < lenslet_spot_px(water_60x())
-    assert choose_psf_model(paper_optics()) == "ray"
+    paper = paper_optics()
+    assert lenslet_spot_px(paper) == pytest.approx(0.605 * 10 / (100 / 15))
+    assert lenslet_spot_px(paper) < WAVE_SPOT_PX < lenslet_spot_px(water_60x())
+    assert aperture_sin(paper) == pytest.approx(0.2)
+    assert aperture_sin(water_60x()) == pytest.approx(1.2 / 1.333)
+    assert choose_psf_model(paper) == "ray"
     assert choose_psf_model(water_60x()) == "wave"
-    assert choose_psf_model(paper_optics(), "wave") == "wave"
+    assert choose_psf_model(paper, "wave") == "wave"
     assert choose_psf_model(water_60x(), "ray") == "ray"
+    # a 20×/0.95 dry objective with matched lenslets: a small spot (0.95 px), a wide
+    # aperture angle (sin θ 0.95): waves by the angle alone
+    dry_20x = paper_optics(na=0.95, f_objective_um=10_000.0, mla_focal_um=20 * 100 / 1.9)
+    assert lenslet_spot_px(dry_20x) < 1 < WAVE_SPOT_PX
+    assert aperture_sin(dry_20x) > WAVE_SIN_THETA
+    assert choose_psf_model(dry_20x) == "wave"
+    # the same lenslets behind a 0.5 NA: rays
+    dry_20x_05 = paper_optics(na=0.5, f_objective_um=10_000.0, mla_focal_um=20 * 100 / 1.9)
+    assert choose_psf_model(dry_20x_05) == "ray"
 
 
 def test_psf_model_errors_are_one_line():
