@@ -50,11 +50,11 @@ log = logging.getLogger(__name__)
 PSF_MODELS = ("auto", "ray", "wave")
 
 #: ``auto`` chooses the wave-optics bank where a lenslet's diffraction spot ``λ f_l / p`` is
-#: wider than this many sensor pixels (:func:`lenslet_spot_px`): between the 10×/0.4's
-#: 1.13 px, where the ray bank localises point sources as well as the wave bank, and the
-#: 10×/0.3's 1.51 px, where it does worse by more than the noise (benchmarks/README.md,
+#: wider than this many sensor pixels (:func:`lenslet_spot_px`): between the paper's 4×/0.2
+#: (0.91 px), where the ray bank localises point sources as well as the wave bank, and the
+#: 10×/0.4 (1.13 px), where it does worse by more than the noise spread (benchmarks/README.md,
 #: "ray_bank_error.py — where the ray PSF bank stops being enough").
-WAVE_SPOT_PX = 1.3
+WAVE_SPOT_PX = 1.0
 #: ... or where the aperture angle in the specimen has ``sin θ`` above this
 #: (:func:`aperture_sin`): between 0.6, where the ray bank's axial error is 1.2–1.6× the wave
 #: bank's, and 0.9, where it is 2–5× (same measurement).
