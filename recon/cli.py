@@ -83,7 +83,7 @@ from .calibration_file import (
 )
 from .errors import InputError, ReconError
 from .projector import PROJECTORS
-from .psf_wave import PSF_MODELS
+from .psf_wave import PSF_MODELS, WAVE_SIN_THETA, WAVE_SPOT_PX
 from .settings import BACKGROUND_MODELS, ReconSettings
 from .volume_store import FORMATS, NGFF_VERSION, make_writer
 
@@ -241,9 +241,9 @@ RUN_SETTINGS = (
         "psf_model",
         ("--psf-model",),
         "PSF bank: ray-traced, wave optics, or auto (wave optics where a lenslet's diffraction "
-        "spot is wider than 1.3 pixels or the aperture angle's sine in the specimen exceeds "
-        "0.75, recon.psf_wave.choose_psf_model; rays at the paper's optics); recon.json "
-        "records the model used",
+        f"spot is wider than {WAVE_SPOT_PX:.1f} pixels or the aperture angle's sine in the "
+        f"specimen exceeds {WAVE_SIN_THETA:g}, recon.psf_wave.choose_psf_model; rays at the "
+        "paper's optics); recon.json records the model used",
         choices=PSF_MODELS,
     ),
     SettingOption(
