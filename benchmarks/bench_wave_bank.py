@@ -120,25 +120,12 @@ def case_pyolaf(p: dict) -> dict:
         from pyolaf.lf import LFM_computeLFMatrixOperators
     except ImportError as exc:
         return {"error": f"pyolaf is not installed ({exc}); pip install -e .[bench]"}
+    from wave_reference import pyolaf_config
+
     optics, _ = scope_planes(p["scope"], p["s"])
     depths = np.asarray(p["depths"], dtype=np.float64)
     step = float(depths[1] - depths[0]) if len(depths) > 1 else 1.0
-    cfg = {
-        "gridType": "reg",
-        "focus": "single",
-        "plenoptic": 1,
-        "uLensMask": 1,
-        "M": optics.magnification,
-        "NA": optics.na,
-        "ftl": optics.f_tube_um,
-        "fm": optics.mla_focal_um,
-        "tube2mla": 0,
-        "mla2sensor": 0,
-        "lensPitch": optics.mla_pitch_um,
-        "pixelPitch": optics.pixel_um,
-        "WaveLength": optics.wavelength_um,
-        "n": optics.medium_ior,
-    }
+    cfg = pyolaf_config(optics)
     c0 = _usage()["cpu_s"]
     with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stdout(sys.stderr):
         path = Path(tmp) / "config.yaml"
@@ -231,6 +218,8 @@ def subset(depths: list[float], k: int) -> list[float]:
     """``k`` planes evenly spread over ``depths`` (from its first), a multiple of its step apart."""
     if k >= len(depths):
         return list(depths)
+    if k <= 1:
+        return list(depths[:1])
     stride = max(1, math.floor((len(depths) - 1) / (k - 1)))
     return depths[: stride * (k - 1) + 1 : stride]
 

@@ -59,7 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import wave_reference
-from wave_reference import PN, SCOPES, z_unit
+from wave_reference import PN, SCOPES, scope_record, z_unit
 
 #: more microscopes (lenslets matched as in wave_reference), name: (M, NA, n): two dry ones
 #: between the paper's and 20×/0.5 (lenslet spots λ f_l / p of 1.13 and 1.51 px), and two
@@ -235,12 +235,7 @@ def run_scope(name: str, args) -> dict:
         [[px * p_obj, py * p_obj, u * z1] for u in args.depths for px, py in args.positions]
     )
     out = {
-        "scope": name,
-        "M": optics.magnification,
-        "NA": optics.na,
-        "n": optics.medium_ior,
-        "f_lenslet_um": optics.mla_focal_um,
-        "z1_um": z1,
+        **scope_record(name, optics, z1),
         "lenslets": nl,
         "s": args.s,
         "z_step_um": float(depths[1] - depths[0]),

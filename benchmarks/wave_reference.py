@@ -64,6 +64,40 @@ SCOPES = {
 DEPTH_UNITS = (0.0, 1.0, 3.0, -2.0)
 
 
+def pyolaf_config(optics) -> dict:
+    """pyolaf's microscope description (its ``LFMconfig.yaml`` fields) of these optics: a
+    regular single-focus array, lenslet mask on, the array in the native image plane."""
+    return {
+        "gridType": "reg",
+        "focus": "single",
+        "plenoptic": 1,
+        "uLensMask": 1,
+        "M": optics.magnification,
+        "NA": optics.na,
+        "ftl": optics.f_tube_um,
+        "fm": optics.mla_focal_um,
+        "tube2mla": 0,
+        "mla2sensor": 0,
+        "lensPitch": optics.mla_pitch_um,
+        "pixelPitch": optics.pixel_um,
+        "WaveLength": optics.wavelength_um,
+        "n": optics.medium_ior,
+    }
+
+
+def scope_record(name: str, optics, z1_um: float) -> dict:
+    """The microscope's entry of a JSON record: name, magnification, NA, specimen index,
+    lenslet focal length and the depth unit ``z₁`` (µm)."""
+    return {
+        "scope": name,
+        "M": optics.magnification,
+        "NA": optics.na,
+        "n": optics.medium_ior,
+        "f_lenslet_um": optics.mla_focal_um,
+        "z1_um": z1_um,
+    }
+
+
 def make_optics(name: str, n_lenslets: int):
     from lfsim.optics import Optics, paper_optics
 
@@ -101,22 +135,7 @@ def pyolaf_light_fields(optics, depths, q: int, guard: int) -> dict[str, np.ndar
         raise SystemExit(f"--pyolaf-px must be an odd multiple of {PN}")
     n_sensor = optics.sensor_xy_px[0] // PN
     r = n_sensor // 2 + guard
-    cfg = {
-        "gridType": "reg",
-        "focus": "single",
-        "plenoptic": 1,
-        "uLensMask": 1,
-        "M": optics.magnification,
-        "NA": optics.na,
-        "ftl": optics.f_tube_um,
-        "fm": optics.mla_focal_um,
-        "tube2mla": 0,
-        "mla2sensor": 0,
-        "lensPitch": optics.mla_pitch_um,
-        "pixelPitch": optics.pixel_um,
-        "WaveLength": optics.wavelength_um,
-        "n": optics.medium_ior,
-    }
+    cfg = pyolaf_config(optics)
     side = (2 * r + 1) * q
     with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stdout(io.StringIO()):
         path = Path(tmp) / "config.yaml"
@@ -189,12 +208,7 @@ def run_scope(name: str, args) -> dict:
         }
         rows.append(row)
     return {
-        "scope": name,
-        "M": optics.magnification,
-        "NA": optics.na,
-        "n": optics.medium_ior,
-        "f_lenslet_um": optics.mla_focal_um,
-        "z1_um": z1,
+        **scope_record(name, optics, z1),
         "sensor_xy_px": optics.sensor_xy_px,
         "oversample": ws.oversample,
         "history": hist,
