@@ -104,17 +104,16 @@ def diffraction_scales(optics) -> dict:
 def sparse_bank(optics, depths, s: int, stacks: list[np.ndarray], radii: list[int], threshold):
     """A :class:`recon.psf.PSFBank` from dense pattern stacks (one per depth, ``(s², win, win)``,
     window radius ``radii[k]`` lenslets), sparsified as :func:`recon.psf.compute_psf_bank`."""
-    from recon.psf import PSFBank
+    from recon.psf import PSFBank, sparse_pattern
 
     dys, dxs, ws, counts = [], [], [], []
     for stack, h in zip(stacks, radii, strict=True):
         for img in stack:
-            keep = img > threshold * img.max() if img.max() > 0 else np.zeros_like(img, bool)
-            yy, xx = np.nonzero(keep)
-            dys.append((yy - h * PN).astype(np.int32))
-            dxs.append((xx - h * PN).astype(np.int32))
-            ws.append(img[yy, xx].astype(np.float32))
-            counts.append(len(yy))
+            dy, dx, w = sparse_pattern(img, h, PN, threshold)
+            dys.append(dy)
+            dxs.append(dx)
+            ws.append(w.astype(np.float32))
+            counts.append(len(w))
     return PSFBank(
         depths_um=np.asarray(depths, np.float64),
         s=int(s),

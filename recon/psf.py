@@ -176,6 +176,32 @@ def pattern_radius_lenslets(optics, z_um: float) -> int:
     return math.ceil((cone * spread + optics.mla_pitch_um + sigma) / optics.mla_pitch_um) + extra
 
 
+def sparse_pattern(img: np.ndarray, h: int, n: int, threshold: float):
+    """The pixels of one dense pattern above ``threshold`` × its peak, as bank entries.
+
+    Parameters
+    ----------
+    img : ndarray, shape ((2h + 1) n, (2h + 1) n)
+        The pattern on a window of ``2h + 1`` lenslets whose pixel ``(h n, h n)`` is the top-left
+        pixel of the source's lenslet.
+    h, n : int
+        Window radius (lenslets) and pixels per lenslet.
+    threshold : float
+        Relative threshold; an all-zero pattern has no entries.
+
+    Returns
+    -------
+    dy, dx : ndarray of int32, shape (k,)
+        Offsets (pixels) from the top-left pixel of the source's lenslet.
+    w : ndarray, shape (k,)
+        The values there, in ``img``'s type.
+    """
+    peak = float(img.max())
+    keep = img > threshold * peak if peak > 0 else np.zeros(img.shape, bool)
+    yy, xx = np.nonzero(keep)
+    return (yy - h * n).astype(np.int32), (xx - h * n).astype(np.int32), img[yy, xx]
+
+
 def compute_psf_bank(
     optics,
     depths_um,
@@ -252,12 +278,11 @@ def compute_psf_bank(
         )
         stack = stack.astype(np.float64) / rays_per_pattern
         for img in stack:
-            keep = img > threshold * img.max() if img.max() > 0 else np.zeros_like(img, bool)
-            yy, xx = np.nonzero(keep)
-            dys.append((yy - h * n).astype(np.int32))
-            dxs.append((xx - h * n).astype(np.int32))
-            ws.append(img[yy, xx].astype(np.float32))
-            counts.append(len(yy))
+            dy, dx, w = sparse_pattern(img, h, n, threshold)
+            dys.append(dy)
+            dxs.append(dx)
+            ws.append(w.astype(np.float32))
+            counts.append(len(w))
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     bank = PSFBank(
         depths_um=depths,

@@ -42,7 +42,14 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .psf import BANK_FORMAT, PSFBank, bank_key, default_cache_dir, pattern_radius_lenslets
+from .psf import (
+    BANK_FORMAT,
+    PSFBank,
+    bank_key,
+    default_cache_dir,
+    pattern_radius_lenslets,
+    sparse_pattern,
+)
 
 log = logging.getLogger(__name__)
 
@@ -233,12 +240,7 @@ def _sparse_bank(images, depths, s, n, threshold, optics) -> PSFBank:
     for k, h, stack in images:
         entries = []
         for img in stack:
-            peak = float(img.max())
-            keep = img > threshold * peak if peak > 0 else np.zeros(img.shape, bool)
-            yy, xx = np.nonzero(keep)
-            entries.append(
-                ((yy - h * n).astype(np.int32), (xx - h * n).astype(np.int32), img[yy, xx])
-            )
+            entries.append(sparse_pattern(img, h, n, threshold))
         parts[k] = entries
     flat = [e for k in range(len(depths)) for e in parts[k]]
     counts = [len(e[0]) for e in flat]

@@ -13,14 +13,25 @@ from recon.errors import InputError
 ADJOINT_RTOL = 5e-8
 
 
-def test_adjoint_dot_product(small_projector, rng):
-    p = small_projector
-    for _ in range(3):
+def assert_adjoint(p, x, y) -> float:
+    """``<H x, y> = <x, Hᵀ y>`` to :data:`ADJOINT_RTOL` for the projector ``p``; returns the
+    left-hand side."""
+    lhs = np.dot(p.forward(x).ravel().astype(np.float64), y.ravel())
+    rhs = np.dot(x.ravel().astype(np.float64), p.backward(y).ravel())
+    assert abs(lhs - rhs) <= ADJOINT_RTOL * abs(lhs)
+    return lhs
+
+
+def assert_adjoint_on_random_fields(p, rng, trials: int) -> None:
+    """:func:`assert_adjoint` for ``trials`` pairs of random float32 fields."""
+    for _ in range(trials):
         x = rng.random(p.volume_shape).astype(np.float32)
         y = rng.random(p.image_shape).astype(np.float32)
-        lhs = np.dot(p.forward(x).ravel().astype(np.float64), y.ravel())
-        rhs = np.dot(x.ravel().astype(np.float64), p.backward(y).ravel())
-        assert abs(lhs - rhs) <= ADJOINT_RTOL * abs(lhs)
+        assert_adjoint(p, x, y)
+
+
+def test_adjoint_dot_product(small_projector, rng):
+    assert_adjoint_on_random_fields(small_projector, rng, 3)
 
 
 def test_adjoint_is_the_exact_transpose_element_by_element(small_projector, rng):
@@ -52,10 +63,7 @@ def test_adjoint_on_sparse_vectors(small_projector, rng):
         x[i] = rng.random() + 0.5
     hx = p.forward(x)
     y = (hx > 0).astype(np.float32) * rng.random(p.image_shape).astype(np.float32)
-    lhs = np.dot(hx.ravel().astype(np.float64), y.ravel())
-    rhs = np.dot(x.ravel().astype(np.float64), p.backward(y).ravel())
-    assert lhs > 0
-    assert abs(lhs - rhs) <= ADJOINT_RTOL * abs(lhs)
+    assert assert_adjoint(p, x, y) > 0
 
 
 def test_flux_conservation(small_projector, small_bank):
@@ -110,9 +118,7 @@ def test_sparse_projector_is_the_same_operator(small_bank, small_projector, rng)
     hx, hty = small_projector.forward(x), small_projector.backward(y)
     np.testing.assert_allclose(sp.forward(x), hx, rtol=0, atol=1e-5 * hx.max())
     np.testing.assert_allclose(sp.backward(y), hty, rtol=0, atol=1e-5 * hty.max())
-    lhs = np.dot(sp.forward(x).ravel().astype(np.float64), y.ravel())
-    rhs = np.dot(x.ravel().astype(np.float64), sp.backward(y).ravel())
-    assert abs(lhs - rhs) <= ADJOINT_RTOL * abs(lhs)
+    assert_adjoint(sp, x, y)
     assert sp.macs_per_projection == small_projector.macs_per_projection
     from lfsim.backend import backend_info
 

@@ -25,7 +25,7 @@ from recon.psf_wave import (
 )
 from recon.settings import ReconSettings
 
-from .test_projector import ADJOINT_RTOL
+from .test_projector import assert_adjoint_on_random_fields
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -154,13 +154,7 @@ def test_projector_with_a_wave_bank_is_an_exact_adjoint():
 
     bank = compute_wave_psf_bank(_optics(), [-30.0, 40.0], 3, sampling=FAST, cache_dir="")
     p = LightFieldProjector(bank, (6, 5))
-    rng = np.random.default_rng(7)
-    for _ in range(2):
-        x = rng.random(p.volume_shape).astype(np.float32)
-        y = rng.random(p.image_shape).astype(np.float32)
-        lhs = np.dot(p.forward(x).ravel().astype(np.float64), y.ravel())
-        rhs = np.dot(x.ravel().astype(np.float64), p.backward(y).ravel())
-        assert abs(lhs - rhs) <= ADJOINT_RTOL * abs(lhs)
+    assert_adjoint_on_random_fields(p, np.random.default_rng(7), 2)
 
 
 def test_default_sampling_resolves_the_light_behind_the_lenslets():
