@@ -104,26 +104,11 @@ def diffraction_scales(optics) -> dict:
 def sparse_bank(optics, depths, s: int, stacks: list[np.ndarray], radii: list[int], threshold):
     """A :class:`recon.psf.PSFBank` from dense pattern stacks (one per depth, ``(s², win, win)``,
     window radius ``radii[k]`` lenslets), sparsified as :func:`recon.psf.compute_psf_bank`."""
-    from recon.psf import PSFBank, sparse_pattern
+    from recon.psf import bank_from_patterns
 
-    dys, dxs, ws, counts = [], [], [], []
-    for stack, h in zip(stacks, radii, strict=True):
-        for img in stack:
-            dy, dx, w = sparse_pattern(img, h, PN, threshold)
-            dys.append(dy)
-            dxs.append(dx)
-            ws.append(w.astype(np.float32))
-            counts.append(len(w))
-    return PSFBank(
-        depths_um=np.asarray(depths, np.float64),
-        s=int(s),
-        n=PN,
-        offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-        dy=np.concatenate(dys),
-        dx=np.concatenate(dxs),
-        w=np.concatenate(ws),
-        optics=optics.to_dict(),
-    )
+    depths = np.asarray(depths, np.float64)
+    images = ((k, h, stack) for k, (stack, h) in enumerate(zip(stacks, radii, strict=True)))
+    return bank_from_patterns(images, depths, s, PN, threshold, optics)
 
 
 def wave_bank(optics, depths, s: int, oversample, threshold: float, builder: str):

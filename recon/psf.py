@@ -202,6 +202,45 @@ def sparse_pattern(img: np.ndarray, h: int, n: int, threshold: float):
     return (yy - h * n).astype(np.int32), (xx - h * n).astype(np.int32), img[yy, xx]
 
 
+def bank_from_patterns(images, depths_um, s: int, n: int, threshold: float, optics) -> PSFBank:
+    """The :class:`PSFBank` of dense patterns, each made sparse (:func:`sparse_pattern`) as it
+    arrives.
+
+    Parameters
+    ----------
+    images : iterable of (k, h, stack)
+        Depth index ``k`` (any order, each once), window radius ``h`` (lenslets) and the
+        patterns of that depth, ndarray of shape ``(s², (2h + 1) n, (2h + 1) n)`` in channel
+        order ``b · s + a``.
+    depths_um : ndarray, shape (nz,)
+    s, n : int
+        Voxels and pixels per lenslet.
+    threshold : float
+        Relative threshold of :func:`sparse_pattern`.
+    optics : lfsim.optics.Optics
+        The optics the patterns were computed for (recorded in the bank).
+    """
+    parts: dict[int, list] = {}
+    for k, h, stack in images:
+        entries = []
+        for img in stack:
+            dy, dx, w = sparse_pattern(img, h, n, threshold)
+            entries.append((dy, dx, w.astype(np.float32)))
+        parts[k] = entries
+    flat = [e for k in range(len(depths_um)) for e in parts[k]]
+    counts = [len(e[0]) for e in flat]
+    return PSFBank(
+        depths_um=depths_um,
+        s=int(s),
+        n=n,
+        offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        dy=np.concatenate([e[0] for e in flat]),
+        dx=np.concatenate([e[1] for e in flat]),
+        w=np.concatenate([e[2] for e in flat]),
+        optics=optics.to_dict(),
+    )
+
+
 def compute_psf_bank(
     optics,
     depths_um,
@@ -257,7 +296,6 @@ def compute_psf_bank(
         init_backend()
     p_obj = optics.lenslet_object_um
     sub = ((np.arange(s) + 0.5) / s - 0.5) * p_obj
-    dys, dxs, ws, counts = [], [], [], []
     settings = RenderSettings(
         rays_per_particle=rays_per_pattern, mode="expected", seed=seed, batch_rays=1 << 23
     )
@@ -266,34 +304,26 @@ def compute_psf_bank(
         from tqdm.auto import tqdm
 
         it = tqdm(it, desc="PSF bank", unit="depth", leave=False)
-    for k in it:
-        z = depths[k]
-        h = pattern_radius_lenslets(optics, z)
-        win = (2 * h + 1) * n
-        wopt = replace(optics, sensor_xy_px=(win, win), axis_xy_px=(h * n + n / 2, h * n + n / 2))
-        gx, gy = np.meshgrid(sub, sub, indexing="xy")  # a along x fastest, then b along y
-        centers = np.c_[gx.ravel(), gy.ravel(), np.full(s * s, z)]
-        stack = trace_paraxial(
-            wopt, Sources.spheres(centers, 0.0), replace(settings, seed=seed + k), per_source=True
-        )
-        stack = stack.astype(np.float64) / rays_per_pattern
-        for img in stack:
-            dy, dx, w = sparse_pattern(img, h, n, threshold)
-            dys.append(dy)
-            dxs.append(dx)
-            ws.append(w.astype(np.float32))
-            counts.append(len(w))
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    bank = PSFBank(
-        depths_um=depths,
-        s=int(s),
-        n=n,
-        offsets=offsets,
-        dy=np.concatenate(dys),
-        dx=np.concatenate(dxs),
-        w=np.concatenate(ws),
-        optics=optics.to_dict(),
-    )
+
+    def traced():
+        for k in it:
+            z = depths[k]
+            h = pattern_radius_lenslets(optics, z)
+            win = (2 * h + 1) * n
+            wopt = replace(
+                optics, sensor_xy_px=(win, win), axis_xy_px=(h * n + n / 2, h * n + n / 2)
+            )
+            gx, gy = np.meshgrid(sub, sub, indexing="xy")  # a along x fastest, then b along y
+            centers = np.c_[gx.ravel(), gy.ravel(), np.full(s * s, z)]
+            stack = trace_paraxial(
+                wopt,
+                Sources.spheres(centers, 0.0),
+                replace(settings, seed=seed + k),
+                per_source=True,
+            )
+            yield k, h, stack.astype(np.float64) / rays_per_pattern
+
+    bank = bank_from_patterns(traced(), depths, s, n, threshold, optics)
     log.info(
         "PSF bank: %d depths × %d² patterns, %d non-zeros (%.0f per pattern)",
         len(depths),

@@ -45,10 +45,10 @@ from .errors import InputError
 from .psf import (
     BANK_FORMAT,
     PSFBank,
+    bank_from_patterns,
     bank_key,
     default_cache_dir,
     pattern_radius_lenslets,
-    sparse_pattern,
 )
 
 log = logging.getLogger(__name__)
@@ -218,7 +218,7 @@ def compute_wave_psf_bank(
             return PSFBank.load(path)
     radii = np.array([pattern_radius_lenslets(optics, z) for z in depths])
     images = _dense_patterns(optics, depths, s, n, radii, sampling, progress)
-    bank = _sparse_bank(images, depths, s, n, threshold, optics)
+    bank = bank_from_patterns(images, depths, s, n, threshold, optics)
     log.info(
         "wave PSF bank: %d depths × %d² patterns, oversample %d, %d non-zeros (%.0f per pattern)",
         len(depths),
@@ -230,31 +230,6 @@ def compute_wave_psf_bank(
     if cache is not None:
         bank.save(cache / f"psf_{key}.npz")
     return bank
-
-
-def _sparse_bank(images, depths, s, n, threshold, optics) -> PSFBank:
-    """The :class:`PSFBank` of the dense patterns ``(k, h, stack)`` that ``images`` yields
-    (depth ``k``, window radius ``h``, shape ``(s², (2h + 1) n, (2h + 1) n)``, any order of
-    depths), each made sparse as it arrives."""
-    parts: dict[int, list] = {}
-    for k, h, stack in images:
-        entries = []
-        for img in stack:
-            entries.append(sparse_pattern(img, h, n, threshold))
-        parts[k] = entries
-    flat = [e for k in range(len(depths)) for e in parts[k]]
-    counts = [len(e[0]) for e in flat]
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return PSFBank(
-        depths_um=depths,
-        s=s,
-        n=n,
-        offsets=offsets,
-        dy=np.concatenate([e[0] for e in flat]),
-        dx=np.concatenate([e[1] for e in flat]),
-        w=np.concatenate([e[2] for e in flat]).astype(np.float32),
-        optics=optics.to_dict(),
-    )
 
 
 def _folded(s: int) -> list[tuple[int, int]]:
