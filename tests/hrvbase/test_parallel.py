@@ -489,6 +489,10 @@ def test_after_a_failure_every_frame_written_is_handed_back(tmp_path):
     assert {int(p.name[5:]) for p in tmp_path.glob("done_*")} == written
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt_after_first_frame(*argv: str) -> tuple[int, str, float]:
     """Run the demo command in its own process group, press Ctrl-C (SIGINT to the whole
     group, as a terminal does) once a frame has completed; its exit status, stderr and the
@@ -500,6 +504,9 @@ def _interrupt_after_first_frame(*argv: str) -> tuple[int, str, float]:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        # as from a terminal: a test run started in the background (nohup, `&` in a script)
+        # ignores SIGINT, which its children would inherit
+        preexec_fn=_default_sigint,
     )
     try:
         ready, _, _ = select.select([p.stdout], [], [], 180)
