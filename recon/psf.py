@@ -241,6 +241,18 @@ def bank_from_patterns(images, depths_um, s: int, n: int, threshold: float, opti
     )
 
 
+def cached_bank(cache_dir, key: str) -> tuple[Path | None, PSFBank | None]:
+    """The cache file of the bank ``key`` (None when ``cache_dir == ""``: no caching; default
+    :func:`default_cache_dir`) and the bank it holds (None when it does not exist yet)."""
+    if cache_dir == "":
+        return None, None
+    path = Path(cache_dir or default_cache_dir()) / f"psf_{key}.npz"
+    if path.is_file():
+        log.info("PSF bank from cache %s", path)
+        return path, PSFBank.load(path)
+    return path, None
+
+
 def compute_psf_bank(
     optics,
     depths_um,
@@ -286,12 +298,9 @@ def compute_psf_bank(
     if int(s) != s or s < 1:
         raise InputError(f"super-resolution factor s must be a positive integer, got {s!r}")
     key = bank_key(optics, depths, s, rays_per_pattern, seed, threshold)
-    cache = None if cache_dir == "" else Path(cache_dir or default_cache_dir())
-    if cache is not None:
-        path = cache / f"psf_{key}.npz"
-        if path.is_file():
-            log.info("PSF bank from cache %s", path)
-            return PSFBank.load(path)
+    path, cached = cached_bank(cache_dir, key)
+    if cached is not None:
+        return cached
     if backend_info() is None:
         init_backend()
     p_obj = optics.lenslet_object_um
@@ -331,6 +340,6 @@ def compute_psf_bank(
         bank.nnz,
         bank.nnz / bank.n_channels,
     )
-    if cache is not None:
-        bank.save(cache / f"psf_{key}.npz")
+    if path is not None:
+        bank.save(path)
     return bank

@@ -37,7 +37,6 @@ import logging
 import math
 import os
 from dataclasses import asdict, dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -47,7 +46,7 @@ from .psf import (
     PSFBank,
     bank_from_patterns,
     bank_key,
-    default_cache_dir,
+    cached_bank,
     pattern_radius_lenslets,
 )
 
@@ -210,12 +209,9 @@ def compute_wave_psf_bank(
     s = int(s)
     sampling = sampling or default_wave_sampling(optics)
     key = wave_bank_key(optics, depths, s, sampling, threshold)
-    cache = None if cache_dir == "" else Path(cache_dir or default_cache_dir())
-    if cache is not None:
-        path = cache / f"psf_{key}.npz"
-        if path.is_file():
-            log.info("wave PSF bank from cache %s", path)
-            return PSFBank.load(path)
+    path, cached = cached_bank(cache_dir, key)
+    if cached is not None:
+        return cached
     radii = np.array([pattern_radius_lenslets(optics, z) for z in depths])
     images = _dense_patterns(optics, depths, s, n, radii, sampling, progress)
     bank = bank_from_patterns(images, depths, s, n, threshold, optics)
@@ -227,8 +223,8 @@ def compute_wave_psf_bank(
         bank.nnz,
         bank.nnz / bank.n_channels,
     )
-    if cache is not None:
-        bank.save(cache / f"psf_{key}.npz")
+    if path is not None:
+        bank.save(path)
     return bank
 
 
