@@ -377,6 +377,8 @@ def table(title: str, data: dict[str, dict], params: dict, model: tuple) -> None
 
 
 def main(argv=None) -> int:
+    from hrvbase.cli import add_flags
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("-o", "--work", type=Path, required=True, help="work folder (kept)")
     ap.add_argument("--studies", nargs="+", default=list(STUDIES), help="test-size studies")
@@ -396,27 +398,19 @@ def main(argv=None) -> int:
         help="calibrate on these study files (their own seeds) instead of seed copies",
     )
     ap.add_argument("--axes", default="xyz", help="axes to fit (others keep the shipped numbers)")
-    ap.add_argument("--keep-tracks", action="store_true", help="do not redo detection")
-    ap.add_argument(
-        "--write",
-        action="store_true",
-        help="update scenes/experiments/*_test.toml: the named studies' files, or for the default "
-        "group every test-size file that does not run [track.axial]",
-    )
-    ap.add_argument(
-        "--single", action="store_true", help="run the studies without their matched variant"
-    )
-    ap.add_argument("--no-axial", action="store_true", help="run the studies without [track.axial]")
-    ap.add_argument(
-        "--lateral",
-        action="store_true",
-        help="fit x and y together (one lateral model: the calibration runs' motions need not "
-        "be symmetric in x and y)",
-    )
-    ap.add_argument(
-        "--no-validation",
-        action="store_true",
-        help="calibrate only (the validation is the study reports themselves, e.g. at paper size)",
+    add_flags(
+        ap,
+        {
+            "--keep-tracks": "do not redo detection",
+            "--write": "update scenes/experiments/*_test.toml: the named studies' files, or for "
+            "the default group every test-size file that does not run [track.axial]",
+            "--single": "run the studies without their matched variant",
+            "--no-axial": "run the studies without [track.axial]",
+            "--lateral": "fit x and y together (one lateral model: the calibration runs' motions "
+            "need not be symmetric in x and y)",
+            "--no-validation": "calibrate only (the validation is the study reports themselves, "
+            "e.g. at paper size)",
+        },
     )
     ap.add_argument(
         "--bias-period-um",
@@ -424,23 +418,17 @@ def main(argv=None) -> int:
         help="lateral period of the moving bias (µm, the microlens pitch in the object; 0: "
         "none); default: the first study file's bias_period_um",
     )
-    ap.add_argument(
-        "--snr-term",
-        action="store_true",
-        help="fit sigma_snr_um (the error that falls as 1/SNR of the camera frame) too; "
-        "without it, the study file's is kept",
-    )
-    ap.add_argument(
-        "--fit-lateral-depth",
-        action="store_true",
-        help="fit bias_lateral_depth_length_um (10-1000 µm), the move in depth over which the "
-        "x and y bias changes; needs calibration runs that move in z (e.g. fig5b)",
-    )
-    ap.add_argument(
-        "--fit-lengths",
-        action="store_true",
-        help="fit bias_length_um as well (lateral 2-12 µm, axial 5-20 µm), keeping "
-        "bias_period_um as the study file sets it",
+    add_flags(
+        ap,
+        {
+            "--snr-term": "fit sigma_snr_um (the error that falls as 1/SNR of the camera frame) "
+            "too; without it, the study file's is kept",
+            "--fit-lateral-depth": "fit bias_lateral_depth_length_um (10-1000 µm), the move in "
+            "depth over which the x and y bias changes; needs calibration runs that move in z "
+            "(e.g. fig5b)",
+            "--fit-lengths": "fit bias_length_um as well (lateral 2-12 µm, axial 5-20 µm), keeping "
+            "bias_period_um as the study file sets it",
+        },
     )
     args = ap.parse_args(argv)
     if args.write and (args.single or args.no_axial):

@@ -114,14 +114,18 @@ def _self_calibrated(found, model, proj, filt, grid, depths, args):
 
 
 def main() -> int:
+    from hrvbase.cli import add_flags
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--setup", choices=sorted(SETUPS), default="gel")
-    ap.add_argument("--as-air", action="store_true", help="reconstruct as if the specimen were air")
-    ap.add_argument(
-        "--self-calibration",
-        action="store_true",
-        help="subtract the reconstruction's bias measured on noise-free spheres rendered "
-        "through the model at the detections (recon.reference, as [track.axial])",
+    add_flags(
+        ap,
+        {
+            "--as-air": "reconstruct as if the specimen were air",
+            "--self-calibration": "subtract the reconstruction's bias measured on noise-free "
+            "spheres rendered through the model at the detections (recon.reference, as "
+            "[track.axial])",
+        },
     )
     ap.add_argument(
         "--depths", type=float, nargs="+", help="true depths (µm) instead of the set-up's"

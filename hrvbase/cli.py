@@ -242,6 +242,14 @@ def number(ok: Callable[[float], bool], expected: str, *, keyword: str | None = 
     return parse
 
 
+def add_flags(parser: argparse.ArgumentParser | Any, flags: Mapping[str, str]) -> None:
+    """Add on/off options (``action="store_true"``, off unless given) to ``parser`` (or an
+    argument group): ``flags`` maps each option, e.g. ``"--overwrite"``, to its help text, in
+    the order ``--help`` lists them."""
+    for flag, text in flags.items():
+        parser.add_argument(flag, action="store_true", help=text)
+
+
 # -- frames in parallel (hrvbase.parallel) ----------------------------------------------------
 def add_parallel_options(parser: argparse.ArgumentParser | Any) -> None:
     """Add ``--workers N|auto`` and ``--scheduler ADDRESS`` (:mod:`hrvbase.parallel`), the same
@@ -424,6 +432,7 @@ __all__ = [
     "EXIT_INTERNAL",
     "Parser",
     "SettingOption",
+    "add_flags",
     "add_parallel_options",
     "add_setting_options",
     "common_options",

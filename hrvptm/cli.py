@@ -50,7 +50,7 @@ DEMO = Path(__file__).resolve().parent.parent / "scenes" / "experiments" / "demo
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``hrvptm`` argument parser."""
-    from hrvbase.cli import add_parallel_options, tool_parser
+    from hrvbase.cli import add_flags, add_parallel_options, tool_parser
 
     from . import __version__
 
@@ -63,11 +63,12 @@ def build_parser() -> argparse.ArgumentParser:
         overwrite: str = "reuse a report folder of another study",
         partial: str = "the report still says FAILED",
     ) -> None:
-        q.add_argument("--overwrite", action="store_true", help=f"{overwrite} (default: refuse)")
-        q.add_argument(
-            "--allow-partial",
-            action="store_true",
-            help=f"exit 0 when frames failed ({partial})",
+        add_flags(
+            q,
+            {
+                "--overwrite": f"{overwrite} (default: refuse)",
+                "--allow-partial": f"exit 0 when frames failed ({partial})",
+            },
         )
         add_parallel_options(q)
 
@@ -124,10 +125,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="INTRO.md",
         help="Markdown file to use as the page header (default: a generated one)",
     )
-    co.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace a page an earlier collect wrote (default: refuse an existing page)",
+    add_flags(
+        co,
+        {
+            "--overwrite": "replace a page an earlier collect wrote (default: refuse an "
+            "existing page)"
+        },
     )
     from recon.reference import ReferenceSettings
 
@@ -169,9 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="rays per reference sphere (default: [track.axial] rays_per_particle, else "
         f"{ref.rays_per_particle})",
     )
-    ax.add_argument(
-        "--z-only", action="store_true", help="subtract the z offset only (default: x, y and z)"
-    )
+    add_flags(ax, {"--z-only": "subtract the z offset only (default: x, y and z)"})
     common(
         ax,
         overwrite="replace results made from other inputs or settings",

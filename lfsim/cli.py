@@ -367,7 +367,7 @@ def cmd_dataset(args) -> int:
 
 # -- parser -----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
-    from hrvbase.cli import add_parallel_options, tool_parser
+    from hrvbase.cli import add_flags, add_parallel_options, tool_parser
 
     from . import __version__
     from .experiment import DEFAULT_NOISE, WhiteConfig
@@ -404,10 +404,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def output(q, what: str, meta: str) -> None:
         q.add_argument("-o", "--output", required=True, metavar=meta, help=f"{what} (required)")
-        q.add_argument(
-            "--overwrite",
-            action="store_true",
-            help="replace an existing output file (never an input; default: refuse)",
+        add_flags(
+            q, {"--overwrite": "replace an existing output file (never an input; default: refuse)"}
         )
 
     def image_options(q, *, snr: float | None, bits: int | None, what: str) -> None:
@@ -480,13 +478,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="noise model (default gaussian)",
     )
-    r.add_argument(
-        "--no-diffraction", action="store_true", help="no Gaussian diffraction blur (default: on)"
-    )
-    r.add_argument(
-        "--float",
-        action="store_true",
-        help="write the noise-free float32 expected-photon image instead (default: off)",
+    add_flags(
+        r,
+        {
+            "--no-diffraction": "no Gaussian diffraction blur (default: on)",
+            "--float": "write the noise-free float32 expected-photon image instead (default: off)",
+        },
     )
     image_options(r, snr=None, bits=None, what="light-field image to write")
     r.set_defaults(func=cmd_render, needs_backend=True)
@@ -535,11 +532,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.add_argument("experiment", metavar="EXPERIMENT.toml", help="experiment file (TOML)")
     d.add_argument("-o", "--output", required=True, metavar="DIR", help="dataset folder (required)")
-    d.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace a dataset of another experiment (removes only lfsim's files; "
-        "default: refuse)",
+    add_flags(
+        d,
+        {
+            "--overwrite": "replace a dataset of another experiment (removes only lfsim's files; "
+            "default: refuse)"
+        },
     )
     add_parallel_options(d)
     d.set_defaults(func=cmd_dataset, needs_backend=True)

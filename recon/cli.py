@@ -64,12 +64,16 @@ from pathlib import Path
 
 from hrvbase.cli import (
     SettingOption,
+    add_flags,
     add_parallel_options,
     add_setting_options,
+    common_options,
     int_in,
     number,
     parallel_from_args,
+    run_main,
     settings_from_args,
+    tool_parser,
 )
 
 from . import __version__
@@ -96,8 +100,6 @@ def _common_options(*, suppress: bool) -> argparse.ArgumentParser:
     The copy given to the sub-parsers (``suppress=True``) has no defaults, so that an option
     given before the command is not reset by the sub-parser.
     """
-    from hrvbase.cli import common_options
-
     common = argparse.ArgumentParser(add_help=False, parents=[common_options(suppress=suppress)])
     common.add_argument(
         "--threads",
@@ -278,8 +280,6 @@ def choice_option(parser, flag: str, choices: tuple[str, ...], text: str) -> Non
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``recon`` argument parser (one sub-parser per command)."""
-    from hrvbase.cli import tool_parser
-
     parser, sub, common = tool_parser(
         "recon",
         "Light-field microscopy reconstruction (hrvptm): lenslet calibration and "
@@ -308,14 +308,14 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
     )
     path_option(cal, ("-o", "--output"), "CALIB.json", "output file (required)", required=True)
-    cal.add_argument(
-        "--overwrite", action="store_true", help="replace an existing output (default: refuse)"
-    )
-    cal.add_argument(
-        "--allow-pitch-mismatch",
-        action="store_true",
-        help="accept a fitted lenslet pitch more than 5 %% off the scene's nominal pitch (a "
-        "warning; default: refuse it, the white image probably belongs to another microscope)",
+    add_flags(
+        cal,
+        {
+            "--overwrite": "replace an existing output (default: refuse)",
+            "--allow-pitch-mismatch": "accept a fitted lenslet pitch more than 5 %% off the "
+            "scene's nominal pitch (a warning; default: refuse it, the white image probably "
+            "belongs to another microscope)",
+        },
     )
     cal.set_defaults(func=_cmd_calibrate)
 
@@ -367,11 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
         "also write the scene with the measured magnification (tube-lens focal length); "
         "use it as recon run --scene (default: none)",
     )
-    pix.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace existing outputs, never an input (default: refuse)",
-    )
+    add_flags(pix, {"--overwrite": "replace existing outputs, never an input (default: refuse)"})
     pix.set_defaults(func=_cmd_pixel_size)
 
     run = command(
@@ -421,12 +417,13 @@ def build_parser() -> argparse.ArgumentParser:
         "lenslet calibration from `recon calibrate` (default: calibrate an lfsim "
         "dataset's white.tif, otherwise required)",
     )
-    run.add_argument(
-        "--allow-optics-mismatch",
-        action="store_true",
-        help="reconstruct even when the scene's optics (NA, focal lengths, lenslet pitch and "
-        "focal length, pixel size, sensor size, optical axis) differ from the calibration's "
-        "(a warning; default: refuse)",
+    add_flags(
+        run,
+        {
+            "--allow-optics-mismatch": "reconstruct even when the scene's optics (NA, focal "
+            "lengths, lenslet pitch and focal length, pixel size, sensor size, optical axis) "
+            "differ from the calibration's (a warning; default: refuse)"
+        },
     )
     run.add_argument(
         "--z-range",
@@ -458,9 +455,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="constant subtracted, in grey levels: a number >= 0, 'auto' (the image median; "
         "default) or 'none'",
     )
-    run.add_argument(
-        "--hot-pixels", action="store_true", help="suppress isolated hot pixels (default: off)"
-    )
+    add_flags(run, {"--hot-pixels": "suppress isolated hot pixels (default: off)"})
     run.add_argument(
         "--gain-dn-per-e",
         type=float,
@@ -505,11 +500,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="--format zarr: planes per chunk (default: the whole frame in one chunk)",
     )
-    run.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace volumes of another run (other inputs or settings) in VOLDIR (default: "
-        "refuse)",
+    add_flags(
+        run,
+        {
+            "--overwrite": "replace volumes of another run (other inputs or settings) in VOLDIR "
+            "(default: refuse)"
+        },
     )
     add_parallel_options(run)
     run.set_defaults(func=_cmd_run)
@@ -763,8 +759,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
 # -- entry point ------------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``recon``; returns the exit status (0 success, 2 user error)."""
-    from hrvbase.cli import run_main
-
     argv = list(sys.argv[1:] if argv is None else argv)
     # "--z-range -80:720": let a negative range follow its option like a number would.
     for i, a in enumerate(argv[:-1]):

@@ -71,6 +71,7 @@ import numpy as np
 
 from hrvbase.cli import (
     SettingOption,
+    add_flags,
     add_parallel_options,
     add_setting_options,
     int_in,
@@ -130,19 +131,16 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "-o", "--output", required=True, type=Path, metavar="RESULTS", help="results folder"
     )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace a RESULTS folder made by track from other inputs or settings "
-        "(default: refuse)",
+    add_flags(
+        p,
+        {
+            "--overwrite": "replace a RESULTS folder made by track from other inputs or settings "
+            "(default: refuse)",
+            "--allow-partial": "keep going when frames fail (warnings, exit 0, summary status "
+            "'partial'; default: exit status 3)",
+            "--no-progress": "no progress bars (default: shown)",
+        },
     )
-    p.add_argument(
-        "--allow-partial",
-        action="store_true",
-        help="keep going when frames fail (warnings, exit 0, summary status 'partial'; "
-        "default: exit status 3)",
-    )
-    p.add_argument("--no-progress", action="store_true", help="no progress bars (default: shown)")
 
 
 #: Options of the detection settings (:class:`track.detect.DetectSettings`).
@@ -331,11 +329,7 @@ def _detect_options(p: argparse.ArgumentParser) -> None:
 
     g = p.add_argument_group("detection")
     add_setting_options(g, DetectSettings, DETECT_OPTIONS, prefix="detect_")
-    g.add_argument(
-        "--no-deconvolution",
-        action="store_true",
-        help="skip the secondary deconvolution (default: on)",
-    )
+    add_flags(g, {"--no-deconvolution": "skip the secondary deconvolution (default: on)"})
 
 
 def _link_options(p: argparse.ArgumentParser) -> None:
@@ -346,20 +340,15 @@ def _link_options(p: argparse.ArgumentParser) -> None:
     add_setting_options(g, SeriesSettings, SERIES_OPTIONS, prefix="series_")
     add_setting_options(g, GridSettings, GRID_OPTIONS, prefix="grid_", derived="automatic")
     add_setting_options(g, LinkSettings, LINK_OPTIONS, prefix="link_")
-    g.add_argument(
-        "--no-fields", action="store_true", help="only link; no gridded fields (default: off)"
-    )
-    g.add_argument(
-        "--no-bridge",
-        action="store_true",
-        help="incremental mode: a track ends where its particle was missed or left unmatched; "
-        "no bridging over gaps (default: bridged)",
-    )
-    g.add_argument(
-        "--no-predictor",
-        action="store_true",
-        help="incremental mode: do not start each pair from the previous increment's field "
-        "(default: on)",
+    add_flags(
+        g,
+        {
+            "--no-fields": "only link; no gridded fields (default: off)",
+            "--no-bridge": "incremental mode: a track ends where its particle was missed or left "
+            "unmatched; no bridging over gaps (default: bridged)",
+            "--no-predictor": "incremental mode: do not start each pair from the previous "
+            "increment's field (default: on)",
+        },
     )
     g.add_argument(
         "--vti-encoding",
