@@ -196,16 +196,16 @@ def seed_layer(
 ) -> np.ndarray:
     """Uniform random centres in a single layer ``z = z_um``, at least ``min_spacing_um`` apart.
 
+    :func:`seed_box` in the box ``bounds_xy_um`` × ``[z_um, z_um]``.
+
     Parameters
     ----------
-    n : int
-        Number of particles (>= 0).
+    n, min_spacing_um, rng, max_tries
+        As :func:`seed_box`.
     bounds_xy_um : sequence of two (lo, hi) pairs
         ``((x0, x1), (y0, y1))`` in µm.
     z_um : float
         Depth of the layer in µm.
-    min_spacing_um, rng, max_tries
-        As :func:`seed_box`.
 
     Returns
     -------

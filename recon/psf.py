@@ -271,14 +271,19 @@ def compute_psf_bank(
     optics : lfsim.optics.Optics
         Must have an integer number of pixels per lenslet (a rectified geometry).
     depths_um : array_like, shape (nz,)
+        Source depths from the native object plane (µm).
     s : int
         Super-resolution factor (voxels per lenslet along x and y).
     rays_per_pattern : int
         Rays traced per pattern (Monte Carlo noise of a pattern pixel ~ 1/sqrt(rays · w)).
+    seed : int
+        Seed of the rays of the first depth (depth ``k`` uses ``seed + k``).
     threshold : float
         Pixels below ``threshold × max`` of their pattern are dropped (sparsity).
     cache_dir : path, optional
-        Default :func:`default_cache_dir`; ``False``-y string ``""`` disables caching.
+        Default :func:`default_cache_dir`; ``""`` disables caching.
+    progress : bool
+        Show a progress bar over the depths.
 
     Returns
     -------

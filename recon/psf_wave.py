@@ -180,23 +180,18 @@ def compute_wave_psf_bank(
 ) -> PSFBank:
     """Compute (or load from the cache) the wave-optics PSF bank.
 
+    The wave-optics counterpart of :func:`recon.psf.compute_psf_bank`: a bank of the same
+    layout, cached in the same folder.
+
     Parameters
     ----------
     optics : lfsim.optics.Optics
         With ideal lenslets and an integer number ``n`` of pixels per lenslet.
-    depths_um : array_like, shape (nz,)
-        Source depths from the native object plane (µm).
-    s : int
-        Voxels per lenslet along x and y.
+    depths_um, s, threshold, cache_dir, progress
+        As :func:`recon.psf.compute_psf_bank`.
     sampling : lfsim.wave.WaveSampling, optional
         Default :func:`default_wave_sampling`. Its ``batch`` is not used (batches are sized by
         :data:`BATCH_BYTES`).
-    threshold : float
-        Pixels below ``threshold × max`` of their pattern are dropped.
-    cache_dir : path, optional
-        Default :func:`recon.psf.default_cache_dir`; ``""`` disables caching.
-    progress : bool
-        Show a progress bar over the depths.
 
     Returns
     -------
