@@ -8,7 +8,8 @@
                 -o OUT.xml [--overwrite]
     lfsim render SCENE.xml --particles P.csv -o IMAGE.tif [--rays 100000]
                 [--noise {none,gaussian,camera}] [--snr 17] [--bit-depth 8] [--seed 0]
-                [--tracer {mitsuba,paraxial}] [--no-diffraction] [--float] [--overwrite]
+                [--tracer {mitsuba,paraxial}] [--model {ray,wave}] [--no-diffraction]
+                [--float] [--overwrite]
     lfsim white SCENE.xml -o WHITE.tif [--rays-per-lenslet 20000] [--snr 50] [--bit-depth 16]
                 [--seed 0] [--overwrite]
     lfsim micrometer SCENE.xml -o M.tif [--division-um 10] [--axis {x,y}] [--snr 50]
@@ -268,6 +269,7 @@ def cmd_render(args) -> int:
         diffraction=not args.no_diffraction,
         seed=args.seed,
         progress=not args.quiet,
+        model=args.model,
     )
     clean = render_particles(scene, particles, settings, tracer=args.tracer)
     meta = _base_meta("light-field image", scene, args.scene)
@@ -277,6 +279,7 @@ def cmd_render(args) -> int:
         n_particles=len(particles),
         rays_per_particle=args.rays,
         tracer=args.tracer,
+        model=args.model,
         diffraction=not args.no_diffraction,
         seed=args.seed,
     )
@@ -477,6 +480,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("none", "gaussian", "camera"),
         default=None,
         help="noise model (default gaussian)",
+    )
+    r.add_argument(
+        "--model",
+        choices=("ray", "wave"),
+        default="ray",
+        help="optical model: ray tracing (--tracer) or scalar wave optics, ideal lenslets "
+        "only, slower (default ray)",
     )
     add_flags(
         r,

@@ -115,6 +115,9 @@ def render_particles(
     particles : Particles
         Positions (µm, object frame), diameters (µm) and relative brightnesses.
     settings : RenderSettings
+        ``settings.model`` ``"wave"`` renders with the wave-optics model
+        (:func:`lfsim.wave_render.render_wave`; the optics must have ideal lenslets) and
+        ignores ``tracer``.
     tracer : {"mitsuba", "paraxial"}
     check_field : bool
         Refuse particles outside the field of view (default).
@@ -129,6 +132,10 @@ def render_particles(
     if check_field and len(particles):
         check_in_field(optics, particles.positions_um, particles.ids)
     src = Sources.spheres(particles.positions_um, particles.diameter_um, particles.brightness)
+    if settings.model == "wave":
+        from .wave_render import render_wave
+
+        return render_wave(optics, src, settings)
     return _trace(scene, src, settings, tracer)
 
 

@@ -41,6 +41,8 @@ from .errors import ConfigError
 log = logging.getLogger(__name__)
 
 MODES = ("photons", "expected")
+#: Optical models of a particle image (:func:`lfsim.render.render_particles`).
+MODELS = ("ray", "wave")
 
 #: Axial step (mm) by which a ray leaves a specimen plane in the Mitsuba tracer (well above the
 #: float32 spacing of scene coordinates 500 mm from the origin, 6e-5 mm).
@@ -73,6 +75,11 @@ class RenderSettings:
         use > 0 to check that the aperture stop clips the rest).
     progress : bool
         Show a progress bar over batches.
+    model : {"ray", "wave"}
+        Optical model of particle images (:func:`lfsim.render.render_particles`): ``"ray"``
+        traces rays with the chosen tracer; ``"wave"`` sums scalar wave-optics light fields
+        over each particle (:mod:`lfsim.wave_render`; ideal lenslets only), in the same
+        photometric units (``rays_per_particle`` photons into the cone per unit brightness).
     """
 
     rays_per_particle: int = 100_000
@@ -82,8 +89,11 @@ class RenderSettings:
     batch_rays: int = 1 << 22
     cone_margin: float = 0.0
     progress: bool = False
+    model: str = "ray"
 
     def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ConfigError(f"model must be one of {MODELS}, got {self.model!r}")
         if int(self.rays_per_particle) != self.rays_per_particle or self.rays_per_particle < 1:
             raise ConfigError(
                 f"rays_per_particle must be a positive integer, got {self.rays_per_particle!r}"
