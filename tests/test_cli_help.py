@@ -108,7 +108,6 @@ _ALIASES = {
         "outlier_threshold",
     ),
     ("track.regularize", "fit_field", "method"): ("LinkSettings", "regularization"),
-    ("track.regularize", "fit_field_refined", "method"): ("LinkSettings", "regularization"),
 }
 #: Keyword arguments named like a settings field that mean something else.
 _UNRELATED = {

@@ -297,18 +297,10 @@ def fit_link_field(ref_xyz, def_xyz, matches, settings: LinkSettings | None = No
     u = dfm[pairs[:, 1]] - x
     if pairs.shape[0] < 8:
         return fit_affine(x, u)
+    field = fit_field(x, u, bounds, grid_um, settings.regularization, settings.smoothness)
     if settings.refine_field:
-        return fit_field_refined(
-            x,
-            u,
-            bounds,
-            grid_um,
-            settings.regularization,
-            settings.smoothness,
-            length_um=spacing,
-            seed=settings.seed,
-        )
-    return fit_field(x, u, bounds, grid_um, settings.regularization, settings.smoothness)
+        return fit_field_refined(field, x, u, length_um=spacing, seed=settings.seed)
+    return field
 
 
 def _failed(reason: str, spacing: float, history, t0: float) -> LinkResult:

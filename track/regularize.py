@@ -713,32 +713,30 @@ class RefinedDisplacement:
 
 
 def fit_field_refined(
+    coarse: GridDisplacement,
     points_um,
     displacements_um,
-    bounds_xyz_um,
-    spacing_xyz_um,
-    method: str = "gridded",
-    weight: float = 1.0,
     *,
     length_um: float,
     candidates=REFINE_CANDIDATES,
     max_cv_points: int = 2000,
     seed: int = 0,
 ) -> RefinedDisplacement:
-    """A smooth gridded field refined locally where the data show more detail.
+    """The smooth gridded field ``coarse`` refined locally where the data show more detail.
 
-    :func:`fit_field` first gives the global, stiff field; then, for each component, the
-    local polynomial corrections of its residuals in ``candidates`` are compared by
-    leave-one-out prediction error (on at most ``max_cv_points`` particles) with no
-    correction, and the best is kept. A homogeneous field keeps the global fit (its
-    residuals are noise, which no correction predicts); a field with features finer than the
-    grid (fronts, vortices, inclusions) gets a correction in the components that carry them,
-    with the resolution that predicts best, while a noisy component (the axial one of
-    light-field data) stays smooth.
+    ``coarse`` is the global, stiff field; for each component, the local polynomial corrections
+    of its residuals in ``candidates`` are compared by leave-one-out prediction error (on at
+    most ``max_cv_points`` particles) with no correction, and the best is kept. A homogeneous
+    field keeps the global fit (its residuals are noise, which no correction predicts); a field
+    with features finer than the grid (fronts, vortices, inclusions) gets a correction in the
+    components that carry them, with the resolution that predicts best, while a noisy component
+    (the axial one of light-field data) stays smooth.
 
     Parameters
     ----------
-    points_um, displacements_um, bounds_xyz_um, spacing_xyz_um, method, weight
+    coarse : GridDisplacement
+        :func:`fit_field` of these matches.
+    points_um, displacements_um
         As :func:`fit_field`.
     length_um : float
         Unit of the candidates' scales (µm, > 0), e.g. the mean particle spacing.
@@ -758,7 +756,6 @@ def fit_field_refined(
     u = _as_points("displacements_um", displacements_um)
     if not (np.isfinite(length_um) and length_um > 0):
         raise InputError(f"length_um must be finite and > 0, got {length_um}")
-    coarse = fit_field(x, u, bounds_xyz_um, spacing_xyz_um, method, weight)
     r = u - coarse(x)
     p = x.shape[0]
     sub = np.arange(p)

@@ -23,7 +23,7 @@ from track.matching import (
     match_predicted,
 )
 from track.outliers import normalized_median_test
-from track.regularize import fit_field_refined, local_polynomial_predict
+from track.regularize import fit_field, fit_field_refined, local_polynomial_predict
 from track.synthetic import (
     FIELD_NAMES,
     HETEROGENEOUS,
@@ -291,7 +291,7 @@ def test_refined_field_keeps_homogeneous_fields_and_resolves_a_shear_band():
         x = p.ref_xyz_um[t[:, 0]]
         u = p.def_xyz_um[t[:, 1]] - x
         b = np.column_stack([p.ref_xyz_um.min(0), p.ref_xyz_um.max(0)])
-        f = fit_field_refined(x, u, b, 2 * p.spacing_um, length_um=p.spacing_um)
+        f = fit_field_refined(fit_field(x, u, b, 2 * p.spacing_um), x, u, length_um=p.spacing_um)
         assert np.isfinite(f.scale_um[0]) == corrected, name
         assert not np.isfinite(f.scale_um[2])  # the noisy axial component stays smooth
         xt = p.seeds_um[p.common_ids]
