@@ -277,6 +277,7 @@ def render_frame(k: int, model: _RenderModel) -> dict:
         "frame": k,
         "render_seed": r_seed,
         "rays_per_particle": experiment.render.rays_per_particle,
+        "model": experiment.render.model,
         "photons": int(clean.sum(dtype=np.int64)),
         "particles_in_field": inside,
         "noise": info,

@@ -32,6 +32,7 @@ key, the file and the allowed keys; relative paths are relative to the TOML file
     [render]
     rays_per_particle = 100000      # rays (= photons) per particle of brightness 1
     tracer = "mitsuba"              # mitsuba | paraxial (ideal lenslets only)
+    model = "ray"                   # ray | wave (scalar wave optics, ideal lenslets only)
     diffraction = true
     batch_rays = 4194304            # rays per kernel launch (memory bound)
 
@@ -83,7 +84,7 @@ from .tracer import RenderSettings
 
 #: Allowed keys of each section (``particles``/``noise`` mirror their dataclasses).
 EXPERIMENT_KEYS = ("name", "scene", "seed", "frames", "description")
-RENDER_KEYS = ("rays_per_particle", "tracer", "diffraction", "batch_rays")
+RENDER_KEYS = ("rays_per_particle", "tracer", "diffraction", "batch_rays", "model")
 WHITE_KEYS = ("rays_per_lenslet", "snr", "bit_depth", "enabled")
 PARTICLE_KEYS = tuple(f.name for f in fields(SeedingSpec))
 NOISE_KEYS = tuple(f.name for f in fields(NoiseSpec))
@@ -124,12 +125,16 @@ class RenderConfig:
     ``rays_per_particle`` rays (photons into the collection cone) per particle of brightness 1,
     tracer ``"mitsuba"`` or ``"paraxial"``, Gaussian diffraction blur on/off, rays per kernel
     launch. Frames are traced in mode ``"photons"`` (integer counts, bit-identical per seed).
+    ``model`` ``"wave"`` renders the particles with the wave-optics model instead
+    (:mod:`lfsim.wave_render`: Poisson counts of ``rays_per_particle`` expected photons per
+    unit brightness; ideal lenslets only); the white image is traced in either case.
     """
 
     rays_per_particle: int = RenderSettings.rays_per_particle
     tracer: str = "mitsuba"
     diffraction: bool = RenderSettings.diffraction
     batch_rays: int = RenderSettings.batch_rays
+    model: str = RenderSettings.model
 
     def __post_init__(self) -> None:
         if self.tracer not in TRACERS:
@@ -149,6 +154,7 @@ class RenderConfig:
             diffraction=self.diffraction,
             seed=int(seed),
             batch_rays=int(self.batch_rays),
+            model=self.model,
         )
 
 
@@ -244,6 +250,11 @@ class Experiment:
             raise ConfigError(
                 f"tracer 'paraxial' models ideal lenslets only, but {self.scene} has a "
                 f"{self.optics.mla_kind!r} microlens array; use tracer 'mitsuba'"
+            )
+        if self.render.model == "wave" and self.optics.mla_kind != "ideal":
+            raise ConfigError(
+                f"[render] model 'wave' models ideal lenslets only, but {self.scene} has a "
+                f"{self.optics.mla_kind!r} microlens array; use model 'ray'"
             )
         n_sched = getattr(self.motion, "n_frames", None)
         if n_sched is not None and n_sched != self.frames:
@@ -361,6 +372,8 @@ class Experiment:
 
         d = rename_keys(self.to_dict(), FINGERPRINT_KEYS)
         del d["experiment"]["scene"]
+        if d["render"]["model"] == RenderSettings.model:
+            del d["render"]["model"]  # the ray model's datasets keep their fingerprint
         if self.particles.kind == "csv":
             d["particles"]["csv"] = "sha256:" + sha256_file(self.particles.csv)
         if isinstance(self.motion, UserField):

@@ -5,15 +5,16 @@ A particle is a sphere of uniformly and incoherently emitting dye, as for the ra
 light fields of point sources (:mod:`lfsim.wave`) at the nodes of a quadrature over its
 volume:
 
-- **depth** — ``layers`` Gauss–Legendre nodes across the sphere's diameter, each layer
-  weighted by its node weight times the area of the sphere's cross-section there;
-- **lateral** — the cross-section (a disc) is cut by a square lattice of step
-  ``p_obj / k`` aligned with the lenslets (``p_obj`` the lenslet pitch in object space,
-  ``k`` lattice cells per lenslet), and each cell the disc touches contributes one point at
-  the centroid of its part of the disc, weighted by that part's area (measured on
-  ``SUBCELL²`` sub-samples of the cell). Cells wholly inside the disc put their point at the
-  cell's centre: on the lattice, so that points of one depth a whole number of lenslets
-  apart share one light field.
+- **depth** — Gauss–Legendre nodes across the sphere's diameter
+  (:meth:`SphereSampling.layers`), each layer weighted by its node weight times the area of
+  the sphere's cross-section there;
+- **lateral** — the cross-section (a disc) is cut by a square lattice of step ``p_obj / k``
+  aligned with the lenslets (``p_obj`` the lenslet pitch in object space, ``k`` cells per
+  lenslet, :meth:`SphereSampling.cells`); each cell the disc touches contributes one point,
+  weighted by the area of its part of the disc (measured on ``SUBCELL²`` sub-samples of the
+  cell), at the cell's centre, or, for a disc less than two cells in radius, at the
+  centroid of that part where the cell is not wholly inside. Points on the lattice at one
+  depth a whole number of lenslets apart share one light field.
 
 A point-size particle (diameter 0) is the point source at its centre.
 
@@ -49,6 +50,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "SUBCELL",
     "SphereSampling",
+    "point_image",
     "render_wave",
     "sphere_points",
     "wave_render_sampling",
@@ -68,43 +70,59 @@ class SphereSampling:
     Parameters
     ----------
     cells_per_lenslet : int, optional
-        Lattice cells per object-space lenslet pitch along x and y; default
-        :meth:`resolved`'s (cells of at most ``lateral_step_um``).
-    lateral_step_um : float
-        Largest lattice step (µm, object space) when ``cells_per_lenslet`` is not given.
-    layers : int
-        Gauss–Legendre depth layers across a sphere.
+        Lattice cells per object-space lenslet pitch along x and y; default: from
+        ``lateral_step_um`` (:meth:`cells`).
+    lateral_step_um : float, optional
+        Largest lattice step (µm, object space); default ``λ / NA``.
+    min_cells : int
+        Fewest lattice cells per lenslet (a point's light field changes wholly within one
+        lenslet).
+    axial_step_um : float, optional
+        Largest mean spacing (µm) of the depth layers; default ``λ n / (2 NA²)`` (half the
+        depth of field, ``n`` the specimen's index).
+    min_layers : int
+        Fewest Gauss–Legendre depth layers across a sphere.
     """
 
     cells_per_lenslet: int | None = None
-    lateral_step_um: float = 2.5
-    layers: int = 5
+    lateral_step_um: float | None = None
+    min_cells: int = 5
+    axial_step_um: float | None = None
+    min_layers: int = 5
 
     def __post_init__(self) -> None:
-        k = self.cells_per_lenslet
-        if k is not None and (isinstance(k, bool) or int(k) != k or k < 1):
-            raise ConfigError(f"SphereSampling.cells_per_lenslet must be >= 1, got {k!r}")
-        if not math.isfinite(self.lateral_step_um) or self.lateral_step_um <= 0:
-            raise ConfigError(
-                "SphereSampling.lateral_step_um must be positive (µm), got "
-                f"{self.lateral_step_um!r}"
-            )
-        if isinstance(self.layers, bool) or int(self.layers) != self.layers or self.layers < 1:
-            raise ConfigError(f"SphereSampling.layers must be >= 1, got {self.layers!r}")
+        for name in ("cells_per_lenslet", "min_cells", "min_layers"):
+            k = getattr(self, name)
+            if k is None and name == "cells_per_lenslet":
+                continue
+            if isinstance(k, bool) or int(k) != k or k < 1:
+                raise ConfigError(f"SphereSampling.{name} must be an integer >= 1, got {k!r}")
+        for name in ("lateral_step_um", "axial_step_um"):
+            v = getattr(self, name)
+            if v is not None and (not math.isfinite(v) or v <= 0):
+                raise ConfigError(f"SphereSampling.{name} must be positive (µm), got {v!r}")
 
     def cells(self, optics, oversample: int = 1) -> int:
         """Lattice cells per lenslet for ``optics``: ``cells_per_lenslet``, else the fewest
-        with a step of at most ``lateral_step_um`` that put every lattice point a whole number
-        of field samples (``oversample`` per pixel) from its lenslet's centre, so that one
-        sampling of a depth's native field serves them all (else the fewest cells)."""
+        (at least ``min_cells``) with a step of at most ``lateral_step_um`` that put every
+        lattice point a whole number of field samples (``oversample`` per pixel) from its
+        lenslet's centre, so that one sampling of a depth's native field serves them all
+        (without such a number, the fewest cells)."""
         if self.cells_per_lenslet is not None:
             return int(self.cells_per_lenslet)
-        k_min = max(1, math.ceil(optics.lenslet_object_um / self.lateral_step_um - 1e-9))
+        step = self.lateral_step_um or optics.wavelength_um / optics.na
+        k_min = max(self.min_cells, math.ceil(optics.lenslet_object_um / step - 1e-9))
         ns = round(optics.px_per_lenslet) * int(oversample)
         for k in range(k_min, ns + 1):
             if ns % k == 0 and (ns // k - ns) % 2 == 0:
                 return k
         return k_min
+
+    def layers(self, optics, diameter_um: float) -> int:
+        """Depth layers across a sphere of ``diameter_um`` (µm)."""
+        na = min(optics.na, optics.medium_ior * math.sin(optics.emission_half_angle))
+        step = self.axial_step_um or optics.wavelength_um * optics.medium_ior / (2 * na * na)
+        return max(self.min_layers, math.ceil(diameter_um / step - 1e-9))
 
 
 def wave_render_sampling(optics):
@@ -131,15 +149,17 @@ def _max_axial_scale(optics) -> float:
 
 def window_radius_lenslets(optics, z_um: float) -> int:
     """Half-width (lenslets) of the window that holds the light field of a point at true
-    depth ``z_um`` (µm): the radius of its geometric cone at the array, widened by the
-    lenslets' spread behind it, plus one lenslet (two with interfaces, for their
-    aberrations) and the diffraction blur."""
+    depth ``z_um`` (µm) lying within the central lenslet's footprint: the lenslets its
+    geometric cone at the array reaches (radius ``d tan θ_image``, ``d`` the image distance,
+    the apparent depth scaled over the cone's edge too), widened by the diffraction blur and
+    half a lenslet for the light that spills past a lenslet's edge behind it, plus one
+    lenslet for the diffraction rings of the objective (two with interfaces, for their
+    aberrations too)."""
     d = abs(optics.magnification**2 * z_um) * _max_axial_scale(optics)  # image distance (µm)
     cone = d * math.tan(math.asin(min(optics.image_na, 1 - 1e-9)))
-    spread = 1.0 + optics.mla_focal_um / max(d, optics.mla_focal_um)
     blur = 4 * (optics.sigma_mla_um + optics.sigma_sensor_um)
     extra = 2 if optics.has_interfaces else 1
-    return math.ceil((cone * spread + optics.mla_pitch_um + blur) / optics.mla_pitch_um) + extra
+    return math.ceil((cone + blur) / optics.mla_pitch_um + 0.5) + extra
 
 
 # -- the quadrature ---------------------------------------------------------------------------
@@ -164,7 +184,8 @@ def _disc_cells(cx: float, cy: float, rho: float, h: float, p: float):
     ok = count > 0
     x = np.where(ok, sx / np.maximum(count, 1), 0.0)
     y = np.where(ok, sy / np.maximum(count, 1), 0.0)
-    full = count == q * q
+    # cells wholly inside, and every cell of a disc at least two cells wide, keep their centre
+    full = (count == q * q) | (rho >= 2 * h)
     centre_x = e0 + (ix + 0.5) * h
     centre_y = e0 + (iy + 0.5) * h
     x = np.where(full, centre_x[None, :], x)
@@ -206,7 +227,6 @@ def sphere_points(
         raise ConfigError("sphere centres must be finite (µm) and diameters finite and >= 0 (µm)")
     p = optics.lenslet_object_um
     h = p / sampling.cells(optics, oversample)
-    t, wt = np.polynomial.legendre.leggauss(int(sampling.layers))
     pts, wts, own = [], [], []
     for i, (ctr, dia) in enumerate(zip(c, d, strict=True)):
         r = dia / 2
@@ -215,6 +235,7 @@ def sphere_points(
             wts.append(np.ones(1))
             own.append(np.full(1, i))
             continue
+        t, wt = np.polynomial.legendre.leggauss(sampling.layers(optics, dia))
         layer_w = wt * (1.0 - t**2)  # ∝ node weight × cross-section area
         layer_w /= layer_w.sum()
         for tk, lw in zip(t, layer_w, strict=True):
