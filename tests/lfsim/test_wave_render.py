@@ -138,6 +138,62 @@ def test_refuses_what_it_does_not_model():
         render_wave(_paper(5), Sources.boxes([[0.0, 0.0, 10.0]], 2.0), EXPECTED)
 
 
+def test_experiment_and_command_line_select_the_wave_model(backend, tmp_path, capsys):
+    """``[render] model = "wave"`` renders a dataset's frames with the wave model and records
+    it; ``lfsim render --model wave`` does so for one image; both refuse glass lenslets."""
+    import json
+    from pathlib import Path
+
+    from lfsim.cli import main
+    from lfsim.dataset import frame_path, generate_dataset
+    from lfsim.experiment import load_experiment
+    from lfsim.io import read_tiff
+
+    from ..helpers import experiment_toml
+
+    scenes = Path(__file__).resolve().parents[2] / "scenes"
+    text = experiment_toml(
+        experiment={"name": "w", "scene": "{scene}", "seed": 1, "frames": 1},
+        particles={
+            "kind": "box",
+            "count": 2,
+            "bounds_xyz_um": ((-100, 100), (-100, 100), (20, 40)),
+            "diameter_um": 2.0,
+        },
+        render={"rays_per_particle": 5000, "model": "wave"},
+        noise={"model": "none"},
+        white={"enabled": False},
+    )
+    path = tmp_path / "w.toml"
+    path.write_text(text.replace("{scene}", str(scenes / "small.xml")))
+    exp = load_experiment(path)
+    assert exp.render.model == "wave" and exp.render.settings(0).model == "wave"
+    as_ray = tmp_path / "r.toml"
+    as_ray.write_text(path.read_text().replace('model = "wave"', 'model = "ray"'))
+    assert load_experiment(as_ray).fingerprint() != exp.fingerprint()
+    out = generate_dataset(exp, tmp_path / "ds", progress=False)
+    img, meta = read_tiff(frame_path(out, 0))
+    assert meta["model"] == "wave"
+    assert json.loads((out / "dataset.json").read_text())["experiment"]["render"]["model"] == "wave"
+    assert img.dtype == np.uint8 and img.max() > 0
+    glass = tmp_path / "g.toml"
+    glass.write_text(text.replace("{scene}", str(scenes / "small_glass.xml")))
+    with pytest.raises(ConfigError, match="model 'wave' models ideal lenslets only"):
+        load_experiment(glass)
+
+    csv = tmp_path / "p.csv"
+    Particles.from_arrays([[10.0, -5.0, 30.0]], diameter_um=2.0).to_csv(csv)
+    tif = tmp_path / "one.tif"
+    argv = ["-q", "render", str(scenes / "small.xml"), "--particles", str(csv), "-o", str(tif)]
+    assert main([*argv, "--model", "wave", "--float", "--rays", "1000"]) == 0
+    clean, meta = read_tiff(tif)
+    assert meta["model"] == "wave" and clean.sum() == pytest.approx(1000, rel=0.01)
+    argv[2] = str(scenes / "small_glass.xml")
+    assert main([*argv, "--model", "wave", "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mla_kind='glass'" in err[0], err
+
+
 # -- cross-validation: render with one model, reconstruct with the other ------------------------
 #: A 40×/0.8 water objective into water behind a 170 µm cover glass it is corrected for,
 #: f/25 lenslets of 100 µm (benchmarks/specimen_depth.py, set-up "water40"): the objective's
