@@ -128,12 +128,13 @@ class SphereSampling:
 def wave_render_sampling(optics):
     """The :class:`lfsim.wave.WaveSampling` of a particle image: samples of at most
     ``λ / (3 (NA_image + NA_lenslet))`` (the field behind the lenslets, whose frequencies
-    reach ``(NA_image + NA_lenslet) / λ``, at 1.5× its Nyquist rate), one guard lenslet."""
+    reach ``(NA_image + NA_lenslet) / λ``, at 1.5× its Nyquist rate), and no guard band: the
+    windows of :func:`window_radius_lenslets` end a lenslet beyond the light already."""
     from .wave import WaveSampling
 
     na_img = optics.medium_ior * math.sin(optics.emission_half_angle) / optics.magnification
     step = optics.wavelength_um / (3.0 * (na_img + optics.lenslet_na))
-    return WaveSampling(oversample=max(1, math.ceil(optics.pixel_um / step)), guard_lenslets=1.0)
+    return WaveSampling(oversample=max(1, math.ceil(optics.pixel_um / step)), guard_lenslets=0.0)
 
 
 def _max_axial_scale(optics) -> float:
@@ -341,8 +342,10 @@ def _patterns(win: _Window, prof, dr: float, pos_xy_um, os_: int) -> np.ndarray:
         fields *= win.tf
         fields = sfft.ifft2(fields, axes=(-2, -1), workers=-1, overwrite_x=True)
         sensor = fields[:, lo_px:hi_px, lo_px:hi_px]
-        inten = sensor.real.astype(np.float64) ** 2 + sensor.imag.astype(np.float64) ** 2
-        sums = inten.reshape(len(part), win.size, os_, win.size, os_).sum(axis=(2, 4))
+        inten = sensor.real**2 + sensor.imag**2  # float32
+        sums = inten.reshape(len(part), win.size, os_, win.size, os_).sum(
+            axis=(2, 4), dtype=np.float64
+        )
         out[lo : lo + len(part)] = sums * (dx * dx)
     return out
 
