@@ -221,8 +221,11 @@ class Study:
         first = "mismatched" if self.is_crime_free else "matched"
         out = {first: self.experiment}
         if self.study.matched and self.is_crime_free:
+            render = self.experiment.render
+            if self.renders_other_model:
+                render = dataclasses.replace(render, model="ray")
             out["matched"] = dataclasses.replace(
-                self.experiment, scene=self.recon_scene, optics=None
+                self.experiment, scene=self.recon_scene, optics=None, render=render
             )
         if self.study.specimen_as_air:
             out[AS_AIR] = self.experiment
@@ -237,10 +240,24 @@ class Study:
 
     @property
     def is_crime_free(self) -> bool:
-        """True when the images are rendered with another model than the reconstruction's."""
+        """True when the images are rendered with another model than the reconstruction's:
+        through another scene, or with the wave model (``[render] model = "wave"``) for a
+        reconstruction with the ray bank (:attr:`renders_other_model`)."""
         a = Path(self.experiment.scene).resolve()
         b = Path(self.recon_scene).resolve()
-        return a != b
+        return a != b or self.renders_other_model
+
+    @property
+    def renders_other_model(self) -> bool:
+        """True when the frames are rendered with the wave model and reconstructed with the
+        ray PSF bank (``[recon] psf_model`` resolved by
+        :func:`recon.psf_wave.choose_psf_model` for ``recon_scene``'s optics)."""
+        if self.experiment.render.model != "wave":
+            return False
+        from lfsim.scene import read_optics
+        from recon.psf_wave import choose_psf_model
+
+        return choose_psf_model(read_optics(self.recon_scene), self.recon.psf_model) == "ray"
 
     def to_dict(self) -> dict:
         """Plain-JSON form (for the report and the stage fingerprints)."""

@@ -196,6 +196,36 @@ def test_experiment_and_command_line_select_the_wave_model(backend, tmp_path, ca
     assert len(err) == 1 and "mla_kind='glass'" in err[0], err
 
 
+def test_a_study_rendered_with_the_wave_model_is_free_of_the_inverse_crime(tmp_path):
+    """A study whose frames are rendered with the wave model through the reconstruction's own
+    scene, reconstructed with the ray bank: no inverse crime; its matched variant renders
+    with rays."""
+    from pathlib import Path
+
+    from hrvptm.config import load_study
+
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "scenes" / "experiments" / "fig5a_translation_x_test.toml").read_text()
+    medium = str(root / "scenes" / "medium.xml")
+    text = text.replace('"../medium_glass.xml"', f'"{medium}"').replace(
+        '"../medium.xml"', f'"{medium}"'
+    )
+    text = text.replace("[render]\n", '[render]\nmodel = "wave"\n').replace(
+        "[study]\n", "[study]\nmatched = true\n"
+    )
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    study = load_study(path)
+    assert study.renders_other_model and study.is_crime_free
+    assert {k: e.render.model for k, e in study.variants().items()} == {
+        "mismatched": "wave",
+        "matched": "ray",
+    }
+    path.write_text(text.replace("[recon]\n", '[recon]\npsf_model = "wave"\n'))
+    study = load_study(path)
+    assert not study.is_crime_free and list(study.variants()) == ["matched"]
+
+
 # -- cross-validation: render with one model, reconstruct with the other ------------------------
 #: A 40×/0.8 water objective into water behind a 170 µm cover glass it is corrected for,
 #: f/25 lenslets of 100 µm (benchmarks/specimen_depth.py, set-up "water40"): the objective's
