@@ -33,6 +33,8 @@ import time
 
 import numpy as np
 
+from lfsim.optics import WATER_40X_OPTICS
+
 SETUPS = {
     "gel": {
         "optics": {
@@ -56,16 +58,7 @@ SETUPS = {
     },
     "air": {"optics": {}, "depths": np.arange(50.0, 601.0, 50.0), "z_range": (0.0, 660.0, 5.0)},
     "water40": {
-        "optics": {
-            "na": 0.8,
-            "immersion_ior": 1.333,
-            "medium_ior": 1.333,
-            "f_objective_um": 5000.0,
-            "mla_focal_um": 2500.0,
-            "coverslip_thickness_um": 170.0,
-            "coverslip_corrected_um": 170.0,
-            "focus_depth_um": 50.0,
-        },
+        "optics": WATER_40X_OPTICS,
         "depths": np.arange(-15.0, 15.1, 3.0),
         "z_range": (-20.0, 20.0, 0.5),
     },

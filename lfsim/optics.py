@@ -376,6 +376,18 @@ class Optics:
         return self._focus[0]
 
     @property
+    def max_axial_scale(self) -> float:
+        """Largest ratio of apparent to true depth over the rays a point sends into the
+        objective: paraxially ``n_imm / n_medium``, ``tan θ_m / tan θ_imm`` at the cone's edge
+        (the image of a depth reaches at most this far). 1 without interfaces."""
+        if not self.has_interfaces:
+            return 1.0
+        theta = self.emission_half_angle
+        s_i = min(self.medium_ior * math.sin(theta) / self.immersion_ior, 1 - 1e-9)
+        edge = math.tan(min(theta, 1.5)) / math.tan(math.asin(s_i))
+        return max(self.immersion_ior / self.medium_ior, edge)
+
+    @property
     def stop_radius_um(self) -> float:
         """Aperture-stop radius in the objective's back focal plane: ``f_obj · tan θmax``
         for a dry objective, ``f_obj · NA`` (the sine condition) for an immersion objective
@@ -543,3 +555,18 @@ def paper_optics(**overrides) -> Optics:
 def small_optics(**overrides) -> Optics:
     """Paper optics on a 20 × 20-lenslet sensor (300 × 300 px) for fast tests."""
     return paper_optics(**{"sensor_xy_px": (300, 300), **overrides})
+
+
+#: A 40×/0.8 water objective (5 mm focal length behind the 200 mm tube lens) into water, through
+#: a 170 µm cover glass it is corrected for, focused 50 µm beyond it, with f/25 lenslets of
+#: 100 µm matched to its image-side NA.
+WATER_40X_OPTICS = {
+    "na": 0.8,
+    "immersion_ior": 1.333,
+    "medium_ior": 1.333,
+    "f_objective_um": 5000.0,
+    "mla_focal_um": 2500.0,
+    "coverslip_thickness_um": 170.0,
+    "coverslip_corrected_um": 170.0,
+    "focus_depth_um": 50.0,
+}

@@ -137,17 +137,6 @@ def wave_render_sampling(optics):
     return WaveSampling(oversample=max(1, math.ceil(optics.pixel_um / step)), guard_lenslets=0.0)
 
 
-def _max_axial_scale(optics) -> float:
-    """Largest ratio of apparent to true depth over the collected cone (1 without
-    interfaces)."""
-    if not optics.has_interfaces:
-        return 1.0
-    theta = optics.emission_half_angle
-    s_i = min(optics.medium_ior * math.sin(theta) / optics.immersion_ior, 1 - 1e-9)
-    edge = math.tan(min(theta, 1.5)) / math.tan(math.asin(s_i))
-    return max(optics.immersion_ior / optics.medium_ior, edge)
-
-
 def window_radius_lenslets(optics, z_um: float) -> int:
     """Half-width (lenslets) of the window that holds the light field of a point at true
     depth ``z_um`` (µm) lying within the central lenslet's footprint: the lenslets its
@@ -156,7 +145,7 @@ def window_radius_lenslets(optics, z_um: float) -> int:
     half a lenslet for the light that spills past a lenslet's edge behind it, plus one
     lenslet for the diffraction rings of the objective (two with interfaces, for their
     aberrations too)."""
-    d = abs(optics.magnification**2 * z_um) * _max_axial_scale(optics)  # image distance (µm)
+    d = abs(optics.magnification**2 * z_um) * optics.max_axial_scale  # image distance (µm)
     cone = d * math.tan(math.asin(min(optics.image_na, 1 - 1e-9)))
     blur = 4 * (optics.sigma_mla_um + optics.sigma_sensor_um)
     extra = 2 if optics.has_interfaces else 1

@@ -149,26 +149,15 @@ def bank_key(optics, depths_um, s: int, rays_per_pattern: int, seed: int, thresh
     return hashlib.sha256(payload.encode()).hexdigest()[:20]
 
 
-def _max_axial_scale(optics) -> float:
-    """Largest ratio of apparent to true depth over the rays a point sends into the objective
-    (1 without interfaces): paraxially ``n_imm / n_medium``, ``tan θ_m / tan θ_imm`` at the
-    cone's edge."""
-    if not optics.has_interfaces:
-        return 1.0
-    theta = optics.emission_half_angle
-    s_i = min(optics.medium_ior * math.sin(theta) / optics.immersion_ior, 1 - 1e-9)
-    edge = math.tan(min(theta, 1.5)) / math.tan(math.asin(s_i))
-    return max(optics.immersion_ior / optics.medium_ior, edge)
-
-
 def pattern_radius_lenslets(optics, z_um: float) -> int:
     """Half-width (in lenslets) of the window that holds a depth's whole pattern.
 
     ``z_um`` is a true depth in the specimen; its image lies at the apparent depth, scaled by
-    the largest ratio of apparent to true depth over the cone (:func:`_max_axial_scale`), plus
-    one lenslet for the interfaces' aberrations.
+    the largest ratio of apparent to true depth over the cone
+    (:attr:`lfsim.optics.Optics.max_axial_scale`), plus one lenslet for the interfaces'
+    aberrations.
     """
-    d = abs(optics.magnification**2 * z_um) * _max_axial_scale(optics)  # image distance (µm)
+    d = abs(optics.magnification**2 * z_um) * optics.max_axial_scale  # image distance (µm)
     cone = d * math.tan(math.asin(optics.image_na))  # radius of the light cone at the array
     spread = 1.0 + optics.mla_focal_um / max(d, optics.mla_focal_um)
     sigma = 4 * (optics.sigma_mla_um + optics.sigma_sensor_um)

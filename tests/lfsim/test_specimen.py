@@ -70,6 +70,20 @@ def test_paraxial_focal_shift_of_a_gel_behind_a_cover_glass():
     assert w.theta_max == pytest.approx(math.asin(0.8 / 1.333))
 
 
+def test_max_axial_scale_is_the_paraxial_ratio_or_the_cone_edge():
+    """Apparent / true depth: paraxially n_imm / n_medium; at the edge of the cone
+    tan θ_medium / tan θ_immersion, larger for an oil objective into water (exact values)."""
+    assert small_optics().max_axial_scale == 1.0
+    dry_gel = paper_optics(medium_ior=1.35)
+    assert dry_gel.max_axial_scale == pytest.approx(1 / 1.35, rel=1e-12)
+    oil_water = paper_optics(na=1.2, immersion_ior=1.518, medium_ior=1.333)
+    sin_m = oil_water.emission_half_angle
+    edge = math.tan(sin_m) / math.tan(math.asin(1.333 * math.sin(sin_m) / 1.518))
+    assert edge > 1.518 / 1.333
+    assert oil_water.max_axial_scale == pytest.approx(edge, rel=1e-12)
+    assert oil_water.max_axial_scale == pytest.approx(1.602, abs=0.01)
+
+
 def test_high_na_immersion_objectives_are_accepted():
     o = small_optics(na=1.4, immersion_ior=1.518, medium_ior=1.33, focus_depth_um=10.0)
     # n sin θ is conserved: water caps what an oil objective of NA 1.4 collects at 1.33.

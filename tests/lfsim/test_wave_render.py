@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lfsim.errors import ConfigError
-from lfsim.optics import small_optics
+from lfsim.optics import WATER_40X_OPTICS, small_optics
 from lfsim.particles import Particles
 from lfsim.render import render_particles
 from lfsim.tracer import RenderSettings, Sources, trace_paraxial
@@ -227,19 +227,8 @@ def test_a_study_rendered_with_the_wave_model_is_free_of_the_inverse_crime(tmp_p
 
 
 # -- cross-validation: render with one model, reconstruct with the other ------------------------
-#: A 40×/0.8 water objective into water behind a 170 µm cover glass it is corrected for,
-#: f/25 lenslets of 100 µm (benchmarks/specimen_depth.py, set-up "water40"): the objective's
-#: aperture and the lenslets' diffraction make the ray bank's Gaussian blur a poor stand-in.
-WATER40 = {
-    "na": 0.8,
-    "immersion_ior": 1.333,
-    "medium_ior": 1.333,
-    "f_objective_um": 5000.0,
-    "mla_focal_um": 2500.0,
-    "coverslip_thickness_um": 170.0,
-    "coverslip_corrected_um": 170.0,
-    "focus_depth_um": 50.0,
-}
+#: At the 40×/0.8 water optics (lfsim.optics.WATER_40X_OPTICS) the objective's aperture and the
+#: lenslets' diffraction make the ray bank's Gaussian blur a poor stand-in.
 
 
 class _CrossModel:
@@ -255,7 +244,7 @@ class _CrossModel:
 
         side = 15 * lenslets
         self.optics = small_optics(
-            sensor_xy_px=(side, side), axis_xy_px=(side / 2, side / 2), **WATER40
+            sensor_xy_px=(side, side), axis_xy_px=(side / 2, side / 2), **WATER_40X_OPTICS
         )
         o, self.depths, self.s = self.optics, np.asarray(depths), s
         banks = {
