@@ -12,13 +12,13 @@ particle spacing are tracked as well as homogeneous ones.
    descriptor with a ratio test and a mutual check, in raw coordinates and after moment
    normalisation (each cloud whitened by its covariance, which turns any homogeneous stretch
    or shear into a rotation); a small-motion hypothesis (nearest neighbours of the unwarped
-   clouds) is the last resort. Each hypothesis gives a RANSAC affine map
-   (:func:`track.outliers.ransac_affine`); the map that links the most particles of the whole
-   clouds wins, and its consensus, cleaned by the normalised median test and by agreement
-   with neighbouring seeds, is the seed set. Nothing here assumes small displacements. With a
-   guess (``initial_guess``, e.g. the previous increment of a series through
-   :func:`increment_predictor`): the matches it predicts, if they are consistent and numerous
-   enough; otherwise the bootstrap above.
+   clouds) is tried as well unless a descriptor map links every particle. Each hypothesis
+   gives a RANSAC affine map (:func:`track.outliers.ransac_affine`); the map that links the
+   most particles of the whole clouds wins, and its consensus, cleaned by the normalised
+   median test and by agreement with neighbouring seeds, is the seed set. Nothing here
+   assumes small displacements. With a guess (``initial_guess``, e.g. the previous increment
+   of a series through :func:`increment_predictor`): the matches it predicts, if they are
+   consistent and numerous enough; otherwise the bootstrap above.
 2. **Growth.** Unmatched particles with at least three matched neighbours are predicted by a
    moving-least-squares polynomial fit of their neighbours' displacements (relative to a
    global field: the affine map, the guess, later the regularised field of all matches;
@@ -226,11 +226,14 @@ def _bootstrap(ref, dfm, settings, spacing, eps_um):
         consider(label, cand, fit)
         if best is not None and best[0] >= enough:
             break  # most particles agree already
-    if best is None or best[0] < enough:
+    if best is None or best[0] < n_min:
         # Small-motion hypothesis: increments well below the particle spacing (the usual case
         # at high frame rates) pair nearest neighbours of the unwarped clouds. It rescues
         # sparse, noisy clouds whose topology descriptors disagree (a few tens of particles
-        # with spurious or missing detections); the affine consensus still has to agree.
+        # with spurious or missing detections); the affine consensus still has to agree. It
+        # competes with a descriptor map that leaves particles unlinked: in a small cloud the
+        # few descriptor matches, wrong ones among them, can all fit one affine map within
+        # the RANSAC threshold (a spacing), which then links only part of the cloud.
         cand = match_nearest(ref, dfm, 0.5 * spacing, settings.nn_ratio)
         if cand.shape[0] >= min_inl:
             fit = ransac_affine(
