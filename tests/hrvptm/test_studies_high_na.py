@@ -76,27 +76,27 @@ pooled_E_rmsd_yz 0.00381
 worst_E_abs_mean_err_yz 0.0033
 water40x_simple_shear_test
 min_tracked 16
-pooled_u_rmsd_x 0.046
-worst_u_rmsd_x 0.059
-max_mean_err_x 0.0217
-pooled_u_rmsd_y 0.0281
-worst_u_rmsd_y 0.0331
-max_mean_err_y 0.0143
-pooled_u_rmsd_z 0.129
-worst_u_rmsd_z 0.198
-max_mean_err_z 0.0249
-pooled_E_rmsd_xx 0.00233
-worst_E_abs_mean_err_xx 0.0021
-pooled_E_rmsd_yy 0.0012
-worst_E_abs_mean_err_yy 0.00145
-pooled_E_rmsd_zz 0.0133
-worst_E_abs_mean_err_zz 0.0234
-pooled_E_rmsd_xy 0.000974
-worst_E_abs_mean_err_xy 0.00107
-pooled_E_rmsd_xz 0.00748
-worst_E_abs_mean_err_xz 0.00722
-pooled_E_rmsd_yz 0.00588
-worst_E_abs_mean_err_yz 0.00468
+pooled_u_rmsd_x 0.0284
+worst_u_rmsd_x 0.0369
+max_mean_err_x 0.00656
+pooled_u_rmsd_y 0.0274
+worst_u_rmsd_y 0.0339
+max_mean_err_y 0.011
+pooled_u_rmsd_z 0.0631
+worst_u_rmsd_z 0.085
+max_mean_err_z 0.0203
+pooled_E_rmsd_xx 0.00117
+worst_E_abs_mean_err_xx 0.00146
+pooled_E_rmsd_yy 0.00137
+worst_E_abs_mean_err_yy 0.00189
+pooled_E_rmsd_zz 0.0122
+worst_E_abs_mean_err_zz 0.0195
+pooled_E_rmsd_xy 0.000781
+worst_E_abs_mean_err_xy 0.00105
+pooled_E_rmsd_xz 0.00472
+worst_E_abs_mean_err_xz 0.00637
+pooled_E_rmsd_yz 0.00377
+worst_E_abs_mean_err_yz 0.0044
 """
 _STRAINS = ("xx", "yy", "zz", "xy", "xz", "yz")
 
@@ -176,6 +176,8 @@ def test_high_na_simple_shear(tmp_path):
     _within_calibration(v, study)
     last = v["rows"][-1]
     assert 2 * last["E_true_xz"] == pytest.approx(0.25)
-    # γ = 25 %: 2 E_xz reads 1.43 and 0.26 % high at seeds 2 and 3 (the axial scale, 3–5 % short
-    # without the depth-bias subtraction, raises ∂u_x/∂z); within 2× the larger.
-    assert abs(2 * (last["E_meas_xz"] - last["E_true_xz"])) < 2 * 0.0143
+    # γ = 25 %: with the depth-dependent bias subtracted, 2 E_xz reads 0.69 and 0.18 % low at
+    # seeds 2 and 3; within 2× the larger. Without the subtraction the axial scale comes out
+    # 3–5 % short and 2 E_xz 2.06 and 1.43 % high at seeds 1 and 2 (0.26 % at seed 3), which
+    # this bound refuses.
+    assert abs(2 * (last["E_meas_xz"] - last["E_true_xz"])) < 2 * 0.0069
