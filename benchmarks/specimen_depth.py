@@ -135,6 +135,17 @@ def main() -> int:
     ap.add_argument("-s", type=int, default=5)
     ap.add_argument("--iterations", type=int, default=8)
     ap.add_argument("--rays", type=int, default=400_000, help="rays per source")
+    ap.add_argument(
+        "--per-depth",
+        type=int,
+        default=4,
+        help="sources per depth, on a square grid over the central 70 %% of the field with a "
+        "random position within their lenslets (default 4; the standard error of a depth's "
+        "mean falls as 1/sqrt of it)",
+    )
+    ap.add_argument(
+        "--diameter-um", type=float, default=15.0, help="source diameter (µm; default 15)"
+    )
     args = ap.parse_args()
 
     from dataclasses import replace
@@ -179,18 +190,22 @@ def main() -> int:
         f"{o.focal_shift_um:.1f} µm), axial scale {o.axial_scale:.4f}; s = {args.s}, "
         f"z step {dz} µm, {args.iterations} iterations"
     )
-    print(f"{'true z µm':>9s} {'ax mean':>8s} {'ax max':>7s} {'lat max':>8s}")
+    print(f"{'true z µm':>9s} {'ax mean':>8s} {'± s.e.':>6s} {'ax max':>7s} {'lat max':>8s}")
     true_z, found_z = [], []
     half = 0.35 * min(np.ptp(grid.x_um()), np.ptp(grid.y_um()))
     given = args.depths or setup.get("depths_below_surface", setup.get("depths"))
     for z in z_surface + np.asarray(given, float):
-        corners = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]], float) * half / 2
-        xy = corners + rng.uniform(-0.5, 0.5, corners.shape) * o.lenslet_object_um
+        side = max(2, int(np.ceil(np.sqrt(args.per_depth))))
+        ticks = (
+            np.linspace(-half, half, side + 2)[1:-1] if side > 2 else np.array([-1, 1]) * half / 2
+        )
+        cells = np.array([[x, y] for y in ticks for x in ticks])[: args.per_depth]
+        xy = cells + rng.uniform(-0.5, 0.5, cells.shape) * o.lenslet_object_um
         pts = np.c_[xy, np.full(len(xy), z)]
         settings = RenderSettings(
             rays_per_particle=args.rays, mode="expected", seed=round(abs(z) * 10) + (z < 0)
         )
-        img = trace_mitsuba(scene, Sources.spheres(pts, 15.0), settings)
+        img = trace_mitsuba(scene, Sources.spheres(pts, args.diameter_um), settings)
         vol = richardson_lucy(img.astype(np.float32), proj, args.iterations, depth_filter=filt)
         # Reconstructed as air, a particle lies about 26 % of its depth too shallow.
         window = 60.0 + (0.4 * abs(z) if args.as_air else 0.0)
@@ -201,9 +216,15 @@ def main() -> int:
         ok = np.isfinite(err[:, 2])
         true_z += list(pts[ok, 2])
         found_z += list(found[ok, 2])
+        sem = (
+            np.nanstd(err[:, 2], ddof=1) / np.sqrt(max(int(ok.sum()), 1))
+            if ok.sum() > 1
+            else np.nan
+        )
         print(
-            f"{z:9.1f} {np.nanmean(err[:, 2]):+8.2f} {np.nanmax(np.abs(err[:, 2])):7.2f} "
-            f"{np.nanmax(np.abs(err[:, :2])):8.2f} {int(ok.sum())}/{len(pts)} found"
+            f"{z:9.1f} {np.nanmean(err[:, 2]):+8.2f} {sem:6.2f} "
+            f"{np.nanmax(np.abs(err[:, 2])):7.2f} {np.nanmax(np.abs(err[:, :2])):8.2f} "
+            f"{int(ok.sum())}/{len(pts)} found"
         )
     slope, icept = np.polyfit(true_z, found_z, 1)
     print(
