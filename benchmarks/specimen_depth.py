@@ -14,8 +14,9 @@ Set-ups (``--setup``):
 - ``gel_focus_in_glass``: the same gel, with the objective focused 150 µm into the 170 µm
   glass bottom, so that the native plane lies 123 µm in front of the gel and every particle on
   one side of it, beyond the native-plane artefacts; depths 50–600 µm below the gel's surface
-  (``--depths`` are then depths below the surface too), the volume from the surface to 760 µm
-  beyond it.
+  (``--depths`` are then depths below the surface too), the volume from the library's guard
+  planes in front of the surface (:func:`recon.settings.default_front_guard_um`, 100 µm) to
+  760 µm beyond it.
 - ``water40``: a 40×/0.8 water objective into water behind a 170 µm cover glass it is
   corrected for, lenslets matched to its NA (f/25, 100 µm), true depths −15 … 15 µm.
 - ``air``: the paper's optics in air, true depths 50–600 µm (the baseline of the pipeline).
@@ -158,6 +159,7 @@ def main() -> int:
     from recon.geometry import ReconGrid, depth_range
     from recon.projector import LightFieldProjector
     from recon.psf import compute_psf_bank
+    from recon.settings import default_front_guard_um
 
     init_backend()
     setup = SETUPS[args.setup]
@@ -173,6 +175,8 @@ def main() -> int:
     if "z_range_from_surface" in setup:
         r0, r1, rdz = setup["z_range_from_surface"]
         first = np.ceil(z_surface / rdz) * rdz
+        if model.has_interfaces:  # the library's guard planes in front of the surface
+            first -= default_front_guard_um(model, rdz)
         setup = {**setup, "z_range": (first + r0, first + r1, rdz)}
     z0, z1, dz = args.z_range or setup["z_range"]
     depths = depth_range(z0, z1, dz)

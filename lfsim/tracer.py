@@ -188,7 +188,14 @@ def _check_inside_specimen(sources: Sources, optics) -> None:
 class _Emitter:
     """Samples ray origins (µm, object frame) and unit directions for a batch of rays."""
 
-    def __init__(self, sources: Sources, counts: np.ndarray, optics, settings: RenderSettings):
+    def __init__(
+        self,
+        sources: Sources,
+        counts: np.ndarray,
+        optics,
+        settings: RenderSettings,
+        virtual_front: bool = False,
+    ):
         import drjit as dr
         import mitsuba as mi
 
@@ -207,7 +214,8 @@ class _Emitter:
             self.size = [mi.Float((sources.sizes_um / 2).astype(np.float32))]
         else:
             self.size = [mi.Float(sources.sizes_um[:, k].astype(np.float32)) for k in range(3)]
-        _check_inside_specimen(sources, optics)
+        if not virtual_front:
+            _check_inside_specimen(sources, optics)
         w = sources.weights if settings.mode == "expected" else np.ones(len(sources))
         self.weight = mi.Float(w.astype(np.float32))
         theta = min(optics.emission_half_angle * (1.0 + settings.cone_margin), math.pi / 2)
@@ -269,7 +277,7 @@ def _fresnel_transmittance(dr, mi, cos_i, n_from: float, n_to: float):
     return 1.0 - f
 
 
-def to_immersion(optics, o, d, dr, mi):
+def to_immersion(optics, o, d, dr, mi, *, virtual_front: bool = False):
     """Carry rays from the specimen through its planar interfaces into the immersion medium.
 
     Exact Snell refraction at every interface (the transverse direction cosines scale by
@@ -285,6 +293,10 @@ def to_immersion(optics, o, d, dr, mi):
         object plane, growing away from the objective).
     d : mitsuba.Vector3f
         Unit directions in the specimen, ``d.z > 0`` towards the objective.
+    virtual_front : bool
+        Trace a source in front of the specimen's near surface as if the specimen went on
+        towards the objective (a guard plane of a reconstruction volume, where nothing emits
+        but the volume needs a model); otherwise its rays are dropped.
 
     Returns
     -------
@@ -300,7 +312,8 @@ def to_immersion(optics, o, d, dr, mi):
         return o.x, o.y, o.z, d.x / d.z, d.y / d.z, mi.Float(1.0)
     z = o.z + optics.focal_shift_um  # nominal frame
     z_surface = -optics.focus_depth_um
-    inside = z >= z_surface
+    # a virtual source is carried back along its ray to the surface, as if the specimen went on
+    inside = z >= (-math.inf if virtual_front else z_surface)
     x, y = o.x + d.x / d.z * (z - z_surface), o.y + d.y / d.z * (z - z_surface)
     z = mi.Float(z_surface)
     dx, dy, dz = d.x, d.y, d.z
@@ -324,7 +337,7 @@ def to_immersion(optics, o, d, dr, mi):
     return x, y, z, dx / dz, dy / dz, trans
 
 
-def objective_rays(optics, o, d, dr, mi):
+def objective_rays(optics, o, d, dr, mi, *, virtual_front: bool = False):
     """The rays the objective images: :func:`to_immersion`'s, and for an immersion objective
     (``Optics.is_immersion``) each one's air-equivalent ray.
 
@@ -341,7 +354,7 @@ def objective_rays(optics, o, d, dr, mi):
         As :func:`to_immersion`; for an immersion objective the point is the intercept with
         the nominal focal plane (``z = 0``).
     """
-    x, y, z, u, v, trans = to_immersion(optics, o, d, dr, mi)
+    x, y, z, u, v, trans = to_immersion(optics, o, d, dr, mi, virtual_front=virtual_front)
     if not optics.is_immersion:
         return x, y, z, u, v, trans
     n = optics.immersion_ior
@@ -521,7 +534,12 @@ def trace_mitsuba(scene, sources: Sources, settings: RenderSettings) -> np.ndarr
 
 
 def trace_paraxial(
-    optics, sources: Sources, settings: RenderSettings, *, per_source: bool = False
+    optics,
+    sources: Sources,
+    settings: RenderSettings,
+    *,
+    per_source: bool = False,
+    virtual_front: bool = False,
 ) -> np.ndarray:
     """Trace ``sources`` through ideal optics written directly in Dr.Jit (no Mitsuba).
 
@@ -535,6 +553,9 @@ def trace_paraxial(
     ----------
     per_source : bool
         Give every source its own image (PSF banks): the result is ``(n_sources, h, w)``.
+    virtual_front : bool
+        Sources in front of the specimen's near surface are traced as if the specimen went on
+        (:func:`to_immersion`; the guard planes of a PSF bank) instead of being refused.
 
     Returns
     -------
@@ -548,7 +569,7 @@ def trace_paraxial(
     if optics.mla_kind != "ideal":
         raise ConfigError("trace_paraxial models ideal lenslets only (mla_kind='ideal')")
     counts = _ray_counts(sources, settings)
-    emitter = _Emitter(sources, counts, optics, settings)
+    emitter = _Emitter(sources, counts, optics, settings, virtual_front)
     film = _Film(optics, settings, layers=len(sources) if per_source else None)
     if emitter.total == 0:
         return film.numpy()
@@ -561,7 +582,7 @@ def trace_paraxial(
     for start in _batches(emitter.total, settings, "tracing"):
         n = min(settings.batch_rays, emitter.total - start)
         rng, o, d, w, src = emitter.batch(start, n)
-        x, y, z, u, v, trans = objective_rays(optics, o, d, dr, mi)
+        x, y, z, u, v, trans = objective_rays(optics, o, d, dr, mi, virtual_front=virtual_front)
         # Object point -> objective (distance f_obj + z: z grows away from the objective).
         t = fo + z
         x, y = x + u * t, y + v * t

@@ -323,6 +323,7 @@ def compute_psf_bank(
                 Sources.spheres(centers, 0.0),
                 replace(settings, seed=seed + k),
                 per_source=True,
+                virtual_front=True,  # guard planes in front of a specimen: the specimen goes on
             )
             yield k, h, stack.astype(np.float64) / rays_per_pattern
 

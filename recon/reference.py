@@ -119,7 +119,8 @@ def render_reference(
         ropt,
         Sources.spheres(pos, st.sphere_diameter_um),
         RenderSettings(rays_per_particle=st.rays_per_particle, mode="expected", seed=st.seed),
-    )
+        virtual_front=True,  # a detection at a specimen's surface: the specimen goes on, as in
+    )  # the PSF bank's guard planes
     return (np.asarray(img, dtype=np.float64) * st.counts_per_ray + st.black_level).astype(
         np.float32
     )

@@ -14,9 +14,13 @@ depth range ``z_min_um``, ``z_max_um``
     symmetric about the native focal plane, out to where a point's light covers a disc of
     :data:`RANGE_PATTERN_LENSLETS` lenslets in radius (``|z| tan(asin NA) = 6 p_obj``),
     where ``p_obj`` is the lenslet pitch in object space; ±730 µm for the paper's optics
-    (its experiments use −80 … 720 µm). With a specimen the range starts no nearer than the
-    specimen's near surface (``Optics.surface_z_um``, rounded up to a step), and a given
-    ``z_min_um`` in front of it is refused: nothing emits there;
+    (its experiments use −80 … 720 µm). Where a specimen's near surface
+    (``Optics.surface_z_um``) cuts that range, the range starts :func:`default_front_guard_um`
+    in front of the surface: *guard planes*, modelled as the specimen going on towards the
+    objective, where nothing emits but where the reconstruction of a particle near the
+    surface needs room (without them its depth comes out several µm shallow; ``benchmarks/
+    README.md``, ``specimen_depth.py``). A given ``z_min_um`` may lie in front of the surface
+    too: the planes there are guard planes;
 super-resolution ``s``
     voxels per lenslet that make the lateral voxel about the depth step (isotropic voxels),
     at most the pixels per lenslet: 5 for the paper's optics (25 µm lenslets, 5 µm voxels).
@@ -42,6 +46,11 @@ BACKGROUND_MODELS = ("subtract", "model")
 MAX_DEPTHS = 4096
 #: Radius (lenslets) of a point's light disc at the ends of the default depth range.
 RANGE_PATTERN_LENSLETS = 6
+#: Guard planes in front of a specimen's near surface, in units of the true depth z₁ over which
+#: a point's blur grows by one lenslet (:func:`default_front_guard_um`): 100 µm in the paper's
+#: gel, which brings a particle 50 µm below the surface to within 2 µm of its depth
+#: (benchmarks/README.md, ``specimen_depth.py``).
+FRONT_GUARD_Z1 = 1.2
 #: :class:`ReconSettings` fields that do not change the volumes (bit-identical results).
 RUN_ONLY_FIELDS = ("threads",)
 #: :class:`ReconSettings` fields that identify the volumes only through the PSF bank they
@@ -192,15 +201,12 @@ class ReconSettings:
         z0, z1 = self.z_min_um, self.z_max_um
         if z0 is None:
             zlim = default_z_limit_um(optics, step)
-            z0, z1 = max(-zlim, _first_plane_in_specimen_um(optics, step)), zlim
+            first = _first_plane_in_specimen_um(optics, step)
+            if first > -zlim:  # the surface cuts the range: guard planes in front of it
+                first -= default_front_guard_um(optics, step)
+            z0, z1 = max(-zlim, first), zlim
             if z1 <= z0:
                 z1 = z0 + 2 * zlim
-        elif getattr(optics, "has_interfaces", False) and z0 < optics.surface_z_um - 1e-6:
-            raise InputError(
-                f"z_min_um={z0:g} lies in front of the specimen's near surface at "
-                f"z = {optics.surface_z_um:.4g} µm, where nothing can emit; start the depth "
-                f"range at z_min_um >= {_first_plane_in_specimen_um(optics, step):g}"
-            )
         s = self.s if self.s is not None else default_s(optics, step)
         return replace(self, z_min_um=z0, z_max_um=z1, z_step_um=step, s=s)
 
@@ -247,6 +253,15 @@ def default_z_limit_um(optics, z_step_um: float) -> float:
     slope = math.tan(optics.theta_max) * optics.axial_scale
     zlim = RANGE_PATTERN_LENSLETS * optics.lenslet_object_um / slope
     return math.floor(zlim / z_step_um) * z_step_um
+
+
+def default_front_guard_um(optics, z_step_um: float) -> float:
+    """Depth of the guard planes in front of a specimen's near surface (µm, a multiple of the
+    step): :data:`FRONT_GUARD_Z1` times the true depth ``z₁ = p_obj / (2 tan θ · a)`` over
+    which a point's blur at the array grows by one lenslet (``a`` the ratio of apparent to
+    true depth; 83 µm in the paper's gel of index 1.35, a guard of 100 µm)."""
+    z1 = optics.lenslet_object_um / (2.0 * math.tan(optics.theta_max) * optics.axial_scale)
+    return math.ceil(FRONT_GUARD_Z1 * z1 / z_step_um - 1e-9) * z_step_um
 
 
 def _first_plane_in_specimen_um(optics, z_step_um: float) -> float:

@@ -266,7 +266,7 @@ def l1(a, b) -> float:
 
 
 # -- the focal shift ----------------------------------------------------------------------------
-def _least_squares_focus_um(o: Optics, z_um: float) -> float:
+def _least_squares_focus_um(o: Optics, z_um: float, virtual_front: bool = False) -> float:
     """Nominal-frame depth where the tracer's rays from a point at true ``z_um`` converge best
     (least-squares distance of the immersion-space rays to the axis point)."""
     import drjit as dr
@@ -274,7 +274,7 @@ def _least_squares_focus_um(o: Optics, z_um: float) -> float:
 
     origin, direction, _d = _rays(20000, o.emission_half_angle, z_um, seed=3)
     origin = mi.Point3f(origin.x * 0, origin.y * 0, origin.z)
-    x, _y, z, u, _v, _t = to_immersion(o, origin, direction, dr, mi)
+    x, _y, z, u, _v, _t = to_immersion(o, origin, direction, dr, mi, virtual_front=virtual_front)
     x, z, u = (np.asarray(a.numpy(), np.float64) for a in (x, z, u))
     # x(Z) = x + u (z − Z): the Z that minimises Σ x(Z)² (uniform over the emission cone).
     return float(np.sum(u * (x + u * z)) / np.sum(u * u))
@@ -305,6 +305,26 @@ def test_focal_shift_agrees_with_the_exact_ray_optics(backend, kw):
     z_star = z_a - traced / (_least_squares_focus_um(o, z_a + 50.0) - traced) * 50.0
     measured = o.focal_shift_um + z_star
     assert measured == pytest.approx(o.focal_shift_um, rel=0.01, abs=0.1)
+
+
+def test_guard_planes_in_front_of_the_surface_continue_the_specimen(backend):
+    """A source in front of the specimen's near surface (a guard plane of a PSF bank) is traced
+    as if the specimen went on: its rays converge at the apparent depth the linear Snell optics
+    gives inside the specimen (``axial_scale · z``), its pattern is as bright as one just
+    behind the surface, and without ``virtual_front`` the source is refused by name."""
+    o = small_optics(**{**GEL, "focus_depth_um": -130.0})  # surface at z = 96 µm
+    for dz in (-30.0, -80.0):
+        z = o.surface_z_um + dz
+        traced = _least_squares_focus_um(o, z, virtual_front=True)
+        assert traced == pytest.approx(o.axial_scale * z, abs=0.05)
+    settings = RenderSettings(rays_per_particle=20_000, mode="expected", seed=1)
+    front = Sources.spheres([[0.0, 0.0, o.surface_z_um - 5.0]], 0.0)
+    behind = Sources.spheres([[0.0, 0.0, o.surface_z_um + 5.0]], 0.0)
+    a = trace_paraxial(o, front, settings, virtual_front=True)
+    b = trace_paraxial(o, behind, settings)
+    assert a.sum() == pytest.approx(b.sum(), rel=0.01)  # the same Fresnel losses
+    with pytest.raises(ConfigError, match="in front of the specimen's near surface"):
+        trace_paraxial(o, front, settings)
 
 
 def test_lfsim_micrometer_in_a_specimen_scene_lies_on_the_cover_glass(tmp_path, capsys):

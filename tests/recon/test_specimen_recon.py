@@ -81,12 +81,19 @@ def test_points_in_a_specimen_found_at_their_true_depths(backend, tmp_path, kw):
         assert scale == pytest.approx(o.axial_scale, abs=0.05), shallow
 
 
-def test_the_depth_range_starts_at_the_specimens_surface():
-    """The default range begins no nearer than the specimen's surface, and a range reaching in
-    front of it is refused by name: nothing emits there, and the bank could not be traced."""
+def test_the_depth_range_starts_with_guard_planes_in_front_of_the_specimens_surface():
+    """Where the specimen's surface cuts the default range, the range starts the guard depth
+    in front of it (1.2 z₁: 105 µm in the paper's gel at its 7 µm default step); a given
+    range reaching in front of the surface is taken as it is."""
+    import math
+
     from lfsim import small_optics
-    from recon.errors import InputError
-    from recon.settings import ReconSettings, default_z_limit_um
+    from recon.settings import (
+        FRONT_GUARD_Z1,
+        ReconSettings,
+        default_front_guard_um,
+        default_z_limit_um,
+    )
 
     air = ReconSettings().resolved(small_optics())
     zlim = default_z_limit_um(small_optics(), air.z_step_um)
@@ -98,8 +105,14 @@ def test_the_depth_range_starts_at_the_specimens_surface():
     for focus in (300.0, 0.0, -130.0):
         o = small_optics(**{**GEL, "focus_depth_um": focus})
         r = ReconSettings().resolved(o)
-        assert o.surface_z_um <= r.z_min_um < o.surface_z_um + r.z_step_um
+        guard = default_front_guard_um(o, r.z_step_um)
+        # z₁ in the gel: the 25 µm object-space pitch over 2 tan θ, in true depth
+        z1 = 25.0 / (2 * math.tan(math.asin(0.2)) * o.axial_scale)
+        assert z1 == pytest.approx(83.2, abs=0.1)
+        assert guard == math.ceil(FRONT_GUARD_Z1 * z1 / r.z_step_um) * r.z_step_um == 105.0
+        first = o.surface_z_um - guard
+        assert first <= r.z_min_um < first + r.z_step_um
         assert r.z_max_um == default_z_limit_um(o, r.z_step_um)
         z0 = o.surface_z_um - 10.0
-        with pytest.raises(InputError, match=r"^z_min_um=.*near surface.*z_min_um >= "):
-            ReconSettings(z_min_um=z0, z_max_um=600.0, z_step_um=5.0).resolved(o)
+        given = ReconSettings(z_min_um=z0, z_max_um=600.0, z_step_um=5.0).resolved(o)
+        assert given.z_min_um == z0
