@@ -115,12 +115,13 @@ def render_reference(
         return np.full((h, w), st.black_level, dtype=np.float32)
     if backend_info() is None:
         init_backend()
+    # A detection at a specimen's surface: the specimen goes on, as in the bank's guard planes.
     img = trace_paraxial(
         ropt,
         Sources.spheres(pos, st.sphere_diameter_um),
         RenderSettings(rays_per_particle=st.rays_per_particle, mode="expected", seed=st.seed),
-        virtual_front=True,  # a detection at a specimen's surface: the specimen goes on, as in
-    )  # the PSF bank's guard planes
+        virtual_front=True,
+    )
     return (np.asarray(img, dtype=np.float64) * st.counts_per_ray + st.black_level).astype(
         np.float32
     )

@@ -250,8 +250,7 @@ def default_z_limit_um(optics, z_step_um: float) -> float:
     """Half-width of the default depth range: ``6 p_obj / (tan θ · a)``, a multiple of the
     step (µm), with θ the acceptance half-angle in the immersion medium and ``a`` the ratio of
     apparent to true depth in the specimen (``6 p_obj / tan(asin NA)`` in air)."""
-    slope = math.tan(optics.theta_max) * optics.axial_scale
-    zlim = RANGE_PATTERN_LENSLETS * optics.lenslet_object_um / slope
+    zlim = RANGE_PATTERN_LENSLETS * optics.lenslet_object_um / _blur_slope(optics)
     return math.floor(zlim / z_step_um) * z_step_um
 
 
@@ -259,9 +258,15 @@ def default_front_guard_um(optics, z_step_um: float) -> float:
     """Depth of the guard planes in front of a specimen's near surface (µm, a multiple of the
     step): :data:`FRONT_GUARD_Z1` times the true depth ``z₁ = p_obj / (2 tan θ · a)`` over
     which a point's blur at the array grows by one lenslet (``a`` the ratio of apparent to
-    true depth; 83 µm in the paper's gel of index 1.35, a guard of 100 µm)."""
-    z1 = optics.lenslet_object_um / (2.0 * math.tan(optics.theta_max) * optics.axial_scale)
+    true depth; 83 µm in the paper's gel of index 1.35, a guard of 100 µm at a 5 µm step)."""
+    z1 = optics.lenslet_object_um / (2.0 * _blur_slope(optics))
     return math.ceil(FRONT_GUARD_Z1 * z1 / z_step_um - 1e-9) * z_step_um
+
+
+def _blur_slope(optics) -> float:
+    """Growth of a point's blur radius (object space) per µm of true depth: ``tan θ · a``,
+    θ the acceptance half-angle in the immersion medium, ``a`` apparent over true depth."""
+    return math.tan(optics.theta_max) * optics.axial_scale
 
 
 def _first_plane_in_specimen_um(optics, z_step_um: float) -> float:
