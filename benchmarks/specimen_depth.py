@@ -116,6 +116,7 @@ def main() -> int:
         ap,
         {
             "--as-air": "reconstruct as if the specimen were air",
+            "--each": "print every source's axial error",
             "--self-calibration": "subtract the reconstruction's bias measured on noise-free "
             "spheres rendered through the model at the detections (recon.reference, as "
             "[track.axial])",
@@ -243,6 +244,8 @@ def main() -> int:
             f"{int(ok.sum())}/{len(err)} found",
             flush=True,
         )
+        if args.each:
+            print("    axial errors (µm): " + " ".join(f"{e:+.1f}" for e in err[:, 2]), flush=True)
     if len(set(true_z)) < 2:
         print(f"one depth: no axial scale; {time.perf_counter() - t0:.0f} s")
         return 0
