@@ -168,8 +168,8 @@ def test_guard_planes_in_front_of_a_gel_continue_it_as_in_the_ray_bank():
     """Planes in front of a specimen's surface (guard planes) are modelled as the specimen going
     on: the wave bank's Gibson–Lanni phase continues analytically, the ray bank refracts
     virtually (tests/lfsim/test_specimen.py). A point's blur then grows across the surface at
-    the gel's rate, where air or glass in front would steepen it by 1 / axial_scale = 1.36 or
-    more, and the two banks' blurs agree at every plane."""
+    the gel's rate, where air in front would steepen it by 1 / axial_scale = 1.36, and the two
+    banks' blurs agree at every plane."""
     from lfsim.backend import backend_info, init_backend
     from recon.psf import compute_psf_bank
 
