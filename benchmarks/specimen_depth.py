@@ -196,10 +196,11 @@ def main() -> int:
     z_surface = o.surface_z_um if "depths_below_surface" in setup else 0.0
     if "z_range_from_surface" in setup:
         r0, r1, rdz = setup["z_range_from_surface"]
-        first = np.ceil(z_surface / rdz) * rdz
+        at_surface = np.ceil(z_surface / rdz) * rdz
+        first = at_surface + r0
         if model.has_interfaces:  # the library's guard planes in front of the surface
             first -= default_front_guard_um(model, rdz)
-        setup = {**setup, "z_range": (first + r0, first + r1, rdz)}
+        setup = {**setup, "z_range": (first, at_surface + r1, rdz)}
     z0, z1, dz = args.z_range or setup["z_range"]
     depths = depth_range(z0, z1, dz)
     t0 = time.perf_counter()
