@@ -24,6 +24,7 @@ import re
 from datetime import UTC, datetime
 from pathlib import Path
 
+from .config import AS_AIR
 from .errors import StudyError
 
 log = logging.getLogger(__name__)
@@ -136,8 +137,9 @@ def _coverage_of(summary: dict) -> tuple[int, dict] | None:
 def _coverage_overview(loaded) -> list[str]:
     """The uncertainty coverage of every report's variants side by side, and pooled over the
     studies (each variant weighted by its number of errors): the fraction of errors within
-    1σ and 2σ per axis, 68.3 % and 95.4 % for a right σ."""
-    rows, pooled = [], {}
+    1σ and 2σ per axis, 68.3 % and 95.4 % for a right σ. The ``as_air`` variants, the
+    specimen deliberately left out of the model, are listed but not pooled."""
+    rows, pooled, unpooled = [], {}, False
     for _report, _md, data in loaded:
         name = data["study"]["experiment"]["experiment"]["name"]
         for variant, v in data["variants"].items():
@@ -147,6 +149,9 @@ def _coverage_overview(loaded) -> list[str]:
             n, cov = got
             cells = [f"{100 * cov[ax, 1]:.0f} / {100 * cov[ax, 2]:.0f}" for ax in "xyz"]
             rows.append(f"| {name} ({variant}) | {n} | " + " | ".join(cells) + " |")
+            if variant == AS_AIR:
+                unpooled = True
+                continue
             for key, frac in cov.items():
                 if frac == frac:  # not NaN
                     s, w = pooled.get(key, (0.0, 0))
@@ -169,6 +174,15 @@ def _coverage_overview(loaded) -> list[str]:
         *rows,
         f"| **all studies** | {n_all} | " + " | ".join(f"**{c}**" for c in total) + " |",
         "",
+        *(
+            [
+                f"The {AS_AIR} variants (the specimen left out of the model on purpose) are not in "
+                "the row *all studies*.",
+                "",
+            ]
+            if unpooled
+            else []
+        ),
     ]
 
 
@@ -178,7 +192,7 @@ def _overview_rows(data: dict) -> tuple[list[str], list[str]]:
     name = data["study"]["experiment"]["experiment"]["name"]
     for row in data.get("comparison", []):
         cells = []
-        for variant in ("mismatched", "matched", "as_air"):
+        for variant in ("mismatched", "matched", AS_AIR):
             if variant not in row:
                 cells.append("")
                 continue

@@ -39,6 +39,18 @@ def test_coverage_is_pooled_over_studies_weighted_by_their_errors():
     assert not any(ln.startswith("| c ") for ln in rows)
 
 
+def test_the_as_air_variant_is_listed_but_not_pooled():
+    """The specimen left out of the model on purpose (z errors of 26 %) says nothing about σ."""
+    loaded = [_report("gel", mismatched=_summary(100, 0.70, 0.96), as_air=_summary(100, 0.0, 0.0))]
+    lines = _coverage_overview(loaded)
+    rows = [ln for ln in lines if ln.startswith("| ")]
+    assert "| gel (as_air) | 100 | 0 / 0 | 0 / 0 | 0 / 0 |" in rows
+    assert rows[-1] == "| **all studies** | 100 | " + " | ".join(["**70 / 96**"] * 3) + " |"
+    assert any("as_air variants" in ln for ln in lines)
+    lines = _coverage_overview([_report("gel", mismatched=_summary(100, 0.70, 0.96))])
+    assert not any("as_air" in ln for ln in lines)
+
+
 @pytest.mark.parametrize("summary", [{}, {"u_coverage_n": 0}])
 def test_no_coverage_table_without_uncertainties(summary):
     assert _coverage_overview([_report("a", mismatched=summary)]) == []
