@@ -407,6 +407,8 @@ def _series_record(
         "fingerprint": fp,
         "status": "incomplete",
         "optics": optics.to_dict(),
+        # the specimen's near surface: the planes in front of it are guard planes (track)
+        "surface_z_um": optics.surface_z_um if optics.has_interfaces else None,
         "calibration": grid.to_dict(),
         "settings": st.to_dict(),
         "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
@@ -540,6 +542,7 @@ class _FrameModel:
     writer: object
     reader: object
     solver: object = richardson_lucy
+    surface_z_um: float | None = None
 
     def close(self) -> None:
         self.reader.close()
@@ -596,6 +599,7 @@ def _frame_model(
         writer,
         FrameReader(),
         richardson_lucy if solver is None else solver,
+        ropt.surface_z_um if ropt.has_interfaces else None,
     )
 
 
@@ -662,9 +666,11 @@ def reconstruct_frame(job, model: _FrameModel) -> dict:
             "origin_xy_um": list(model.origin_xy_um),
             "iterations": res.iterations,
             # the lenslet period and phase travel with a TIFF copied without recon.json
-            # (track.volumes.lenslet_phases), and so does the frame's SNR
+            # (track.volumes.lenslet_phases), and so do the frame's SNR and the specimen's
+            # near surface
             "grid": rgrid.to_dict(),
             "snr": pinfo["snr"],
+            "surface_z_um": model.surface_z_um,
         },
     )
     return {

@@ -448,6 +448,7 @@ def detect_particles(
     lenslet_period_vox: int | None = None,
     lenslet_phase_vox: Sequence[int] = (0, 0),
     snr: float | None = None,
+    surface_z_um: float | None = None,
 ) -> Detection:
     """Find and localise particles in a reconstructed volume.
 
@@ -485,6 +486,13 @@ def detect_particles(
         SNR of the camera frame the volume was reconstructed from
         (:attr:`track.volumes.VolumeInfo.snr`), for ``DetectSettings.sigma_snr_um``; needed
         when that is set.
+    surface_z_um : float, optional
+        Object ``z`` (µm) of the specimen's near surface
+        (:attr:`track.volumes.VolumeInfo.surface_z_um`): the planes in front of it are the
+        reconstruction's guard planes, where nothing emits. A particle found more than one
+        depth step in front of it (the reconstruction of a particle at the surface lies
+        within that) is rejected (``report["rejections"]["in_front_of_surface"]``). None
+        (default): no surface.
 
     Returns
     -------
@@ -501,6 +509,8 @@ def detect_particles(
     vol, spacing, origin, settings, psf, snr_term_um = _check_inputs(
         volume, voxel_size_um, settings, psf, origin_xyz_um, snr
     )
+    with raised_as(InputError):
+        surface_z_um = None if surface_z_um is None else finite_float(surface_z_um, "surface_z_um")
     report: dict = {"volume_shape": list(vol.shape), "voxel_size_um": list(spacing)}
     if snr is not None:
         report["snr"] = float(snr)
@@ -537,6 +547,7 @@ def detect_particles(
         loc_vol = seg_vol
         report["localized_on"] = "band-passed"
     located = _localize_blobs(loc_vol, accepted, spacing, settings, snr_term_um, report)
+    located = _beyond_surface(located, spacing, origin, surface_z_um, report)
     timings["localize_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - t0
     return _detection(located, spacing, origin, settings, seg.threshold, report, timings)
@@ -743,6 +754,24 @@ def _localize_blobs(
         rand_zyx_um,
         np.array([b.peak for b in accepted], dtype=float)[keep],
         np.array([b.n_vox for b in accepted], dtype=np.int64)[keep],
+    )
+
+
+def _beyond_surface(located: _Located, spacing, origin, surface_z_um, report) -> _Located:
+    """The particles no more than one depth step in front of the specimen's near surface
+    (``z >= surface_z_um - dz``); the others are counted in ``report["rejections"]``."""
+    if surface_z_um is None:
+        return located
+    report["surface_z_um"] = surface_z_um
+    z_um = origin[2] + located.pos_vox[:, 0] * spacing[0]
+    keep = z_um >= surface_z_um - spacing[0]
+    report["rejections"]["in_front_of_surface"] = int(np.count_nonzero(~keep))
+    return _Located(
+        located.pos_vox[keep],
+        located.sig_zyx_um[keep],
+        located.rand_zyx_um[keep],
+        located.intensities[keep],
+        located.sizes[keep],
     )
 
 

@@ -94,6 +94,7 @@ def _detect_frame(job, ctx) -> dict:
         lenslet_period_vox=v.lenslet_period_vox,
         lenslet_phase_vox=v.lenslet_phase_vox,
         snr=v.snr,
+        surface_z_um=v.surface_z_um,
     )
     part = numbered(out / "particles", v.frame, ".csv")
     write_points_csv(

@@ -234,13 +234,16 @@ def _scan(volumes) -> tuple[list[VolumeInfo], dict]:
 
 def _volume_parameters(vols: Sequence[VolumeInfo], settings) -> dict:
     """The detection's inputs recorded in ``summary.json`` (and fingerprinted): its settings,
-    the frame numbers, lenslet periods and camera SNRs of the volumes."""
+    the frame numbers, lenslet periods, camera SNRs and specimen surface of the volumes."""
     params = {"detect": _settings_dict(settings)}
     if any(v.frame != v.index for v in vols):  # the particle tables' names
         params["frame_numbers"] = [v.frame for v in vols]
     periods = sorted({v.lenslet_period_vox for v in vols if v.lenslet_period_vox is not None})
     if periods:  # an input of the detector (recon.json): a folder detected without it is redone
         params["lenslet_period_vox"] = periods
+    surfaces = sorted({v.surface_z_um for v in vols if v.surface_z_um is not None})
+    if surfaces:  # detections in front of it are rejected
+        params["surface_z_um"] = surfaces
     if any(settings.sigma_snr_um):  # the frames' SNR sets their σ
         unknown = [v for v in vols if v.snr is None]
         if unknown:

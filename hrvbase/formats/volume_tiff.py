@@ -36,6 +36,7 @@ from .volumes import (
     parse_frame_time,
     parse_origin,
     parse_snr,
+    parse_surface,
     parse_voxel_size,
 )
 
@@ -120,6 +121,10 @@ def _volume(k: int, p: Path, recon: Mapping, folder: Path) -> tuple[VolumeInfo, 
     # recon.json's record of the frame, else the SNR recon wrote into the TIFF
     snrs = frame_snrs(recon, where)
     snr = snrs[k] if k in snrs else parse_snr(meta.get("snr"), str(p))
+    # recon.json's specimen surface, else the one recon wrote into the TIFF
+    surface = (
+        parse_surface(recon, where) if "surface_z_um" in recon else parse_surface(meta, str(p))
+    )
     records = frame_records(recon, where)
     if k in records:
         number, time_s = records[k]
@@ -138,6 +143,7 @@ def _volume(k: int, p: Path, recon: Mapping, folder: Path) -> tuple[VolumeInfo, 
         number=number,
         time_s=time_s,
         format=NAME,
+        surface_z_um=surface,
     )
     return info, dtype
 

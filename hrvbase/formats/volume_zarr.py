@@ -25,7 +25,15 @@ import numpy as np
 from ..errors import InputError
 from ..io import read_json
 from .tiff_layout import quiet
-from .volumes import RECON_JSON, VolumeInfo, check_frames, frame_records, frame_snrs, lenslet_phases
+from .volumes import (
+    RECON_JSON,
+    VolumeInfo,
+    check_frames,
+    frame_records,
+    frame_snrs,
+    lenslet_phases,
+    parse_surface,
+)
 
 #: Name of this format in the registry.
 NAME = "ome-zarr"
@@ -175,9 +183,10 @@ def scan(store: str | os.PathLike) -> list[VolumeInfo]:
             f"{store}: frame(s) t = {', '.join(map(str, missing[:5]))} not written yet "
             f"({RECON_JSON} has no volume for them; an interrupted recon run?)"
         )
-    lenslet, snrs, records = (None, (0, 0)), {}, {}
+    lenslet, snrs, records, surface = (None, (0, 0)), {}, {}, None
     if isinstance(recon, Mapping):
         lenslet = lenslet_phases(recon, vs, (x0, y0, z0), str(recon_json))
+        surface = parse_surface(recon, str(recon_json))
         snrs = frame_snrs(recon, str(recon_json))
         records = frame_records(recon, str(recon_json))
     t_unit = (
@@ -204,6 +213,7 @@ def scan(store: str | os.PathLike) -> list[VolumeInfo]:
                 number=number,
                 time_s=time_s,
                 format=NAME,
+                surface_z_um=surface,
             )
         )
     return check_frames(out, str(recon_json) if records else str(store))

@@ -89,6 +89,11 @@ class VolumeInfo(VolumeGeometry):
         ``time_s``, or an OME-Zarr t axis in a unit of time; None when unknown.
     format : str or None
         The name of the volume format that read it (:mod:`hrvbase.formats.registry`).
+    surface_z_um : float or None
+        Object ``z`` (µm) of the specimen's near surface, from ``recon.json``'s
+        ``surface_z_um`` (``lfsim.optics.Optics.surface_z_um``): the planes in front of it
+        (smaller ``z``) are the reconstruction's guard planes, where no particle can lie.
+        None when the optics have no specimen interfaces or it is not recorded.
     """
 
     path: Path
@@ -101,6 +106,7 @@ class VolumeInfo(VolumeGeometry):
     number: int | None = None
     time_s: float | None = None
     format: str | None = None
+    surface_z_um: float | None = None
 
     @property
     def frame(self) -> int:
@@ -249,6 +255,17 @@ def parse_snr(value, where: str) -> float | None:
     return float(value)
 
 
+def parse_surface(recon: Mapping, where: str) -> float | None:
+    """The specimen's near surface ``recon.json`` records (``surface_z_um``, µm; None:
+    none)."""
+    value = recon.get("surface_z_um")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(f"{where}: surface_z_um must be a finite number or null, got {value!r}")
+    return float(value)
+
+
 def frame_snrs(recon: Mapping, where: str) -> dict[int, float | None]:
     """The SNR of each frame ``recon.json`` records (``frames[i].preprocess.snr``), by index."""
     out = {}
@@ -356,6 +373,7 @@ __all__ = [
     "parse_frame_time",
     "parse_origin",
     "parse_snr",
+    "parse_surface",
     "parse_voxel_size",
     "record_entry",
 ]

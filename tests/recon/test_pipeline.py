@@ -98,6 +98,9 @@ def test_dataset_folder_reconstructs_and_finds_particles(dataset, tmp_path, caps
         assert vols[0].lenslet_phase_vox == (0, 0)
         # ... and so does each frame's measured SNR
         assert [v.snr for v in vols] == [f["preprocess"]["snr"] for f in meta["frames"]]
+        # ... and the specimen's surface: none in air
+        assert [v.surface_z_um for v in vols] == [None] * 3
+    assert meta["surface_z_um"] is None and vmeta["surface_z_um"] is None
     # the SNR recon measures on each raw frame is the simulator's (its definition, paper
     # §4.1), within the spread of the 99.9th percentile of this small image (90 000 px)
     truth_snr = [r["noise"]["snr"] for r in read_json(dataset / "dataset.json")["frame_records"]]

@@ -426,6 +426,30 @@ def test_sigma_snr_term_falls_as_one_over_the_frame_snr(scene):
     np.testing.assert_array_equal(off.sigma_xyz_um, base.sigma_xyz_um)
 
 
+def test_particles_in_front_of_the_specimens_surface_are_rejected(scene):
+    """The guard planes in front of a specimen's surface hold no particle: a detection more
+    than one depth step in front of it is rejected and counted; the others are unchanged."""
+    vol, _ = scene
+    st = DetectSettings(deconvolution_iterations=0)
+    origin = (3.0, -2.0, -100.0)
+    base = detect_particles(vol, VOXEL, st, origin_xyz_um=origin)
+    z = base.positions_um[:, 2]
+    surface = float(np.median(z))  # about half of them in front of it
+    det = detect_particles(vol, VOXEL, st, origin_xyz_um=origin, surface_z_um=surface)
+    keep = z >= surface - VOXEL[0]
+    assert 5 <= np.count_nonzero(~keep) and np.count_nonzero(keep) >= base.n // 2
+    np.testing.assert_array_equal(det.positions_um, base.positions_um[keep])
+    np.testing.assert_array_equal(det.sigma_xyz_um, base.sigma_xyz_um[keep])
+    np.testing.assert_array_equal(det.intensities, base.intensities[keep])
+    assert det.report["rejections"]["in_front_of_surface"] == np.count_nonzero(~keep)
+    assert det.report["surface_z_um"] == surface
+    # a surface in front of every particle changes nothing
+    det = detect_particles(vol, VOXEL, st, origin_xyz_um=origin, surface_z_um=z.min() - 1.0)
+    np.testing.assert_array_equal(det.positions_um, base.positions_um)
+    with pytest.raises(InputError, match="surface_z_um must be a finite number"):
+        detect_particles(vol, VOXEL, st, surface_z_um=float("nan"))
+
+
 def test_resolved_neighbours_are_split_not_rejected(rng):
     """Two particles 1.7 FWHM apart along z join at the threshold of the band-passed volume
     (one elongated blob); they are resolved, so both are found, each where it is."""

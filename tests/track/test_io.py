@@ -271,6 +271,19 @@ def test_each_volume_knows_its_camera_snr(tmp_path):
         volumes.scan_volumes(tmp_path)
 
 
+def test_each_volume_knows_the_specimens_surface(tmp_path):
+    """recon.json's ``surface_z_um`` (where the guard planes end), else the TIFF's metadata;
+    a bad one is refused naming the file; none: None."""
+    for k in range(2):
+        _volume(tmp_path / f"{k:06d}.tif", meta={"surface_z_um": -12.5} if k else None)
+    assert [v.surface_z_um for v in volumes.scan_volumes(tmp_path)] == [None, -12.5]
+    (tmp_path / "recon.json").write_text(json.dumps({"surface_z_um": 40}))
+    assert [v.surface_z_um for v in volumes.scan_volumes(tmp_path)] == [40.0, 40.0]
+    (tmp_path / "recon.json").write_text(json.dumps({"surface_z_um": "deep"}))
+    with pytest.raises(InputError, match=r"recon\.json: surface_z_um must be a finite number"):
+        volumes.scan_volumes(tmp_path)
+
+
 def test_mismatched_voxel_sizes(tmp_path):
     _volume(tmp_path / "000000.tif")
     _volume(tmp_path / "000001.tif", vs=(5.0, 1.7, 1.6))

@@ -142,6 +142,32 @@ def test_a_lenslet_period_appearing_in_recon_json_is_a_new_input(tmp_path):
     assert track_volumes(vols, out, detect=det).frames[0].reused  # and then it resumes
 
 
+def test_detections_in_front_of_the_specimens_surface_are_dropped(tmp_path):
+    """recon.json's specimen surface reaches the detection of every frame: what lies more than
+    a depth step in front of it is dropped from the particle tables, and a new surface is a
+    new input."""
+    vols = tmp_path / "vols"
+    _volumes(vols)
+    det = track.DetectSettings(deconvolution_iterations=0)
+    base = track_volumes(vols, tmp_path / "base", detect=det)
+    z = np.concatenate([f.positions_um[:, 2] for f in base.frames])
+    surface = float(np.median(z))
+    dz = track.volumes.scan_volumes(vols)[0].voxel_size_um[0]
+    (vols / "recon.json").write_text(json.dumps({"surface_z_um": surface}))
+    out = tmp_path / "res"
+    res = track_volumes(vols, out, detect=det)
+    assert res.summary["parameters"]["surface_z_um"] == [surface]
+    for f, g in zip(res.frames, base.frames, strict=True):
+        keep = g.positions_um[:, 2] >= surface - dz
+        np.testing.assert_array_equal(f.positions_um, g.positions_um[keep])
+        assert f.report["rejections"]["in_front_of_surface"] == np.count_nonzero(~keep)
+        assert len(tables.read_points_csv(out / "particles" / f"{f.index:06d}.csv")) == keep.sum()
+    assert sum(f.report["rejections"]["in_front_of_surface"] for f in res.frames) > 0
+    (vols / "recon.json").write_text(json.dumps({"surface_z_um": surface - 50}))
+    with pytest.raises(InputError, match="other inputs or settings"):
+        track_volumes(vols, out, detect=det)
+
+
 def test_the_snr_term_needs_every_frame_snr_and_follows_it(tmp_path):
     """sigma_snr_um on volumes without a camera SNR is refused before anything is written;
     with recon.json's SNRs each frame's σ follows its own, and a changed SNR is a new input."""
