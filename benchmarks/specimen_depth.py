@@ -27,7 +27,8 @@ Set-ups (``--setup``):
 
 Usage::
 
-    python benchmarks/specimen_depth.py --setup gel [--as-air] [--self-calibration] [-s 5]
+    python benchmarks/specimen_depth.py --setup gel [--as-air] [--self-calibration]
+        [--calibration-steps 2] [-s 5]
         [--iterations 8] [--per-depth 16] [--repeats 4] [--depths 50 100]
 """
 
@@ -106,18 +107,23 @@ def _localise(vol, grid, depths, pts, s, axial_um=60.0):
 
 
 def _self_calibrated(found, model, proj, filt, grid, depths, args):
-    """``found`` less the bias of noise-free model spheres at ``found`` (NaN rows kept)."""
+    """``found`` less the bias of noise-free model spheres (NaN rows kept): measured at
+    ``found``, then at the positions each step corrected them to (``--calibration-steps``,
+    ``[track.axial] steps``)."""
     from recon.deconvolve import richardson_lucy
     from recon.reference import ReferenceSettings, render_reference
 
     ok = np.isfinite(found[:, 2])
     if not ok.any():
         return found
-    ref = render_reference(found[ok], model, ReferenceSettings(black_level=0.0))
-    vol = richardson_lucy(ref.astype(np.float32), proj, args.iterations, depth_filter=filt)
-    bias = _localise(vol.volume, grid, depths, found[ok], args.s) - found[ok]
+    at = found[ok]
+    for _ in range(args.calibration_steps):
+        ref = render_reference(at, model, ReferenceSettings(black_level=0.0))
+        vol = richardson_lucy(ref.astype(np.float32), proj, args.iterations, depth_filter=filt)
+        bias = np.nan_to_num(_localise(vol.volume, grid, depths, at, args.s) - at)
+        at = found[ok] - bias
     out = found.copy()
-    out[ok] = found[ok] - np.nan_to_num(bias)
+    out[ok] = at
     return out
 
 
@@ -147,6 +153,12 @@ def main() -> int:
         help="reconstructed depths (µm) instead of the set-up's: first, last, step; a "
         "particle's reconstruction is ~1.4 × 100 µm long in a gel, so the volume must reach "
         "that far beyond the shallowest and deepest sources",
+    )
+    ap.add_argument(
+        "--calibration-steps",
+        type=int,
+        default=1,
+        help="fixed-point steps of the self-calibration (default 1; [track.axial] steps)",
     )
     ap.add_argument("-s", type=int, default=5)
     ap.add_argument("--iterations", type=int, default=8)
@@ -212,7 +224,9 @@ def main() -> int:
     rng = np.random.default_rng(7)
     print(
         f"setup {args.setup}{' reconstructed as air' if args.as_air else ''}"
-        f"{' with the self-calibration' if args.self_calibration else ''}: native plane "
+        f"{' with the self-calibration' if args.self_calibration else ''}"
+        f"{f' ({args.calibration_steps} steps)' if args.calibration_steps > 1 else ''}"
+        ": native plane "
         f"{o.native_plane_depth_um:.1f} µm below the surface (focal shift "
         f"{o.focal_shift_um:.1f} µm), axial scale {o.axial_scale:.4f}; s = {args.s}, "
         f"z step {dz} µm, {args.iterations} iterations"

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from hrvbase.errors import InputError
-from track.axial_bias import AxialCalibration, correct_table, reference_bias
+from track.axial_bias import AxialCalibration, apply_bias, correct_table, reference_bias
 
 log = logging.getLogger(__name__)
 
@@ -261,22 +261,32 @@ def correct_series(
         tables.append(src)
         positions.append(read_points_csv(src))
     halves = _half_boxes(frames, detect)
-    refs = reference_volumes(
-        positions,
-        axial_dir,
-        optics=model.optics,
-        grid=model.grid,
-        recon_settings=model.settings,
-        settings=reference_settings(axial),
-        progress=progress,
-        parallel=parallel,
-    )
-    corrected, record = [], []
-    infos = scan_volumes(refs[0].parent)
-    for k, (src, pos, info) in enumerate(zip(tables, positions, infos, strict=True)):
-        bias = reference_bias(
-            read_volume(info), info.voxel_size_um, info.origin_xyz_um, pos, halves[k]
+    # Step 1 measures the bias at the detections; step k at the positions step k - 1
+    # corrected them to (AxialCalibration.steps), in its own work folder.
+    at, biases = positions, None
+    for step in range(1, axial.steps + 1):
+        if biases is not None:
+            at = [
+                apply_bias(p, b, lateral=axial.lateral)
+                for p, b in zip(positions, biases, strict=True)
+            ]
+        refs = reference_volumes(
+            at,
+            axial_dir if step == 1 else axial_dir / f"step{step}",
+            optics=model.optics,
+            grid=model.grid,
+            recon_settings=model.settings,
+            settings=reference_settings(axial),
+            progress=progress,
+            parallel=parallel,
         )
+        infos = scan_volumes(refs[0].parent)
+        biases = [
+            reference_bias(read_volume(info), info.voxel_size_um, info.origin_xyz_um, p, half)
+            for p, info, half in zip(at, infos, halves, strict=True)
+        ]
+    corrected, record = [], []
+    for k, (src, bias) in enumerate(zip(tables, biases, strict=True)):
         dst = axial_dir / "particles" / f"{k:06d}.csv"
         record.append({"frame": k, **correct_table(src, dst, bias, lateral=axial.lateral)})
         corrected.append(dst)

@@ -101,6 +101,38 @@ def test_calibrated_run_lowers_the_position_bias(volumes, tmp_path, capsys):
         assert np.array_equal(pa[:, :2], pb[:, :2]) and not np.array_equal(pa[:, 2], pb[:, 2])
 
 
+def test_a_second_fixed_point_step_measures_the_bias_where_the_first_put_the_particles(
+    volumes, tmp_path, capsys
+):
+    """``[track.axial] steps = 2``: the second references are rendered at the positions the
+    first step corrected (in ``axial/step2``), and the corrected positions are no worse."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert run(capsys, "axial", volumes / "vol", "-o", one)[0] == 0
+    cfg = tmp_path / "track.toml"
+    cfg.write_text("[track.axial]\nsteps = 2\n", "utf-8")
+    rc, _, err = run(capsys, "axial", volumes / "vol", "-o", two, "--track-config", cfg)
+    assert rc == 0, err
+    record = json.loads((two / "axial" / "axial_calibration.json").read_text("utf-8"))
+    assert record["settings"]["steps"] == 2
+    # step 1 is the one-step run: the same references
+    for f in sorted((one / "axial" / "frames").glob("*.tif")):
+        assert f.read_bytes() == (two / "axial" / "frames" / f.name).read_bytes()
+    assert len(list((two / "axial" / "step2" / "volumes").glob("*.tif"))) == 2
+    truth = volumes / "ds" / "truth"
+    e = {}
+    for name, out in (("detected", one / "detect"), ("one", one / "axial"), ("two", two / "axial")):
+        e[name] = _errors(truth, sorted((out / "particles").glob("*.csv")))
+    # the second step moves the positions, by less than the first
+    move1 = np.abs(e["one"][:, 2] - e["detected"][:, 2])
+    move2 = np.abs(e["two"][:, 2] - e["one"][:, 2])
+    assert 0 < np.median(move2) < np.median(move1)
+    rms = {k: np.sqrt(np.mean(v[:, 2] ** 2)) for k, v in e.items()}
+    assert rms["two"] < 1.05 * rms["one"] < rms["detected"], rms
+    cfg.write_text("[track.axial]\nsteps = 0\n", "utf-8")
+    rc, _, err = run(capsys, "axial", volumes / "vol", "-o", tmp_path / "x", "--track-config", cfg)
+    assert rc == 2 and "steps must be an integer in 1..5" in err
+
+
 def test_calibrated_run_refusals(volumes, tmp_path, capsys):
     vol = volumes / "vol"
     # volumes without their recon record

@@ -79,6 +79,10 @@ def test_correct_table_keeps_sigma_and_intensity(tmp_path):
         ({"sphere_diameter_um": 0}, "sphere_diameter_um"),
         ({"rays_per_particle": 10}, "rays_per_particle"),
         ({"lateral": "yes"}, "lateral must be true or false"),
+        ({"steps": 0}, r"steps must be an integer in 1\.\.5"),
+        ({"steps": 6}, r"steps must be an integer in 1\.\.5"),
+        ({"steps": 1.5}, "steps must be an integer from 1 to 5"),
+        ({"steps": True}, "steps must be an integer from 1 to 5"),
     ],
 )
 def test_axial_calibration_settings_are_checked(kwargs, message):
