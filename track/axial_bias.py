@@ -60,8 +60,8 @@ class AxialCalibration:
         ``p = t + b(t)`` and leaves ``b(t) − b(p) ≈ −b′ b`` where the bias changes with depth;
         step ``k`` renders the references at the positions corrected by step ``k − 1`` and
         measures the bias there, at the cost of one more reference per frame. In the paper's
-        gel 400 µm below the surface (raw bias −7.3 µm) one step leaves −1.2 µm, two
-        −0.7 µm (``benchmarks/specimen_depth.py --calibration-steps``).
+        gel 400 µm below the surface (raw bias −7.3 µm) one step leaves −1.03 ± 0.13 µm, two
+        −0.64 ± 0.11 µm (16 sources; ``benchmarks/specimen_depth.py --calibration-steps``).
     """
 
     method: str = "none"
