@@ -69,6 +69,7 @@ from .segment import (
     median_and_sigma,
     segment,
 )
+from .surface import beyond_surface
 
 log = logging.getLogger(__name__)
 
@@ -547,7 +548,7 @@ def detect_particles(
         loc_vol = seg_vol
         report["localized_on"] = "band-passed"
     located = _localize_blobs(loc_vol, accepted, spacing, settings, snr_term_um, report)
-    located = _beyond_surface(located, spacing, origin, surface_z_um, report)
+    located = beyond_surface(located, spacing, origin, surface_z_um, report)
     timings["localize_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - t0
     return _detection(located, spacing, origin, settings, seg.threshold, report, timings)
@@ -754,24 +755,6 @@ def _localize_blobs(
         rand_zyx_um,
         np.array([b.peak for b in accepted], dtype=float)[keep],
         np.array([b.n_vox for b in accepted], dtype=np.int64)[keep],
-    )
-
-
-def _beyond_surface(located: _Located, spacing, origin, surface_z_um, report) -> _Located:
-    """The particles no more than one depth step in front of the specimen's near surface
-    (``z >= surface_z_um - dz``); the others are counted in ``report["rejections"]``."""
-    if surface_z_um is None:
-        return located
-    report["surface_z_um"] = surface_z_um
-    z_um = origin[2] + located.pos_vox[:, 0] * spacing[0]
-    keep = z_um >= surface_z_um - spacing[0]
-    report["rejections"]["in_front_of_surface"] = int(np.count_nonzero(~keep))
-    return _Located(
-        located.pos_vox[keep],
-        located.sig_zyx_um[keep],
-        located.rand_zyx_um[keep],
-        located.intensities[keep],
-        located.sizes[keep],
     )
 
 

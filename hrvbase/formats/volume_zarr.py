@@ -96,6 +96,20 @@ def _transforms(items, where: str, ndim: int) -> tuple[np.ndarray, np.ndarray]:
     return scale, shift
 
 
+def _recon_records(recon, vs, origin_xyz_um, where: str) -> tuple:
+    """What a store's ``recon.json`` records of its frames: the lenslet period and phase, the
+    frames' SNRs, their numbers and times, and the specimen's near surface (none without
+    one)."""
+    if not isinstance(recon, Mapping):
+        return (None, (0, 0)), {}, {}, None
+    return (
+        lenslet_phases(recon, vs, origin_xyz_um, where),
+        frame_snrs(recon, where),
+        frame_records(recon, where),
+        parse_surface(recon, where),
+    )
+
+
 def scan(store: str | os.PathLike) -> list[VolumeInfo]:
     """The frames of an OME-Zarr image as volumes, without reading voxels.
 
@@ -183,12 +197,7 @@ def scan(store: str | os.PathLike) -> list[VolumeInfo]:
             f"{store}: frame(s) t = {', '.join(map(str, missing[:5]))} not written yet "
             f"({RECON_JSON} has no volume for them; an interrupted recon run?)"
         )
-    lenslet, snrs, records, surface = (None, (0, 0)), {}, {}, None
-    if isinstance(recon, Mapping):
-        lenslet = lenslet_phases(recon, vs, (x0, y0, z0), str(recon_json))
-        surface = parse_surface(recon, str(recon_json))
-        snrs = frame_snrs(recon, str(recon_json))
-        records = frame_records(recon, str(recon_json))
+    lenslet, snrs, records, surface = _recon_records(recon, vs, (x0, y0, z0), str(recon_json))
     t_unit = (
         axes[0].get("unit") if lead_names[:1] == ["t"] and isinstance(axes[0], Mapping) else None
     )
