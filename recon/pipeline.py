@@ -397,6 +397,12 @@ def _first_frame(ref, grid, pp, n, roi_xy_px):
     return first, geom
 
 
+def _surface_z_um(optics) -> float | None:
+    """The specimen's near surface (µm; the planes in front of it are guard planes, where
+    ``track`` rejects particles); None without interfaces."""
+    return optics.surface_z_um if optics.has_interfaces else None
+
+
 def _series_record(
     fp, optics, grid, st, pp, dark_sum, rgrid, key, scene_mla_kind, writer, par
 ) -> dict:
@@ -407,8 +413,7 @@ def _series_record(
         "fingerprint": fp,
         "status": "incomplete",
         "optics": optics.to_dict(),
-        # the specimen's near surface: the planes in front of it are guard planes (track)
-        "surface_z_um": optics.surface_z_um if optics.has_interfaces else None,
+        "surface_z_um": _surface_z_um(optics),
         "calibration": grid.to_dict(),
         "settings": st.to_dict(),
         "preprocess": {**pp.to_dict(), "dark_sha256": dark_sum},
@@ -599,7 +604,7 @@ def _frame_model(
         writer,
         FrameReader(),
         richardson_lucy if solver is None else solver,
-        ropt.surface_z_um if ropt.has_interfaces else None,
+        _surface_z_um(ropt),
     )
 
 
