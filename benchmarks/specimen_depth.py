@@ -22,13 +22,15 @@ Set-ups (``--setup``):
   that a particle 50 µm below the surface lies 178 µm of apparent depth beyond it, beyond the
   150 µm docs/real_data.md ("Where to focus") asks for.
 - ``water40``: a 40×/0.8 water objective into water behind a 170 µm cover glass it is
-  corrected for, lenslets matched to its NA (f/25, 100 µm), true depths −15 … 15 µm.
+  corrected for, lenslets matched to its NA (f/25, 100 µm), true depths −15 … 15 µm; 1 µm
+  particles, 3 iterations and the detection box of the 40× studies, and the bank
+  ``psf_model = "auto"`` picks (wave optics at this NA), as ``recon run``.
 - ``air``: the paper's optics in air, true depths 50–600 µm (the baseline of the pipeline).
 
 Usage::
 
     python benchmarks/specimen_depth.py --setup gel [--as-air] [--self-calibration]
-        [--calibration-steps 2] [-s 5]
+        [--calibration-steps 1] [-s 5]
         [--iterations 8] [--per-depth 16] [--repeats 4] [--depths 50 100]
 """
 
@@ -77,14 +79,23 @@ SETUPS = {
         "optics": WATER_40X_OPTICS,
         "depths": np.arange(-15.0, 15.1, 3.0),
         "z_range": (-20.0, 20.0, 0.5),
+        # The whole reconstructed range is 40 µm deep: a match must be nearer than that.
+        "match_axial_um": 10.0,
+        # As the 40× studies (scenes/experiments/water40x_translation_z_test.toml): 1 µm
+        # particles, 3 iterations, their detection box and threshold.
+        "diameter_um": 1.0,
+        "iterations": 3,
+        "rays": 50_000,
+        "detect": {"psf_box_um": (8.0, 6.0, 6.0), "threshold": 0.25},
     },
 }
 
 
-def _localise(vol, grid, depths, pts, s, axial_um=60.0):
+def _localise(vol, grid, depths, pts, s, axial_um=60.0, detect=None):
     """Detections of the track detector (its defaults, as ``track run``) matched to the points
-    (nearest within 20 µm laterally and ``axial_um`` in depth; NaN where none)."""
-    from track.detect import detect_particles
+    (nearest within 0.8 lenslet laterally, 20 µm with the paper's optics, and ``axial_um`` in
+    depth; NaN where none)."""
+    from track.detect import DetectSettings, detect_particles
 
     vox = grid.voxel_um
     x0, y0 = grid.x_um()[0], grid.y_um()[0]
@@ -93,6 +104,7 @@ def _localise(vol, grid, depths, pts, s, axial_um=60.0):
         (depths[1] - depths[0], vox, vox),
         origin_xyz_um=(x0, y0, depths[0]),
         lenslet_period_vox=s,
+        settings=DetectSettings(**(detect or {})),
     )
     xyz = np.asarray(det.positions_um)
     out = np.full((len(pts), 3), np.nan)
@@ -100,7 +112,9 @@ def _localise(vol, grid, depths, pts, s, axial_um=60.0):
         if len(xyz) == 0:
             break
         d = xyz - p
-        ok = (np.hypot(d[:, 0], d[:, 1]) < 20.0) & (np.abs(d[:, 2]) < axial_um)
+        ok = (np.hypot(d[:, 0], d[:, 1]) < 0.8 * grid.lenslet_object_um) & (
+            np.abs(d[:, 2]) < axial_um
+        )
         if ok.any():
             out[k] = xyz[np.flatnonzero(ok)[np.argmin(np.sum(d[ok] ** 2, axis=1))]]
     return out
@@ -118,9 +132,12 @@ def _self_calibrated(found, model, proj, filt, grid, depths, args):
         return found
     at = found[ok]
     for _ in range(args.calibration_steps):
-        ref = render_reference(at, model, ReferenceSettings(black_level=0.0))
+        ref = render_reference(
+            at, model, ReferenceSettings(sphere_diameter_um=args.diameter_um, black_level=0.0)
+        )
         vol = richardson_lucy(ref.astype(np.float32), proj, args.iterations, depth_filter=filt)
-        bias = np.nan_to_num(_localise(vol.volume, grid, depths, at, args.s) - at)
+        found_ref = _localise(vol.volume, grid, depths, at, args.s, args.match_um, args.detect)
+        bias = np.nan_to_num(found_ref - at)
         at = found[ok] - bias
     out = found.copy()
     out[ok] = at
@@ -129,6 +146,7 @@ def _self_calibrated(found, model, proj, filt, grid, depths, args):
 
 def main() -> int:
     from hrvbase.cli import add_flags
+    from track.axial_bias import AxialCalibration
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--setup", choices=sorted(SETUPS), default="gel")
@@ -160,12 +178,15 @@ def main() -> int:
     ap.add_argument(
         "--calibration-steps",
         type=int,
-        default=1,
-        help="fixed-point steps of the self-calibration (default 1; [track.axial] steps)",
+        default=AxialCalibration().steps,
+        help="fixed-point steps of the self-calibration (default: [track.axial] steps, "
+        f"{AxialCalibration().steps})",
     )
     ap.add_argument("-s", type=int, default=5)
-    ap.add_argument("--iterations", type=int, default=8)
-    ap.add_argument("--rays", type=int, default=400_000, help="rays per source")
+    ap.add_argument(
+        "--iterations", type=int, help="Richardson-Lucy iterations (default: the set-up's, or 8)"
+    )
+    ap.add_argument("--rays", type=int, help="rays per source (default: the set-up's, or 400 000)")
     ap.add_argument(
         "--per-depth",
         type=int,
@@ -182,7 +203,9 @@ def main() -> int:
         "its own noise seed (default 1; sources per depth = repeats x per-depth)",
     )
     ap.add_argument(
-        "--diameter-um", type=float, default=15.0, help="source diameter (µm; default 15)"
+        "--diameter-um",
+        type=float,
+        help="source and reference sphere diameter (µm; default: the set-up's, or 15)",
     )
     args = ap.parse_args()
 
@@ -196,6 +219,7 @@ def main() -> int:
     from recon.geometry import ReconGrid, depth_range
     from recon.projector import LightFieldProjector
     from recon.psf import compute_psf_bank
+    from recon.psf_wave import choose_psf_model, compute_wave_psf_bank
     from recon.settings import default_front_guard_um
 
     init_backend()
@@ -217,9 +241,17 @@ def main() -> int:
             first -= default_front_guard_um(model, rdz)
         setup = {**setup, "z_range": (first, at_surface + r1, rdz)}
     z0, z1, dz = args.z_range or setup["z_range"]
+    args.match_um = setup.get("match_axial_um", 60.0)
+    args.detect = setup.get("detect")
+    for name, default in (("iterations", 8), ("rays", 400_000), ("diameter_um", 15.0)):
+        if getattr(args, name) is None:
+            setattr(args, name, setup.get(name, default))
     depths = depth_range(z0, z1, dz)
     t0 = time.perf_counter()
-    bank = compute_psf_bank(model, depths, args.s, rays_per_pattern=100_000, progress=True)
+    if choose_psf_model(model) == "wave":  # as recon run's psf_model = "auto"
+        bank = compute_wave_psf_bank(model, depths, args.s, progress=True)
+    else:
+        bank = compute_psf_bank(model, depths, args.s, rays_per_pattern=100_000, progress=True)
     proj = LightFieldProjector(bank, (20, 20))
     filt = DepthFilter.for_optics(model, depths, args.s)
     origin = (-o.axis_xy_px[0] * o.object_pixel_um, -o.axis_xy_px[1] * o.object_pixel_um)
@@ -256,8 +288,8 @@ def main() -> int:
             img = trace_mitsuba(scene, Sources.spheres(pts, args.diameter_um), settings)
             vol = richardson_lucy(img.astype(np.float32), proj, args.iterations, depth_filter=filt)
             # Reconstructed as air, a particle lies about 26 % of its depth too shallow.
-            window = 60.0 + (0.4 * abs(z) if args.as_air else 0.0)
-            found = _localise(vol.volume, grid, depths, pts, args.s, window)
+            window = args.match_um + (0.4 * abs(z) if args.as_air else 0.0)
+            found = _localise(vol.volume, grid, depths, pts, args.s, window, args.detect)
             raws.append(found - pts)
             if args.self_calibration:
                 found = _self_calibrated(found, model, proj, filt, grid, depths, args)
