@@ -140,7 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
         "track volumes with the simulator self-calibration of their position bias",
         "Detect the particles of VOLDIR, render noise-free spheres at the detections through "
         "the microscope model of VOLDIR/recon.json, reconstruct them as the volumes were, "
-        "subtract each sphere's offset, then link and grid (RESULTS/track).",
+        "subtract each sphere's offset (measured again where the first correction put the "
+        "particles: [track.axial] steps, default 2), then link and grid (RESULTS/track).",
         cmd_axial,
         ("RESULTS", "results folder"),
     )

@@ -43,8 +43,9 @@ are relative to the TOML file's folder. Lengths in µm::
                                    # on simulated spheres at the detected positions
     sphere_diameter_um = 15        # the spheres: the particles' diameter (at most 1.5x from
                                    #   [particles] diameter_um)
-    steps = 1                      # fixed-point steps: 2 measures the bias again where the
-                                   #   first step put the particles (one more reference)
+    steps = 2                      # fixed-point steps: the second measures the bias again
+                                   #   where the first put the particles (one more
+                                   #   reference per frame; 1: the first step only)
 
 Each section is a table (``[study]``, not ``study = "series"``); a section or key of
 another type is an error naming it and what is expected. Every key of ``[recon]`` and
