@@ -148,6 +148,7 @@ def main() -> int:
     from hrvbase.cli import add_flags
     from track.axial_bias import AxialCalibration
 
+    default_steps = AxialCalibration().steps
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--setup", choices=sorted(SETUPS), default="gel")
     add_flags(
@@ -178,9 +179,9 @@ def main() -> int:
     ap.add_argument(
         "--calibration-steps",
         type=int,
-        default=AxialCalibration().steps,
-        help="fixed-point steps of the self-calibration (default: [track.axial] steps, "
-        f"{AxialCalibration().steps})",
+        default=default_steps,
+        help=f"fixed-point steps of the self-calibration (default: [track.axial] steps, "
+        f"{default_steps})",
     )
     ap.add_argument("-s", type=int, default=5)
     ap.add_argument(
