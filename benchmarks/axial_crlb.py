@@ -27,14 +27,16 @@ each, then their root mean square). The paper's optics (4×/0.2 dry, f/10 lensle
 the paper's specimen (n = 1.35 on a 170 µm glass bottom, focused 200 µm in, as in
 ``scenes/paper_4x_gel.xml``).
 
-Then the studies' geometry, gel against air at the same true depths: the worst step of
-``fig5b_axial_layer`` (a layer moved from 160 to 660 µm in 20 µm steps, each step's
-displacement from the first frame) and the z displacements of ``fig6c_simple_shear``
-(particles 100–400 µm deep).
+Then the studies' geometry, gel against air: the worst step of ``fig5b_axial_layer`` (a layer
+moved from 160 to 660 µm in 20 µm steps, each step's displacement from the first frame) and
+the z displacements of ``fig6c_simple_shear`` (particles 100–400 µm deep); by default the gel's
+at the same true depths, with ``--gel-layer`` and ``--gel-box`` where its study puts them
+(``fig5b_axial_layer_gel``: 220 → 720 µm; ``fig6c_simple_shear_gel``: 210–510 µm).
 
 Usage::
 
     python benchmarks/axial_crlb.py [--depths 100 160 300 500 660] [--s 3] [--snr 17] [--step 2]
+    python benchmarks/axial_crlb.py --depths 160 --gel-layer 220 720 20 --gel-box 210 510
 """
 
 from __future__ import annotations
@@ -98,33 +100,41 @@ def _profile(optics, zs, args, sampling) -> np.ndarray:
 
 
 def _studies(air, gel, args, sampling) -> None:
-    """The bound on the studies' z displacement errors, gel against air at the same true depths:
-    a layer moved from ``--layer`` Z0 to Z1 in STEP steps (fig5b: each step's displacement from
-    the first frame, two positions), and particles spread uniformly over ``--box`` Z0 … Z1 whose
-    z does not change (fig6c: the RMS over depths, two positions)."""
-    z0, z1, dz = args.layer
-    zs = np.arange(z0, z1 + dz / 2, dz)
+    """The bound on the studies' z displacement errors, gel against air: a layer moved from
+    ``--layer`` Z0 to Z1 in STEP steps (fig5b: each step's displacement from the first frame,
+    two positions), and particles spread uniformly over ``--box`` Z0 … Z1 whose z does not
+    change (fig6c: the RMS over depths, two positions); the gel's at ``--gel-layer`` and
+    ``--gel-box`` (default: the same true depths as air's)."""
+    layers = {"air": args.layer, "gel": args.gel_layer or args.layer}
+    boxes = {"air": args.box, "gel": args.gel_box or args.box}
     steps = {}
     for name, optics in (("air", air), ("gel", gel)):
-        c = _profile(optics, zs, args, sampling)
+        z0, z1, dz = layers[name]
+        c = _profile(optics, np.arange(z0, z1 + dz / 2, dz), args, sampling)
         steps[name] = np.sqrt(c[0] ** 2 + c[1:] ** 2)
+    if len(steps["gel"]) != len(steps["air"]):
+        raise SystemExit("axial_crlb: --gel-layer must have as many steps as --layer")
     worst = steps["gel"].max() / steps["air"].max()
     median = np.median(steps["gel"] / steps["air"])
     print(
-        f"layer {z0:g} → {z1:g} µm in {dz:g} µm steps (fig5b): worst-step bound air "
-        f"{steps['air'].max():.3f} µm, gel {steps['gel'].max():.3f} µm, ratio {worst:.3f}; "
+        f"layer (fig5b) air {_span(layers['air'])}, gel {_span(layers['gel'])}: worst-step bound "
+        f"air {steps['air'].max():.3f} µm, gel {steps['gel'].max():.3f} µm, ratio {worst:.3f}; "
         f"median step ratio {median:.3f}"
     )
-    b0, b1 = args.box
-    zs = np.arange(b0, b1 + 1.0, 20.0)
-    rms = {
-        name: float(np.sqrt(2.0 * np.mean(_profile(optics, zs, args, sampling) ** 2)))
-        for name, optics in (("air", air), ("gel", gel))
-    }
+    rms = {}
+    for name, optics in (("air", air), ("gel", gel)):
+        zs = np.arange(boxes[name][0], boxes[name][1] + 1.0, 20.0)
+        rms[name] = float(np.sqrt(2.0 * np.mean(_profile(optics, zs, args, sampling) ** 2)))
     print(
-        f"box {b0:g} … {b1:g} µm (fig6c): RMS bound of a z displacement air {rms['air']:.3f} µm, "
+        f"box (fig6c) air {boxes['air'][0]:g} … {boxes['air'][1]:g} µm, gel {boxes['gel'][0]:g} … "
+        f"{boxes['gel'][1]:g} µm: RMS bound of a z displacement air {rms['air']:.3f} µm, "
         f"gel {rms['gel']:.3f} µm, ratio {rms['gel'] / rms['air']:.3f}"
     )
+
+
+def _span(layer) -> str:
+    z0, z1, dz = layer
+    return f"{z0:g} → {z1:g} µm in {dz:g} µm steps"
 
 
 def main() -> None:
@@ -132,6 +142,8 @@ def main() -> None:
     ap.add_argument("--depths", type=float, nargs="+", default=[100.0, 160.0, 300.0, 500.0, 660.0])
     ap.add_argument("--layer", type=float, nargs=3, default=[160.0, 660.0, 20.0])
     ap.add_argument("--box", type=float, nargs=2, default=[100.0, 400.0])
+    ap.add_argument("--gel-layer", type=float, nargs=3, help="the gel's layer (default: --layer)")
+    ap.add_argument("--gel-box", type=float, nargs=2, help="the gel's box (default: --box)")
     ap.add_argument("--s", type=int, default=3, help="source positions per lenslet and axis")
     ap.add_argument("--snr", type=float, default=17.0)
     ap.add_argument("--step", type=float, default=2.0, help="finite-difference step (true µm)")

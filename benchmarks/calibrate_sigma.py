@@ -79,10 +79,11 @@ LATERAL_DEPTHS_UM = (10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0)
 # -- the runs ----------------------------------------------------------------------------------
 def raw_toml(src: Path, seed: int | None, *, single: bool = False, no_axial: bool = False) -> str:
     """``src``'s text with absolute scene paths, ``seed`` (None: kept) and no σ settings;
-    ``single``: without the matched-model variant; ``no_axial``: without ``[track.axial]``."""
+    ``single``: without the matched-model and specimen-left-out variants; ``no_axial``:
+    without ``[track.axial]``."""
     text = src.read_text(encoding="utf-8")
     if single:
-        text = re.sub(r"^matched\s*=.*\n", "", text, flags=re.M)
+        text = re.sub(r"^(matched|specimen_as_air)\s*=.*\n", "", text, flags=re.M)
     if no_axial:
         text = re.sub(r"^\[track\.axial\]\n(?:[^\[].*\n|\n)*", "", text, flags=re.M)
     for key in ("scene", "recon_scene"):
@@ -404,7 +405,7 @@ def main(argv=None) -> int:
             "--keep-tracks": "do not redo detection",
             "--write": "update scenes/experiments/*_test.toml: the named studies' files, or for "
             "the default group every test-size file that does not run [track.axial]",
-            "--single": "run the studies without their matched variant",
+            "--single": "run the studies without their matched and as_air variants",
             "--no-axial": "run the studies without [track.axial]",
             "--lateral": "fit x and y together (one lateral model: the calibration runs' motions "
             "need not be symmetric in x and y)",
