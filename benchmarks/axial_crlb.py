@@ -112,8 +112,6 @@ def _studies(air, gel, args, sampling) -> None:
         z0, z1, dz = layers[name]
         c = _profile(optics, np.arange(z0, z1 + dz / 2, dz), args, sampling)
         steps[name] = np.sqrt(c[0] ** 2 + c[1:] ** 2)
-    if len(steps["gel"]) != len(steps["air"]):
-        raise SystemExit("axial_crlb: --gel-layer must have as many steps as --layer")
     worst = steps["gel"].max() / steps["air"].max()
     median = np.median(steps["gel"] / steps["air"])
     print(
@@ -130,6 +128,11 @@ def _studies(air, gel, args, sampling) -> None:
         f"{boxes['gel'][1]:g} µm: RMS bound of a z displacement air {rms['air']:.3f} µm, "
         f"gel {rms['gel']:.3f} µm, ratio {rms['gel'] / rms['air']:.3f}"
     )
+
+
+def _steps(layer) -> int:
+    z0, z1, dz = layer
+    return len(np.arange(z0, z1 + dz / 2, dz))
 
 
 def _span(layer) -> str:
@@ -149,6 +152,8 @@ def main() -> None:
     ap.add_argument("--step", type=float, default=2.0, help="finite-difference step (true µm)")
     ap.add_argument("--oversample", type=int, default=None, help="wave sampling (default: auto)")
     args = ap.parse_args()
+    if args.gel_layer and _steps(args.gel_layer) != _steps(args.layer):
+        ap.error("--gel-layer: as many steps as --layer")
 
     from lfsim.backend import backend_info, init_backend
     from lfsim.wave import WaveSampling
